@@ -1,0 +1,106 @@
+"""The one validation helper used at public boundaries.
+
+Every public function coerces its array arguments through :func:`as_array` so a caller
+mistake is reported with the argument's name, the expected shape and the actual one,
+instead of surfacing as a broadcasting error from deep inside numpy.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+__all__ = ["as_array", "as_positive", "broadcast_arrays", "check_finite"]
+
+
+def _shape_str(shape: Sequence[int | None | str]) -> str:
+    parts = []
+    for s in shape:
+        parts.append("..." if s == "..." else ("N" if s is None else str(s)))
+    return "(" + ", ".join(parts) + ("," if len(parts) == 1 else "") + ")"
+
+
+def as_array(
+    x,
+    name: str,
+    shape: Sequence[int | None | str] | None = None,
+    *,
+    finite: bool = True,
+    dtype=float,
+) -> np.ndarray:
+    """Coerce ``x`` to an array and check its shape and finiteness.
+
+    Parameters
+    ----------
+    x : array_like
+        The value supplied by the caller.
+    name : str
+        The argument's name, used in the error message.
+    shape : sequence, optional
+        Expected shape. ``"..."`` as the first entry admits any leading axes; ``None``
+        admits any length on that axis. ``(..., 3)`` is a batch of 3-vectors.
+    finite : bool
+        Reject NaN and infinity.
+    dtype : numpy dtype
+        Target dtype (float by default).
+
+    Returns
+    -------
+    numpy.ndarray
+
+    Raises
+    ------
+    ValueError
+        With the expected and the actual shape, or the position of the first
+        non-finite value.
+    """
+    try:
+        arr = np.asarray(x, dtype=dtype)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: expected numbers, got {type(x).__name__} ({exc})") from None
+    if shape is not None:
+        shape = tuple(shape)
+        if shape and shape[0] == "...":
+            tail = shape[1:]
+            ok = arr.ndim >= len(tail) and all(
+                t is None or arr.shape[arr.ndim - len(tail) + i] == t for i, t in enumerate(tail)
+            )
+        else:
+            ok = arr.ndim == len(shape) and all(t is None or a == t for a, t in zip(arr.shape, shape))
+        if not ok:
+            raise ValueError(
+                f"{name}: expected shape {_shape_str(shape)}, got {tuple(arr.shape)}"
+            )
+    if finite and arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+        bad = np.argwhere(~np.isfinite(arr))[0]
+        where = tuple(int(i) for i in bad)
+        raise ValueError(f"{name}: must be finite, found {arr[where] if where else arr} at index {where}")
+    return arr
+
+
+def as_positive(x, name: str, *, allow_zero: bool = False) -> float:
+    """A finite scalar > 0 (or >= 0 with ``allow_zero``)."""
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected a number, got {x!r}") from None
+    if not np.isfinite(v) or (v < 0 if allow_zero else v <= 0):
+        rel = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"{name}: must be finite and {rel}, got {v!r}")
+    return v
+
+
+def check_finite(arr: np.ndarray, name: str) -> None:
+    """Raise a ValueError naming ``name`` if ``arr`` holds NaN or infinity."""
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}: must be finite (found NaN or inf)")
+
+
+def broadcast_arrays(**arrays) -> list[np.ndarray]:
+    """Broadcast named arrays together, with an error that names them on failure."""
+    try:
+        return list(np.broadcast_arrays(*arrays.values()))
+    except ValueError:
+        shapes = ", ".join(f"{k}{tuple(np.shape(v))}" for k, v in arrays.items())
+        raise ValueError(f"shapes do not broadcast together: {shapes}") from None

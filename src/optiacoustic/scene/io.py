@@ -1,0 +1,243 @@
+"""Reading and writing scene files (YAML or JSON), with errors that name file, body and field.
+
+Schema (docs/scenes.md has it in full)::
+
+    name: my_scene                     # optional
+    description: ...                   # optional
+    view: {eye: [0, -6, 2], target: [0, 0, 0]}   # optional suggested sensor placement
+    bodies:
+      - name: seabed                   # unique
+        shape: plane                   # plane | box | sphere | ellipsoid | cylinder | mesh | klein_bottle
+        size: [60, 60]                 # shape parameters, see optiacoustic.scene.shapes
+        pose: {position: [0, 0, 0], rotation_deg: [0, 0, 0]}   # about x, then y, then z
+        material: {reflectivity: 0.5, color: [0.55, 0.5, 0.4], bottom_type: sand/shell}
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import yaml
+from pydantic import ValidationError
+
+from ..frames import Pose, euler_xyz_from_rotation
+from .model import Body, Material, Scene, SceneError, Texture, View
+from .shapes import SHAPES, Mesh
+
+__all__ = ["load_scene", "save_scene", "scene_from_dict", "scene_to_dict"]
+
+_TOP_KEYS = {"bodies", "name", "description", "view"}
+_BODY_KEYS = {"name", "shape", "pose", "material"}
+_POSE_KEYS = {"position", "rotation_deg"}
+
+
+def _fmt_loc(loc) -> str:
+    out = ""
+    for part in loc:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out
+
+
+def _fmt_validation(exc: ValidationError, prefix: str = "") -> tuple[str, str]:
+    """(field, message) of the first error of a pydantic ValidationError."""
+    err = exc.errors()[0]
+    fld = _fmt_loc(err.get("loc", ()))
+    if prefix:
+        fld = f"{prefix}.{fld}" if fld and not fld.startswith("[") else prefix + fld
+    msg = err.get("msg", "invalid")
+    if "input" in err and err.get("type") != "missing":
+        msg += f" (got {err['input']!r})"
+    more = len(exc.errors()) - 1
+    if more:
+        msg += f"; and {more} more error(s)"
+    return fld, msg
+
+
+def _vec3(value, fld: str, ctx) -> np.ndarray:
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise SceneError(ctx(fld, f"expected 3 numbers, got {value!r}")) from None
+    if arr.shape != (3,):
+        raise SceneError(ctx(fld, f"expected 3 numbers, got {value!r}"))
+    if not np.all(np.isfinite(arr)):
+        raise SceneError(ctx(fld, f"must be finite, got {value!r}"))
+    return arr
+
+
+def _body_from_dict(raw, index: int, source: str, base_dir: str) -> Body:
+    label = f"body #{index}"
+    if isinstance(raw, dict) and isinstance(raw.get("name"), str) and raw["name"].strip():
+        label = f"body '{raw['name']}' (#{index})"
+
+    def ctx(fld: str, msg: str) -> str:
+        return f"{source}: {label}: field '{fld}': {msg}"
+
+    if not isinstance(raw, dict):
+        raise SceneError(f"{source}: {label}: expected a mapping of fields, got {type(raw).__name__}")
+    for key in ("name", "shape"):
+        if key not in raw:
+            raise SceneError(ctx(key, "missing (required)"))
+    name = raw["name"]
+    if not isinstance(name, str) or not name.strip():
+        raise SceneError(ctx("name", f"must be a non-empty string, got {name!r}"))
+    shape_name = raw["shape"]
+    if shape_name not in SHAPES:
+        raise SceneError(ctx("shape", f"unknown shape {shape_name!r}; expected one of {sorted(SHAPES)}"))
+
+    # pose
+    pose_raw = raw.get("pose", {}) or {}
+    if not isinstance(pose_raw, dict):
+        raise SceneError(ctx("pose", f"expected a mapping with {sorted(_POSE_KEYS)}, got {pose_raw!r}"))
+    extra = set(pose_raw) - _POSE_KEYS
+    if extra:
+        raise SceneError(ctx(f"pose.{sorted(extra)[0]}", f"unknown field; expected {sorted(_POSE_KEYS)}"))
+    position = _vec3(pose_raw.get("position", [0, 0, 0]), "pose.position", ctx)
+    rotation = _vec3(pose_raw.get("rotation_deg", [0, 0, 0]), "pose.rotation_deg", ctx)
+    pose = Pose.from_euler_deg(position, rotation)
+
+    # material
+    mat_raw = raw.get("material", {}) or {}
+    if not isinstance(mat_raw, dict):
+        raise SceneError(ctx("material", f"expected a mapping, got {mat_raw!r}"))
+    try:
+        mat_kw = dict(mat_raw)
+        if isinstance(mat_kw.get("texture"), dict):
+            try:
+                mat_kw["texture"] = Texture(**mat_kw["texture"])
+            except ValidationError as exc:
+                raise SceneError(ctx(*_fmt_validation(exc, "material.texture"))) from None
+        material = Material(**mat_kw)
+    except ValidationError as exc:
+        raise SceneError(ctx(*_fmt_validation(exc, "material"))) from None
+
+    # shape parameters: everything else
+    params = {k: v for k, v in raw.items() if k not in _BODY_KEYS}
+    cls = SHAPES[shape_name]
+    if cls is Mesh:
+        params.setdefault("base_dir", base_dir)
+    try:
+        shape = cls(**params)
+    except ValidationError as exc:
+        fld, msg = _fmt_validation(exc)
+        if "Unexpected keyword argument" in msg:
+            allowed = [f.name for f in dataclasses.fields(cls) if f.name != "base_dir"]
+            msg = f"unknown field for shape '{shape_name}'; its fields are {allowed} plus {sorted(_BODY_KEYS)}"
+        raise SceneError(ctx(fld, msg)) from None
+    if cls is Mesh:
+        try:
+            shape.tessellate()
+        except ValueError as exc:
+            raise SceneError(ctx("file", str(exc))) from None
+    return Body(name, shape, pose, material)
+
+
+def scene_from_dict(data, source: str = "<dict>", base_dir: str = ".") -> Scene:
+    """Build a :class:`Scene` from the parsed contents of a scene file."""
+    if not isinstance(data, dict):
+        raise SceneError(f"{source}: expected a mapping with a 'bodies' list at the top, got {type(data).__name__}")
+    extra = set(data) - _TOP_KEYS
+    if extra:
+        raise SceneError(f"{source}: field '{sorted(extra)[0]}': unknown top-level field; expected {sorted(_TOP_KEYS)}")
+    bodies_raw = data.get("bodies")
+    if not isinstance(bodies_raw, list) or not bodies_raw:
+        raise SceneError(f"{source}: field 'bodies': expected a non-empty list of bodies, got {bodies_raw!r}")
+    bodies = [_body_from_dict(b, i, source, base_dir) for i, b in enumerate(bodies_raw)]
+    names = [b.name for b in bodies]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        i = names.index(dup[0], names.index(dup[0]) + 1)
+        raise SceneError(f"{source}: body '{dup[0]}' (#{i}): field 'name': duplicate body name")
+    view = None
+    if data.get("view") is not None:
+        try:
+            view = View(**data["view"]) if isinstance(data["view"], dict) else View(eye=data["view"])
+        except (ValidationError, TypeError) as exc:
+            msg = _fmt_validation(exc, "view")[1] if isinstance(exc, ValidationError) else str(exc)
+            raise SceneError(f"{source}: field 'view': {msg}") from None
+    return Scene(bodies, name=str(data.get("name", "") or ""), description=str(data.get("description", "") or ""), view=view)
+
+
+def load_scene(path) -> Scene:
+    """Load a scene file; mesh paths inside are relative to the file's folder."""
+    path = Path(path)
+    source = str(path)
+    if not path.is_file():
+        raise SceneError(f"{source}: scene file not found")
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SceneError(f"{source}: cannot read: {exc}") from None
+    try:
+        data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
+    except (json.JSONDecodeError, yaml.YAMLError) as exc:
+        kind = "JSON" if path.suffix.lower() == ".json" else "YAML"
+        raise SceneError(f"{source}: not valid {kind}: {exc}") from None
+    scene = scene_from_dict(data, source, str(path.parent.resolve()))
+    if not scene.name:
+        scene.name = path.stem
+    return scene
+
+
+def _clean(x):
+    if isinstance(x, (tuple, list, np.ndarray)):
+        return [_clean(v) for v in x]
+    if isinstance(x, (np.floating, float)):
+        v = float(x)
+        return int(v) if v.is_integer() and abs(v) < 1e9 else round(v, 9)
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    return x
+
+
+def scene_to_dict(scene: Scene, base_dir: str | None = None) -> dict:
+    """The scene as plain data in the file schema (mesh paths relative to ``base_dir``)."""
+    bodies = []
+    for b in scene:
+        d = {"name": b.name, "shape": b.shape.kind}
+        for f in dataclasses.fields(b.shape):
+            if f.name == "base_dir":
+                continue
+            val = getattr(b.shape, f.name)
+            if f.name == "file" and isinstance(b.shape, Mesh):
+                val = b.shape.path
+                if base_dir is not None:
+                    val = os.path.relpath(os.path.abspath(val), os.path.abspath(base_dir))
+            if f.default is not dataclasses.MISSING and val == f.default and f.name not in ("size",):
+                continue
+            d[f.name] = _clean(val)
+        d["pose"] = {
+            "position": _clean(b.pose.t),
+            "rotation_deg": _clean(np.rad2deg(euler_xyz_from_rotation(b.pose.R))),
+        }
+        mat = {"reflectivity": b.material.reflectivity, "color": list(b.material.color)}
+        if b.material.texture is not None:
+            t = b.material.texture
+            mat["texture"] = {"kind": t.kind, "size": t.size, "color2": list(t.color2), "line_width": t.line_width}
+        if b.material.bottom_type is not None:
+            mat["bottom_type"] = b.material.bottom_type
+        d["material"] = _clean(mat)
+        bodies.append(d)
+    out: dict = {}
+    if scene.name:
+        out["name"] = scene.name
+    if scene.description:
+        out["description"] = scene.description
+    if scene.view is not None:
+        out["view"] = {"eye": _clean(scene.view.eye), "target": _clean(scene.view.target)}
+    out["bodies"] = bodies
+    return out
+
+
+def save_scene(scene: Scene, path) -> None:
+    path = Path(path)
+    data = scene_to_dict(scene, str(path.parent))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.suffix.lower() == ".json":
+        path.write_text(json.dumps(data, indent=2) + "\n")
+    else:
+        path.write_text(yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100))

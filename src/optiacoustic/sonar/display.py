@@ -1,0 +1,92 @@
+"""Displaying sonar images: the fan transform (sec. 2.6.2.4) and intensity-to-gray mappings."""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from .frame import FanImage
+from .spec import SonarSpec
+
+__all__ = ["polar_to_fan", "fan_geometry", "to_display", "save_png"]
+
+
+@functools.lru_cache(maxsize=32)
+def fan_geometry(spec: SonarSpec, width: int):
+    """Precomputed remap tables for a spec and output width (cached).
+
+    Returns ``(map_col, map_row, mask, extent, pixel_size)``: for each fan pixel, the
+    fractional beam (column) and bin (row) of the polar image to sample.
+    """
+    if not isinstance(width, (int, np.integer)) or width < 16:
+        raise ValueError(f"fan width: expected an integer >= 16 pixels, got {width!r}")
+    half = spec.fov_azimuth / 2
+    x_max = spec.range_max * np.sin(half)
+    y_min = min(0.0, spec.range_min * np.cos(half))
+    y_min = 0.0 if half < np.pi / 2 else y_min
+    px = 2 * x_max / width
+    height = int(np.ceil((spec.range_max - y_min) / px))
+    extent = (-x_max, x_max, spec.range_max - height * px, spec.range_max)
+    u = np.arange(width)
+    v = np.arange(height)
+    x = extent[0] + (u + 0.5) * px
+    y = extent[3] - (v + 0.5) * px
+    X, Y = np.meshgrid(x, y)
+    r = np.hypot(X, Y)
+    th = np.arctan2(X, Y)
+    mask = (np.abs(th) <= half) & (r >= spec.range_min) & (r <= spec.range_max)
+    col = spec.beam_index(th) - 0.5
+    row = spec.bin_index(r) - 0.5
+    col = np.where(mask, col, -10.0).astype(np.float32)
+    row = np.where(mask, row, -10.0).astype(np.float32)
+    for a in (col, row, mask):
+        a.setflags(write=False)
+    return col, row, mask, extent, px
+
+
+def polar_to_fan(image: np.ndarray, spec: SonarSpec, *, width: int = 800) -> FanImage:
+    """Resample a polar ``(n_bins, n_beams)`` image to the fan with ``cv2.remap`` (bilinear)."""
+    import cv2
+
+    img = np.asarray(image)
+    if img.shape != (spec.n_bins, spec.n_beams):
+        raise ValueError(f"image: expected shape (n_bins, n_beams) = {(spec.n_bins, spec.n_beams)}, got {img.shape}")
+    col, row, mask, extent, px = fan_geometry(spec, int(width))
+    src = np.ascontiguousarray(img, dtype=np.float32)
+    out = cv2.remap(src, col, row, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    out[~mask] = 0.0
+    return FanImage(out, mask, extent, px)
+
+
+def to_display(image: np.ndarray, *, mode: str = "db", dynamic_range_db: float = 45.0, reference=None,
+               gamma: float = 0.5, percentile: float = 99.5) -> np.ndarray:
+    """Map linear intensities to [0, 1] for display.
+
+    ``mode="db"``: ``10 log10(I / reference)`` over ``dynamic_range_db`` (reference: the
+    ``percentile`` of the positive values). ``mode="gamma"``: ``(I / reference) ** gamma``.
+    """
+    img = np.asarray(image, float)
+    pos = img[img > 0]
+    if reference is None:
+        reference = np.percentile(pos, percentile) if pos.size else 1.0
+    reference = max(float(reference), 1e-30)
+    if mode == "db":
+        with np.errstate(divide="ignore"):
+            db = 10 * np.log10(np.maximum(img, 1e-30) / reference)
+        return np.clip(1.0 + db / dynamic_range_db, 0.0, 1.0)
+    if mode == "gamma":
+        return np.clip(np.maximum(img, 0) / reference, 0, 1) ** gamma
+    raise ValueError(f"to_display: mode must be 'db' or 'gamma', got {mode!r}")
+
+
+def save_png(path, image01: np.ndarray, *, cmap: str = "copper", mask=None) -> None:
+    """Write a [0, 1] image with a matplotlib colormap as an 8-bit PNG (outside ``mask`` black)."""
+    import cv2
+    from matplotlib import colormaps
+
+    rgba = colormaps[cmap](np.clip(image01, 0, 1))
+    rgb = (rgba[..., :3] * 255 + 0.5).astype(np.uint8)
+    if mask is not None:
+        rgb[~np.asarray(mask)] = 0
+    cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))

@@ -1,0 +1,447 @@
+"""Image formation of a forward-looking imaging sonar (thesis sec. 2.6).
+
+The echo of beam ``j`` in range bin ``b`` is the integral over the beam's elevation
+aperture of the returns whose range falls in the bin:
+
+    E_j(b) = integral w(phi) G(r(phi)) rho(phi) cos(alpha(phi)) 1[r(phi) in bin b] dphi
+
+(eq. 2.10 for the Lambert term). It is computed by *tangent-plane footprint
+integration* (docs/physics.md): each ray stands for an elevation cell of width
+``dphi``; on the tangent plane at its hit the cell covers the range interval
+``r +- (dphi / 2) |dr/dphi|`` with ``dr/dphi = -r (n . d') / (n . d)``, and the cell's
+energy is spread uniformly over that interval and integrated exactly into range bins.
+So returns at equal range add up, shadows receive nothing, a steep surface leaves no
+empty bins between lit ones, and the image converges as ``elevation_samples`` grows.
+The fine range profile is then low-pass filtered and decimated to ``n_bins``.
+"""
+
+from __future__ import annotations
+
+import functools
+import threading
+import weakref
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from ..frames import Pose
+from ..raycast import RayCaster
+from ..scene import Scene
+from .frame import SonarFrame, SonarGroundTruth, SonarRays
+from .propagation import Seawater, two_way_gain
+from .spec import SonarSpec
+
+__all__ = ["SonarOptions", "simulate_sonar", "caster_for", "echo_profile"]
+
+#: Incidence cosines below this are clamped when sizing a ray's range footprint (about
+#: 88.9 deg): a grazing ray's tangent plane would otherwise stretch to infinity.
+_MIN_COS_FOOTPRINT = 0.02
+
+
+@dataclass(frozen=True)
+class SonarOptions:
+    """How the echo is formed. The defaults are the thesis's model.
+
+    Attributes
+    ----------
+    propagation : {"tvg", "spreading"}
+        ``"tvg"``: ideal time-varying gain, no range dependence (thesis). ``"spreading"``:
+        two-way spreading and absorption of the raw echo (``two_way_gain``).
+    water : Seawater
+        For the absorption when ``propagation="spreading"``.
+    elevation_pattern : {"uniform", "gaussian"}
+        Two-way elevation beam pattern inside the aperture: flat (thesis) or a Gaussian
+        taper that is -3 dB at the aperture's edges.
+    azimuth_pattern : bool
+        Spread each beam's echo over its neighbours with a Gaussian azimuth beam pattern
+        of one-way -3 dB width ``spec.beamwidth_azimuth`` (cross-beam leakage). Off in
+        the thesis's model.
+    range_oversample : int
+        Fine range samples per output bin before the anti-aliasing filter.
+    """
+
+    propagation: Literal["tvg", "spreading"] = "tvg"
+    water: Seawater = Seawater()
+    elevation_pattern: Literal["uniform", "gaussian"] = "uniform"
+    azimuth_pattern: bool = False
+    range_oversample: int = 2
+
+    def __post_init__(self):
+        if self.propagation not in ("tvg", "spreading"):
+            raise ValueError(f"SonarOptions.propagation: expected 'tvg' or 'spreading', got {self.propagation!r}")
+        if self.elevation_pattern not in ("uniform", "gaussian"):
+            raise ValueError(
+                f"SonarOptions.elevation_pattern: expected 'uniform' or 'gaussian', got {self.elevation_pattern!r}"
+            )
+        if not isinstance(self.range_oversample, (int, np.integer)) or not 1 <= self.range_oversample <= 16:
+            raise ValueError(f"SonarOptions.range_oversample: expected an integer in [1, 16], got {self.range_oversample!r}")
+        if not isinstance(self.water, Seawater):
+            raise ValueError("SonarOptions.water: expected a Seawater")
+
+
+# --------------------------------------------------------------------------- caching
+_CASTERS: "weakref.WeakKeyDictionary[Scene, RayCaster]" = weakref.WeakKeyDictionary()
+
+
+def caster_for(scene: Scene) -> RayCaster:
+    """The ray caster of ``scene``, built on first use and kept while the scene lives."""
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene: expected a Scene, got {type(scene).__name__}")
+    c = _CASTERS.get(scene)
+    if c is None:
+        c = _CASTERS[scene] = RayCaster(scene)
+    return c
+
+
+@functools.lru_cache(maxsize=16)
+def _ray_grid(spec: SonarSpec):
+    """Sonar-frame unit directions d and their elevation derivatives d' (K, J, 3), float32."""
+    th = spec.azimuths[None, :]
+    ph = spec.elevations[:, None]
+    st, ct, sp, cp = np.sin(th), np.cos(th), np.sin(ph), np.cos(ph)
+    d = np.stack(np.broadcast_arrays(cp * st, cp * ct, sp), -1)
+    dd = np.stack(np.broadcast_arrays(-sp * st, -sp * ct, cp), -1)
+    return d.reshape(-1, 3), dd.reshape(-1, 3)
+
+
+def _elevation_weights(spec: SonarSpec, pattern: str) -> np.ndarray:
+    ph = spec.elevations
+    if pattern == "uniform":
+        return np.ones_like(ph)
+    # Gaussian two-way power pattern, -3 dB (one half) at the aperture edges
+    return np.exp(-np.log(2.0) * (2.0 * ph / spec.fov_elevation) ** 2)
+
+
+@functools.lru_cache(maxsize=16)
+def _decimation_weights(n_bins: int, q: int, sigma_bins: float) -> np.ndarray:
+    """Anti-aliasing weights ``W[phase, delta]`` from fine sample ``q b' + phase`` to bin ``b' + delta``.
+
+    A Gaussian of ``sigma_bins`` (in output bins) evaluated between the fine sample's
+    centre and the output bin centres, normalised per fine sample so that energy is
+    conserved exactly.
+    """
+    D = int(np.ceil(3.5 * sigma_bins)) + 1
+    deltas = np.arange(-D, D + 1)
+    phase_pos = (np.arange(q) + 0.5) / q  # fine-sample centre within its bin, in bins
+    x = deltas[None, :] + 0.5 - phase_pos[:, None]
+    w = np.exp(-0.5 * (x / sigma_bins) ** 2)
+    return (w / w.sum(1, keepdims=True)).astype(np.float32), D
+
+
+_WORKSPACE = threading.local()
+
+
+def _workspace(name: str, shape: tuple, dtype) -> np.ndarray:
+    """A per-thread scratch array reused across frames (large fresh arrays cost page faults)."""
+    cache = getattr(_WORKSPACE, "arrays", None)
+    if cache is None:
+        cache = _WORKSPACE.arrays = {}
+    arr = cache.get(name)
+    if arr is None or arr.shape != shape or arr.dtype != dtype:
+        arr = cache[name] = np.empty(shape, dtype)
+    return arr
+
+
+def _decimate(fine: np.ndarray, n_bins: int, q: int, sigma_bins: float) -> np.ndarray:
+    """Low-pass filter then downsample ``fine`` (J, n_bins * q) to a new (J, n_bins) float32."""
+    W, D = _decimation_weights(n_bins, q, sigma_bins)
+    J = fine.shape[0]
+    padded = _workspace("decimate", (J, n_bins + 2 * D, q), np.float32)
+    padded[:, :D] = 0.0
+    padded[:, D + n_bins :] = 0.0
+    padded[:, D : D + n_bins] = fine.reshape(J, n_bins, q)
+    out = np.zeros((J, n_bins), np.float32)
+    # energy of fine block b' goes to bin b' + delta: out[b] += blocks[b - delta] . W[:, delta]
+    for k, delta in enumerate(range(-D, D + 1)):
+        out += padded[:, D - delta : D - delta + n_bins] @ W[:, k]
+    return out
+
+
+def _box_integrate(beam, lo, hi, energy, n_beams: int, n_cells: int, out=None) -> np.ndarray:
+    """Integrate boxes of ``energy`` spread uniformly over ``[lo, hi]`` (cell units) into cells.
+
+    Exact: a box is a step up at ``lo`` and a step down at ``hi``; the integral of a step
+    over cells is a linear two-cell deposit followed by a cumulative sum. Returns
+    ``(n_beams, n_cells)`` float64 (a view into ``out``, shape ``(n_beams, n_cells + 2)``,
+    when given).
+    """
+    n = len(lo)
+    stride = n_cells + 2
+    xs = np.empty(2 * n)
+    np.clip(lo, 0, n_cells, out=xs[:n])
+    np.clip(hi, 0, n_cells, out=xs[n:])
+    p = xs.astype(np.int64)  # floor: xs >= 0
+    f = xs - p
+    dens = np.empty(2 * n)
+    np.divide(energy, hi - lo, out=dens[:n])
+    np.negative(dens[:n], out=dens[n:])
+    base = np.empty(2 * n, np.int64)
+    base[:n] = beam
+    base[n:] = beam
+    base *= stride
+    base += p
+    if out is None:
+        out = np.zeros((n_beams, stride))
+    else:
+        out.fill(0.0)
+    flat = out.reshape(-1)
+    np.add.at(flat, base, dens - dens * f)
+    base += 1
+    np.add.at(flat, base, dens * f)
+    np.cumsum(out, axis=1, out=out)
+    res = out[:, :n_cells]
+    np.maximum(res, 0.0, out=res)  # rounding residue of exact cancellations
+    return res
+
+
+def echo_profile(spec: SonarSpec, rays: SonarRays, *, cells_per_bin: int = 1, select=None, out=None) -> np.ndarray:
+    """Box-integrate the rays' energy footprints into ``(n_beams, n_bins * cells_per_bin)``.
+
+    ``select`` (bool, rays' shape) restricts the sum to some rays.
+    """
+    hit = rays.energy > 0
+    if select is not None:
+        hit = hit & select
+    n = spec.n_bins * cells_per_bin
+    scale = cells_per_bin / spec.bin_width
+    lo = (rays.footprint_lo[hit] - spec.range_min) * scale
+    hi = (rays.footprint_hi[hit] - spec.range_min) * scale
+    return _box_integrate(rays.beam_index[hit], lo, hi, rays.energy[hit], spec.n_beams, n, out=out)
+
+
+# --------------------------------------------------------------------------- main entry
+def simulate_sonar(
+    scene: Scene,
+    spec: SonarSpec,
+    pose: Pose,
+    *,
+    noise=None,
+    seed=None,
+    options: SonarOptions | None = None,
+) -> SonarFrame:
+    """Simulate one frame of a forward-looking imaging sonar.
+
+    Parameters
+    ----------
+    scene : Scene
+    spec : SonarSpec
+        The sensor (``SonarSpec.preset(...)`` or your own).
+    pose : Pose
+        The sonar's pose in the world (body axes: X right, Y forward, Z up); build it
+        with ``Pose.look_at(eye, target)``.
+    noise : NoiseModel, False or None
+        Noise and reverberation applied to ``.image``. ``None`` is the default model
+        (thesis: Rayleigh-mixture bottom reverberation plus an ambient noise floor);
+        ``False`` makes ``.image`` equal ``.intensity``.
+    seed : int or numpy.random.Generator, optional
+        Seed of the noise.
+    options : SonarOptions, optional
+        Propagation, beam patterns, decimation.
+
+    Returns
+    -------
+    SonarFrame
+        ``.intensity`` (noise-free echo) and ``.image`` (with noise), both
+        ``(n_bins, n_beams)`` float32 in echo per metre of range; bin centres
+        ``.ranges`` (m), beam centres ``.azimuths`` (rad); ``.ground_truth`` (computed
+        on first access) and the per-ray data ``.rays``.
+    """
+    if not isinstance(spec, SonarSpec):
+        raise TypeError(f"spec: expected a SonarSpec, got {type(spec).__name__}")
+    if not isinstance(pose, Pose):
+        raise TypeError(f"pose: expected a Pose (e.g. Pose.look_at(eye, target)), got {type(pose).__name__}")
+    options = options or SonarOptions()
+    if not isinstance(options, SonarOptions):
+        raise TypeError(f"options: expected SonarOptions, got {type(options).__name__}")
+    if noise is not False:
+        from .noise import NoiseModel
+
+        if noise is None:
+            noise = NoiseModel()
+        elif not isinstance(noise, NoiseModel):
+            raise TypeError(f"noise: expected a NoiseModel, False or None, got {type(noise).__name__}")
+
+    caster = caster_for(scene)
+    rays = _scan(scene, caster, spec, pose, options)
+    intensity = _form_image(spec, rays, options)
+    shares = _seabed_shares(scene, spec, rays, options, intensity)
+    if noise is False:
+        image = intensity.copy()
+    else:
+        image = noise.apply(intensity, spec=spec, seabed_share=shares, rng=np.random.default_rng(seed), options=options)
+    intensity.setflags(write=False)
+    image.setflags(write=False)
+    gt = SonarGroundTruth(
+        rays.range.astype(np.float32),
+        functools.partial(_truth_maps, spec, rays),
+        functools.partial(_shadow_mask, scene, caster, spec, pose, rays),
+    )
+    return SonarFrame(spec=spec, pose=pose, intensity=intensity, image=image, ground_truth=gt, rays=rays,
+                      body_names=tuple(scene.body_names()), seabed_share=shares)
+
+
+def _form_image(spec: SonarSpec, rays: SonarRays, options: SonarOptions, select=None) -> np.ndarray:
+    """Rays -> (n_bins, n_beams) echo per metre: exact box integration, anti-aliasing, decimation."""
+    q = options.range_oversample
+    ws = _workspace("fine", (spec.n_beams, spec.n_bins * q + 2), np.float64)
+    fine = echo_profile(spec, rays, cells_per_bin=q, select=select, out=ws)
+    sigma_bins = max(spec.pulse_width / spec.bin_width / 2.3548, 0.5)
+    echo = _decimate(fine, spec.n_bins, q, sigma_bins)
+    if options.azimuth_pattern and spec.beamwidth_azimuth > 0:
+        from scipy.ndimage import gaussian_filter1d
+
+        sigma_beams = spec.beamwidth_azimuth / spec.beam_spacing / 2.3548
+        echo = gaussian_filter1d(echo, sigma_beams, axis=0, mode="constant", truncate=3.5)
+    # energy per bin -> density per metre of range: independent of the bin width
+    echo *= np.float32(1.0 / spec.bin_width)
+    return np.ascontiguousarray(echo.T)
+
+
+def _seabed_shares(scene: Scene, spec: SonarSpec, rays: SonarRays, options: SonarOptions, intensity) -> dict:
+    """Share of each cell's echo that comes from seabed bodies, per bottom type."""
+    types: dict[str, list[int]] = {}
+    for i, b in enumerate(scene.bodies):
+        if b.material.bottom_type is not None:
+            types.setdefault(b.material.bottom_type, []).append(i)
+    shares = {}
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for name, ids in types.items():
+            part = _form_image(spec, rays, options, select=np.isin(rays.body, ids))
+            share = np.where(intensity > 0, np.clip(part / intensity, 0.0, 1.0), 0.0).astype(np.float32)
+            share.setflags(write=False)
+            shares[name] = share
+    return shares
+
+def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options: SonarOptions) -> SonarRays:
+    """Cast the beams' rays and compute each ray's echo energy and range footprint (sec. 2.6.1)."""
+    d_s, dd_s = _ray_grid(spec)
+    d_w = d_s @ pose.R.T
+    dd_w = dd_s @ pose.R.T
+    hits = caster.cast(pose.t, d_w, max_distance=spec.range_max * 1.5)
+    K, J = spec.elevation_samples, spec.n_beams
+    hit = hits.body >= 0
+    r = hits.distance
+    n = hits.normal
+    refl = np.array([b.material.reflectivity for b in scene.bodies] + [0.0])
+    with np.errstate(invalid="ignore"):
+        nd = np.einsum("ij,ij->i", n, d_w)
+        ndd = np.einsum("ij,ij->i", n, dd_w)
+    cos_inc = np.where(hit, np.abs(nd), 0.0)
+    w_el = np.tile(_elevation_weights(spec, options.elevation_pattern)[:, None], (1, J)).reshape(-1)
+    energy = refl[hits.body] * cos_inc * w_el * spec.elevation_step
+    if options.propagation == "spreading":
+        energy = energy * np.where(hit, two_way_gain(np.where(hit, r, 1.0), spec.frequency, options.water), 0.0)
+    # range footprint of the ray's elevation cell on its tangent plane
+    with np.errstate(invalid="ignore", divide="ignore"):
+        slope = r * np.abs(ndd) / np.maximum(cos_inc, _MIN_COS_FOOTPRINT)
+    half = 0.5 * spec.elevation_step * slope
+    # a floor on the width keeps the box integral well conditioned (1e-4 of a bin)
+    half = np.maximum(half, 5e-5 * spec.bin_width)
+    lo = np.where(hit, r - half, np.nan)
+    hi = np.where(hit, r + half, np.nan)
+    beam = np.tile(np.arange(J), K)
+    elev = np.repeat(spec.elevations, J)
+    energy = np.where(hit, energy, 0.0)
+    return SonarRays(
+        range=np.where(hit, r, np.inf).reshape(K, J),
+        energy=energy.reshape(K, J),
+        body=hits.body.reshape(K, J),
+        cos_incidence=cos_inc.reshape(K, J),
+        footprint_lo=lo.reshape(K, J),
+        footprint_hi=hi.reshape(K, J),
+        beam_index=beam.reshape(K, J),
+        elevation=elev.reshape(K, J),
+        elevation_step=spec.elevation_step,
+    )
+
+
+def _truth_maps(spec: SonarSpec, rays: SonarRays):
+    """Per cell: the body of the strongest single contribution and the elevation span that echoes."""
+    B, J = spec.n_bins, spec.n_beams
+    ok = rays.energy > 0
+    inv = np.float32(1.0 / spec.bin_width)
+    lo = (rays.footprint_lo[ok].astype(np.float32) - np.float32(spec.range_min)) * inv
+    hi = (rays.footprint_hi[ok].astype(np.float32) - np.float32(spec.range_min)) * inv
+    inside = (hi > 0) & (lo < B)
+    lo, hi = lo[inside], hi[inside]
+    dens = (rays.energy[ok][inside] / (hi - lo)).astype(np.float32)
+    beam = rays.beam_index[ok][inside].astype(np.int32)
+    body = rays.body[ok][inside].astype(np.int64)
+    el = rays.elevation[ok][inside].astype(np.float32)
+    # expand each ray to the bins its footprint overlaps
+    b0 = np.clip(lo, 0, B - 1).astype(np.int32)
+    b1 = np.clip(hi, 0, B - 1).astype(np.int32)
+    cnt = b1 - b0 + 1
+    ray = np.repeat(np.arange(len(lo), dtype=np.int32), cnt)
+    step = np.ones(len(ray), np.int32)
+    first = np.cumsum(cnt) - cnt
+    step[first[1:]] = 1 - cnt[:-1]
+    step[0] = 0
+    b = b0[ray] + np.cumsum(step, dtype=np.int32)
+    bf = b.astype(np.float32)
+    w = dens[ray] * np.clip(np.minimum(hi[ray], bf + 1) - np.maximum(lo[ray], bf), 0, None)
+    cell = b * J + beam[ray]
+    # strongest single contribution: positive float32 bit patterns order like their values
+    packed = (w.view(np.int32).astype(np.int64) << 16) | (body[ray] + 1)
+    best = np.zeros(B * J, np.int64)
+    np.maximum.at(best, cell, packed)
+    body_map = ((best & 0xFFFF) - 1).astype(np.int16).reshape(B, J)
+    half = np.float32(0.5 * rays.elevation_step)
+    el_min = np.full(B * J, np.inf, np.float32)
+    el_max = np.full(B * J, -np.inf, np.float32)
+    np.minimum.at(el_min, cell, el[ray] - half)
+    np.maximum.at(el_max, cell, el[ray] + half)
+    unlit = ~np.isfinite(el_min)
+    el_min[unlit] = np.nan
+    el_max[unlit] = np.nan
+    return body_map, el_min.reshape(B, J), el_max.reshape(B, J)
+
+
+def _shadow_mask(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.ndarray) -> np.ndarray:
+    """Cells that would echo but for an occluder: the hidden surfaces behind each hit, unlit.
+
+    Each hit ray is continued beyond its hit, skipping back-facing hits and the rest of
+    the body it hit first, to the next surface facing the sonar. Cells that surface's
+    footprint covers and that no direct ray lights are acoustic shadow.
+    """
+    d_s, dd_s = _ray_grid(spec)
+    d_w = d_s @ pose.R.T
+    first_body = rays.body.reshape(-1)
+    r0 = rays.range.reshape(-1)
+    active = np.flatnonzero(first_body >= 0)
+    hidden_r = np.full(first_body.shape, np.inf)
+    hidden_n = np.zeros((first_body.size, 3))
+    t = r0[active].copy()
+    idx = active
+    exited = np.zeros(idx.size, bool)  # has the ray left the body it first hit?
+    eps = 1e-4 * max(spec.bin_width, 1e-3)
+    for _ in range(6):  # a few crossings of the occluding body are enough for closed shapes
+        if idx.size == 0:
+            break
+        org = pose.t + d_w[idx] * (t + eps)[:, None]
+        h = caster.cast(org, d_w[idx], max_distance=spec.range_max * 1.5, smooth=False)
+        got = h.body >= 0
+        tt = t + eps + np.where(got, h.distance, np.inf)
+        with np.errstate(invalid="ignore"):
+            front = got & (np.einsum("ij,ij->i", np.nan_to_num(h.normal), d_w[idx]) < 0)
+        same = h.body == first_body[idx]
+        accept = front & (~same | exited)
+        hidden_r[idx[accept]] = tt[accept]
+        hidden_n[idx[accept]] = h.normal[accept]
+        exited = exited | (got & ~front & same)
+        keep = got & ~accept
+        idx, t, exited = idx[keep], tt[keep], exited[keep]
+    sel = np.isfinite(hidden_r)
+    if not sel.any():
+        return np.zeros((spec.n_bins, spec.n_beams), bool)
+    r = hidden_r[sel]
+    nd = np.abs(np.einsum("ij,ij->i", hidden_n[sel], d_w[sel]))
+    ndd = np.abs(np.einsum("ij,ij->i", hidden_n[sel], dd_s[sel] @ pose.R.T))
+    half = 0.5 * spec.elevation_step * r * ndd / np.maximum(nd, _MIN_COS_FOOTPRINT)
+    half = np.maximum(half, 0.5 * spec.bin_width * 1e-3)
+    lo = (r - half - spec.range_min) / spec.bin_width
+    hi = (r + half - spec.range_min) / spec.bin_width
+    beam = np.tile(np.arange(spec.n_beams), spec.elevation_samples)[sel]
+    hidden = _box_integrate(beam, lo, hi, np.ones_like(r), spec.n_beams, spec.n_bins).T
+    return (hidden > 1e-9) & np.isnan(elevation_min)
