@@ -139,13 +139,15 @@ class RayCaster:
     def _prepare(origins, directions, max_distance):
         d = as_array(directions, "directions", ("...", 3))
         o = as_array(origins, "origins", ("...", 3))
+        md = np.asarray(max_distance, float)
         shape = d.shape[:-1]
-        if o.shape != d.shape:
+        if o.shape != d.shape or md.ndim:
             try:
-                shape = np.broadcast_shapes(o.shape, d.shape)[:-1]
+                shape = np.broadcast_shapes(o.shape[:-1], d.shape[:-1], md.shape)
             except ValueError:
                 raise ValueError(
-                    f"origins {np.shape(origins)} and directions {np.shape(directions)} do not broadcast together"
+                    f"origins {np.shape(origins)}, directions {np.shape(directions)} and max_distance "
+                    f"{md.shape} do not broadcast together"
                 ) from None
         d = np.broadcast_to(d, shape + (3,)).reshape(-1, 3)
         o = np.broadcast_to(o, shape + (3,)).reshape(-1, 3)
@@ -154,7 +156,6 @@ class RayCaster:
             raise ValueError("directions: zero-length direction vector")
         if np.any(np.abs(n2 - 1.0) > 1e-6):
             d = d / np.sqrt(n2)[:, None]
-        md = np.asarray(max_distance, float)
         if np.any(np.isnan(md)) or np.any(md <= 0):
             raise ValueError("max_distance: must be > 0")
         dists = np.minimum(np.broadcast_to(md, shape).reshape(-1), _MISS_DIST).astype(np.float32)

@@ -1,15 +1,20 @@
 """The ``oas`` command line: thin wrappers over the library.
 
-Each command group lives in its own module and registers itself on :data:`app`.
+Every module of this package whose name ends in ``_cmds`` registers its commands on
+:data:`app` when imported; they are discovered here, so adding a command group means
+adding a module, not editing this file.
 """
 
 from __future__ import annotations
 
+import importlib
+import pkgutil
+
 from .common import app
 
-# command modules register their commands on `app` when imported
-from . import sonar_cmds  # noqa: E402,F401
-from . import demo_cmd  # noqa: E402,F401
+for _mod in sorted(m.name for m in pkgutil.iter_modules(__path__)):
+    if _mod.endswith("_cmds"):
+        importlib.import_module(f"{__name__}.{_mod}")
 
 __all__ = ["app", "main"]
 

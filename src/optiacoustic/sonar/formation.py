@@ -321,39 +321,101 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     hits = caster.cast(pose.t, d_w, max_distance=spec.range_max * 1.5)
     K, J = spec.elevation_samples, spec.n_beams
     hit = hits.body >= 0
-    r = hits.distance
-    n = hits.normal
-    refl = np.array([b.material.reflectivity for b in scene.bodies] + [0.0])
+    r = np.where(hit, hits.distance, np.inf)
     with np.errstate(invalid="ignore"):
-        nd = np.einsum("ij,ij->i", n, d_w)
-        ndd = np.einsum("ij,ij->i", n, dd_w)
+        nd = np.einsum("ij,ij->i", hits.normal, d_w)
+        ndd = np.einsum("ij,ij->i", hits.normal, dd_w)
     cos_inc = np.where(hit, np.abs(nd), 0.0)
+    # signed dr/dphi on the tangent plane; clamped near grazing incidence
+    with np.errstate(invalid="ignore", divide="ignore"):
+        slope = np.where(hit, -r * ndd / (np.where(nd < 0, -1.0, 1.0) * np.maximum(cos_inc, _MIN_COS_FOOTPRINT)), 0.0)
+    # angular extent of each ray's elevation cell below (a) and above (b) the ray
+    step = spec.elevation_step
+    a = np.full(K * J, 0.5 * step)
+    b = np.full(K * J, 0.5 * step)
+    _refine_edges(caster, spec, pose, hits.body, r, slope, a, b)
+
+    refl = np.array([bd.material.reflectivity for bd in scene.bodies] + [0.0])
     w_el = np.tile(_elevation_weights(spec, options.elevation_pattern)[:, None], (1, J)).reshape(-1)
-    energy = refl[hits.body] * cos_inc * w_el * spec.elevation_step
+    energy = refl[hits.body] * cos_inc * w_el * (a + b)
     if options.propagation == "spreading":
         energy = energy * np.where(hit, two_way_gain(np.where(hit, r, 1.0), spec.frequency, options.water), 0.0)
-    # range footprint of the ray's elevation cell on its tangent plane
-    with np.errstate(invalid="ignore", divide="ignore"):
-        slope = r * np.abs(ndd) / np.maximum(cos_inc, _MIN_COS_FOOTPRINT)
-    half = 0.5 * spec.elevation_step * slope
-    # a floor on the width keeps the box integral well conditioned (1e-4 of a bin)
-    half = np.maximum(half, 5e-5 * spec.bin_width)
-    lo = np.where(hit, r - half, np.nan)
-    hi = np.where(hit, r + half, np.nan)
-    beam = np.tile(np.arange(J), K)
+    # range footprint of the cell on the tangent plane; a floor on its width (1e-4 of a
+    # bin) keeps the box integral well conditioned
+    lo = r - slope * a
+    hi = r + slope * b
+    lo, hi = np.minimum(lo, hi), np.maximum(lo, hi)
+    with np.errstate(invalid="ignore"):
+        pad = np.maximum(0.0, 1e-4 * spec.bin_width - (hi - lo)) * 0.5
+    lo, hi = np.where(hit, lo - pad, np.nan), np.where(hit, hi + pad, np.nan)
     elev = np.repeat(spec.elevations, J)
     energy = np.where(hit, energy, 0.0)
+    shape = (K, J)
     return SonarRays(
-        range=np.where(hit, r, np.inf).reshape(K, J),
-        energy=energy.reshape(K, J),
-        body=hits.body.reshape(K, J),
-        cos_incidence=cos_inc.reshape(K, J),
-        footprint_lo=lo.reshape(K, J),
-        footprint_hi=hi.reshape(K, J),
-        beam_index=beam.reshape(K, J),
-        elevation=elev.reshape(K, J),
-        elevation_step=spec.elevation_step,
+        range=r.reshape(shape),
+        energy=energy.reshape(shape),
+        body=hits.body.reshape(shape),
+        cos_incidence=cos_inc.reshape(shape),
+        footprint_lo=lo.reshape(shape),
+        footprint_hi=hi.reshape(shape),
+        beam_index=np.tile(np.arange(J), K).reshape(shape),
+        elevation=elev.reshape(shape),
+        elevation_lo=(elev - a).reshape(shape),
+        elevation_hi=(elev + b).reshape(shape),
+        elevation_step=step,
     )
+
+
+#: Sub-rays cast across each visibility discontinuity between two elevation samples.
+_EDGE_SUBRAYS = 8
+
+
+def _refine_edges(caster, spec, pose, body, r, slope, a, b) -> None:
+    """Locate visibility edges between consecutive elevation samples and move the cell boundary there.
+
+    Between rays k and k+1 of a beam that see different surfaces (another body, a miss,
+    or a range jump their tangent planes cannot explain) the true transition lies
+    anywhere in between; midpoint cells would misplace it by up to half a cell, which at
+    grazing incidence is several range bins (jagged shadow edges). ``_EDGE_SUBRAYS``
+    sub-rays between the two classify which surface continues where, and the shared cell
+    boundary moves to the transition. ``a`` (extent below) and ``b`` (above) are updated
+    in place; energy follows the cells' widths, so it stays conserved.
+    """
+    K, J = spec.elevation_samples, spec.n_beams
+    step = spec.elevation_step
+    B = body.reshape(K, J)
+    Rg = r.reshape(K, J)
+    S_ = slope.reshape(K, J)
+    reach = np.abs(S_) * step  # range a tangent plane covers over one cell
+    with np.errstate(invalid="ignore"):
+        jump = np.abs(Rg[1:] - Rg[:-1]) > 1.5 * (reach[1:] + reach[:-1]) + 0.5 * spec.bin_width
+    disc = (B[1:] != B[:-1]) | (jump & (B[1:] >= 0))
+    kk, jj = np.nonzero(disc)
+    if kk.size == 0:
+        return
+    S = _EDGE_SUBRAYS
+    frac = (np.arange(S) + 0.5) / S
+    phi = spec.elevations[kk][:, None] + step * frac[None, :]
+    th = spec.azimuths[jj][:, None]
+    cp = np.cos(phi)
+    d = np.stack(np.broadcast_arrays(cp * np.sin(th), cp * np.cos(th), np.sin(phi)), -1) @ pose.R.T
+    h = caster.cast(pose.t, d, max_distance=spec.range_max * 1.5, smooth=False)
+    lower = kk * J + jj
+    upper = lower + J
+    bl, bu = body[lower][:, None], body[upper][:, None]
+    with np.errstate(invalid="ignore"):
+        pred_l = r[lower][:, None] + slope[lower][:, None] * step * frac[None, :]
+        pred_u = r[upper][:, None] - slope[upper][:, None] * step * (1 - frac[None, :])
+        err_l = np.where(h.body == bl, np.abs(h.distance - pred_l), np.inf)
+        err_u = np.where(h.body == bu, np.abs(h.distance - pred_u), np.inf)
+    miss = h.body < 0
+    err_l = np.where(miss & (bl < 0), 0.0, err_l)
+    err_u = np.where(miss & (bu < 0), 0.0, err_u)
+    like_lower = err_l < err_u
+    like_lower |= np.isinf(err_u) & np.isinf(err_l) & (frac[None, :] < 0.5)  # a third surface: split evenly
+    t = like_lower.sum(1) / S  # transition, as a fraction of the step above ray k
+    b[lower] = step * t
+    a[upper] = step * (1 - t)
 
 
 def _truth_maps(spec: SonarSpec, rays: SonarRays):
@@ -368,7 +430,8 @@ def _truth_maps(spec: SonarSpec, rays: SonarRays):
     dens = (rays.energy[ok][inside] / (hi - lo)).astype(np.float32)
     beam = rays.beam_index[ok][inside].astype(np.int32)
     body = rays.body[ok][inside].astype(np.int64)
-    el = rays.elevation[ok][inside].astype(np.float32)
+    el_lo = rays.elevation_lo[ok][inside].astype(np.float32)
+    el_hi = rays.elevation_hi[ok][inside].astype(np.float32)
     # expand each ray to the bins its footprint overlaps
     b0 = np.clip(lo, 0, B - 1).astype(np.int32)
     b1 = np.clip(hi, 0, B - 1).astype(np.int32)
@@ -387,11 +450,10 @@ def _truth_maps(spec: SonarSpec, rays: SonarRays):
     best = np.zeros(B * J, np.int64)
     np.maximum.at(best, cell, packed)
     body_map = ((best & 0xFFFF) - 1).astype(np.int16).reshape(B, J)
-    half = np.float32(0.5 * rays.elevation_step)
     el_min = np.full(B * J, np.inf, np.float32)
     el_max = np.full(B * J, -np.inf, np.float32)
-    np.minimum.at(el_min, cell, el[ray] - half)
-    np.maximum.at(el_max, cell, el[ray] + half)
+    np.minimum.at(el_min, cell, el_lo[ray])
+    np.maximum.at(el_max, cell, el_hi[ray])
     unlit = ~np.isfinite(el_min)
     el_min[unlit] = np.nan
     el_max[unlit] = np.nan

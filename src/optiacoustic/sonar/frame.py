@@ -30,7 +30,9 @@ class SonarRays:
     footprint_lo, footprint_hi : range interval (m) the ray's elevation cell covers on
         its tangent plane; NaN on a miss.
     beam_index, elevation : beam index and elevation (rad) of each ray.
-    elevation_step : angular width of a ray's elevation cell (rad).
+    elevation_lo, elevation_hi : the elevation cell each ray stands for (rad); cells are
+        ``elevation_step`` wide except at visibility edges, where they end at the edge.
+    elevation_step : nominal angular width of a ray's elevation cell (rad).
     """
 
     range: np.ndarray
@@ -41,6 +43,8 @@ class SonarRays:
     footprint_hi: np.ndarray
     beam_index: np.ndarray
     elevation: np.ndarray
+    elevation_lo: np.ndarray
+    elevation_hi: np.ndarray
     elevation_step: float
 
 

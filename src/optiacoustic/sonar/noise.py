@@ -1,0 +1,144 @@
+"""Noise and reverberation applied to a sonar image (thesis sec. 2.7).
+
+Each cell's echo is the coherent sum of its seabed returns (bottom reverberation, whose
+amplitude follows a bottom-type model of Table 2.2), its target returns (fully developed
+speckle: circular Gaussian) and ambient/thermal noise (circular Gaussian, amplified with
+range by the TVG):
+
+    image = | sqrt(I_bottom) X e^{i psi} + sqrt(I_target) Z_t + sqrt(N(r)) Z_n |^2
+
+with ``E[X^2] = 1``, ``Z ~ CN(0, 1)``, ``psi`` uniform. The two circular Gaussian terms
+merge into one, ``sqrt(I_target + N) Z``, and its phase absorbs ``psi``; so a cell costs
+one bottom amplitude and two normals. ``E[image] = I_bottom + I_target + N``: noise adds
+power, reverberation and speckle only redistribute it (docs/physics.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+from .propagation import absorption_db_per_m
+
+__all__ = ["NoiseModel"]
+
+_MODELS = ("mixture", "rayleigh", "weibull", "k")
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """How ``SonarFrame.image`` departs from the noise-free ``intensity``. Every part switchable.
+
+    Attributes
+    ----------
+    reverberation : {"mixture", "rayleigh", "weibull", "k"} or None
+        Amplitude model of seabed returns (thesis: Rayleigh mixture). ``None`` leaves
+        seabed returns unfluctuating.
+    bottom_type : str, optional
+        Bottom type of Table 2.2 for every seabed; default: each seabed body's own
+        ``Material.bottom_type``.
+    target_speckle : bool
+        Fully developed (Rayleigh amplitude) speckle on non-seabed returns.
+    noise_floor_db : float or None
+        Ambient/thermal noise power, in dB relative to the reference level (the median
+        positive noise-free echo of the frame, or ``reference_level``), at the median
+        echo range. ``None`` switches the noise floor off.
+    reference_level : float, optional
+        Absolute reference for ``noise_floor_db`` in the image's units, to make the
+        noise floor the same across frames.
+    tvg_noise : bool
+        With ideal TVG (the default propagation) the receiver noise is amplified by the
+        TVG gain ``r^2 10^(2 alpha r / 10)``, so it rises with range; ``False`` keeps it flat.
+    """
+
+    reverberation: Optional[str] = "mixture"
+    bottom_type: Optional[str] = None
+    target_speckle: bool = True
+    noise_floor_db: Optional[float] = -18.0
+    reference_level: Optional[float] = None
+    tvg_noise: bool = True
+
+    def __post_init__(self):
+        if self.reverberation is not None and self.reverberation not in _MODELS:
+            raise ValueError(f"NoiseModel.reverberation: expected one of {_MODELS} or None, got {self.reverberation!r}")
+        if self.noise_floor_db is not None and not np.isfinite(self.noise_floor_db):
+            raise ValueError(f"NoiseModel.noise_floor_db: must be finite or None, got {self.noise_floor_db!r}")
+        if self.reference_level is not None and not (np.isfinite(self.reference_level) and self.reference_level > 0):
+            raise ValueError(f"NoiseModel.reference_level: must be > 0, got {self.reference_level!r}")
+        if self.bottom_type is not None:
+            from .distributions import BOTTOM_TYPES
+
+            if self.bottom_type not in BOTTOM_TYPES:
+                raise ValueError(f"NoiseModel.bottom_type: unknown {self.bottom_type!r}; expected one of {sorted(BOTTOM_TYPES)}")
+
+    @classmethod
+    def off(cls) -> "NoiseModel":
+        """A model that changes nothing (``image == intensity``)."""
+        return cls(reverberation=None, target_speckle=False, noise_floor_db=None)
+
+    # ------------------------------------------------------------------ pieces
+    def noise_power(self, intensity: np.ndarray, ranges: np.ndarray, frequency: float, propagation: str, water) -> np.ndarray:
+        """Mean noise power per range bin, ``(n_bins,)``, in the image's units."""
+        if self.noise_floor_db is None:
+            return np.zeros(len(ranges), np.float32)
+        pos = intensity > 0
+        if self.reference_level is not None:
+            ref = self.reference_level
+        else:
+            ref = float(np.median(intensity[pos])) if pos.any() else 1.0
+        r_ref = float(np.median(np.broadcast_to(ranges[:, None], intensity.shape)[pos])) if pos.any() else float(np.median(ranges))
+        level = ref * 10.0 ** (self.noise_floor_db / 10.0)
+        if propagation == "tvg" and self.tvg_noise:
+            alpha = absorption_db_per_m(frequency, water)
+            gain = (ranges / r_ref) ** 2 * 10.0 ** (2.0 * alpha * (ranges - r_ref) / 10.0)
+        else:
+            gain = np.ones_like(ranges)
+        return (level * gain).astype(np.float32)
+
+    def apply(self, intensity: np.ndarray, *, spec, seabed_share: dict, rng: np.random.Generator, options) -> np.ndarray:
+        """The noisy image ``(n_bins, n_beams)`` float32 from the noise-free ``intensity``.
+
+        ``seabed_share[bottom_type]`` is the share of each cell's echo returned by seabed
+        bodies of that bottom type (``SonarFrame.seabed_share``).
+        """
+        from .distributions import bottom_model
+
+        I = np.asarray(intensity, np.float32)
+        shape = I.shape
+        bottom = np.zeros(shape, np.float32)
+        amp_b = np.zeros(shape, np.float32)
+        if self.reverberation is not None:
+            for btype, share in seabed_share.items():
+                name = self.bottom_type or btype
+                part = I * share
+                cells = part > 0
+                n = int(cells.sum())
+                if n:
+                    x = np.asarray(bottom_model(name, self.reverberation).sample(n, rng), np.float32)
+                    amp_b[cells] += np.sqrt(part[cells]) * x
+                bottom += part
+        else:
+            for share in seabed_share.values():
+                bottom += I * share
+            amp_b = np.sqrt(bottom)
+        target = np.maximum(I - bottom, 0.0)
+        noise = self.noise_power(I, spec.ranges, spec.frequency, options.propagation, options.water)[:, None]
+        if self.target_speckle:
+            gauss_power = target + noise
+            amp_t = None
+        else:
+            gauss_power = np.broadcast_to(noise, shape)
+            amp_t = np.sqrt(target)
+        s = np.sqrt(gauss_power * 0.5, dtype=np.float32)
+        z = rng.standard_normal((2,) + shape, dtype=np.float32)
+        if amp_t is None:
+            re = amp_b + s * z[0]
+            im = s * z[1]
+        else:
+            # a steady target echo adds to the bottom amplitude with an independent random phase
+            phase = rng.random(shape, dtype=np.float32) * np.float32(2 * np.pi)
+            re = amp_b + amp_t * np.cos(phase) + s * z[0]
+            im = amp_t * np.sin(phase) + s * z[1]
+        return (re * re + im * im).astype(np.float32)

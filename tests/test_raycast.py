@@ -1,0 +1,95 @@
+"""The ray caster against analytic ray-plane and ray-sphere intersections."""
+
+import numpy as np
+import pytest
+
+from optiacoustic.frames import Pose
+from optiacoustic.raycast import RayCaster
+from optiacoustic.scene import Body, Box, Plane, Scene, Sphere
+
+C = np.array([0.3, 4.0, 1.2])
+R = 0.8
+
+
+@pytest.fixture(scope="module")
+def caster():
+    scene = Scene([
+        Body("floor", Plane(size=(50, 50))),
+        Body("ball", Sphere(radius=R), Pose(np.eye(3), C)),
+    ])
+    return RayCaster(scene)
+
+
+def sphere_hit(o, d):
+    """First intersection distance of unit rays with the analytic sphere (inf if none)."""
+    oc = o - C
+    b = np.einsum("ij,ij->i", oc, d)
+    c = np.einsum("ij,ij->i", oc, oc) - R * R
+    disc = b * b - c
+    t = -b - np.sqrt(np.where(disc > 0, disc, np.nan))
+    return np.where((disc > 0) & (t > 0), t, np.inf)
+
+
+def test_against_analytic_sphere_and_plane(caster):
+    rng = np.random.default_rng(0)
+    n = 50000
+    o = np.array([0.0, -1.0, 2.0])
+    d = rng.normal(size=(n, 3))
+    d[:, 1] = np.abs(d[:, 1]) + 1.0
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    hits = caster.cast(o, d)
+    t_s = sphere_hit(np.broadcast_to(o, d.shape), d)
+    t_p = np.where(d[:, 2] < 0, -o[2] / d[:, 2], np.inf)
+    t_p = np.where(np.abs(o[:2] + t_p[:, None] * d[:, :2]).max(1) <= 25, t_p, np.inf)
+    t = np.minimum(t_s, t_p)
+    on_sphere = (t_s < t_p) & np.isfinite(t_s)
+    # tessellation (icosphere, 5 subdivisions) bounds the distance error; away from the silhouette it is tiny
+    graze = np.abs(np.einsum("ij,ij->i", (o + t_s[:, None] * d - C) / R, d))
+    good = on_sphere & (graze > 0.2)
+    assert np.all(hits.body[good] == 1)
+    assert np.max(np.abs(hits.distance[good] - t[good])) < 5e-4 * R / 0.2
+    floor = (t_p < t_s) & np.isfinite(t_p)
+    assert np.all(hits.body[floor & (t_s == np.inf)] == 0)
+    assert np.allclose(hits.distance[floor & (t_s == np.inf)], t_p[floor & (t_s == np.inf)], rtol=1e-5)
+    # smooth normals follow the true sphere normal closely (interpolated vertex normals)
+    true_n = (hits.point[good] - C) / R
+    assert np.max(np.linalg.norm(hits.normal[good] - true_n, axis=1)) < 2e-3
+    assert np.allclose(hits.normal[floor & (t_s == np.inf)], [0, 0, 1])
+    # misses
+    miss = ~np.isfinite(t)
+    assert np.all(hits.body[miss] == -1) and np.all(np.isinf(hits.distance[miss]))
+    assert np.all(np.isnan(hits.normal[miss])) and np.all(np.isnan(hits.point[miss]))
+
+
+def test_threads_do_not_change_results():
+    scene = Scene([Body("b", Box(size=(1, 2, 3)), Pose(np.eye(3), [0, 5, 0]))])
+    rng = np.random.default_rng(3)
+    d = rng.normal(size=(60000, 3)) + [0, 3, 0]
+    a = RayCaster(scene, threads=1).cast(np.zeros(3), d)
+    b = RayCaster(scene, threads=2).cast(np.zeros(3), d)
+    assert np.array_equal(a.body, b.body) and np.array_equal(a.distance, b.distance)
+
+
+def test_shapes_max_distance_occlusion(caster):
+    d = np.zeros((2, 3, 3))
+    d[..., 1] = 1.0
+    h = caster.cast([0.3, -1.0, 1.2], d)
+    assert h.distance.shape == (2, 3) and h.normal.shape == (2, 3, 3)
+    assert np.allclose(h.distance, 5.0 - R - 1e-9, atol=1e-4)
+    h2 = caster.cast([0.3, -1.0, 1.2], d, max_distance=2.0)
+    assert np.all(h2.body == -1)
+    occ = caster.occluded([0.3, -1.0, 1.2], [0, 1, 0], max_distance=np.array([1.0, 10.0]))
+    assert occ.tolist() == [False, True]
+
+
+def test_bad_input(caster):
+    with pytest.raises(ValueError, match="directions"):
+        caster.cast(np.zeros(3), [[0, 0, 0]])
+    with pytest.raises(ValueError, match="directions"):
+        caster.cast(np.zeros(3), [[np.nan, 0, 1]])
+    with pytest.raises(ValueError, match="broadcast"):
+        caster.cast(np.zeros((4, 3)), np.ones((5, 3)))
+    with pytest.raises(ValueError, match="max_distance"):
+        caster.cast(np.zeros(3), [0, 1, 0], max_distance=-1)
+    with pytest.raises(TypeError):
+        RayCaster("not a scene")

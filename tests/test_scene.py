@@ -1,0 +1,168 @@
+"""Scenes: schema, validation errors naming file/body/field, meshes, tessellation, built-ins."""
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from optiacoustic import scenes
+from optiacoustic.frames import Pose
+from optiacoustic.scene import Body, Box, Cylinder, Ellipsoid, KleinBottle, Material, Plane, Scene, SceneError, Sphere
+
+ISSUE_YAML = """
+bodies:
+  - name: seabed
+    shape: plane
+    size: [60, 60]
+    pose: {position: [0, 0, 0], rotation_deg: [0, 0, 0]}
+    material: {reflectivity: 0.5, color: [0.55, 0.5, 0.4]}
+  - {name: ball, shape: sphere, radius: 0.5, pose: {position: [1, 0, 0.5]}}
+  - {name: tank, shape: cylinder, radius: 0.3, height: 1.0, pose: {position: [2, 1, 0.5]}}
+  - {name: egg, shape: ellipsoid, radii: [0.6, 0.3, 0.3], pose: {position: [-1, 1, 0.3]}}
+  - {name: rock, shape: mesh, file: rock.obj, scale: 1.0}
+"""
+
+
+@pytest.fixture()
+def scene_dir(tmp_path):
+    rock = trimesh.creation.icosphere(subdivisions=2, radius=0.4)
+    rock.vertices *= [1.0, 0.7, 0.5]
+    rock.export(tmp_path / "rock.obj")
+    (tmp_path / "scene.yaml").write_text(ISSUE_YAML)
+    return tmp_path
+
+
+def test_issue_schema_loads(scene_dir):
+    s = Scene.load(scene_dir / "scene.yaml")
+    assert s.body_names() == ["seabed", "ball", "tank", "egg", "rock"]
+    assert s.name == "scene"
+    assert np.allclose(s.body("ball").pose.t, [1, 0, 0.5])
+    surf = s.surfaces()
+    # the sphere's tessellation lies on the sphere and its normals are radial
+    ball = surf[1]
+    d = ball.vertices - [1, 0, 0.5]
+    assert np.allclose(np.linalg.norm(d, axis=1), 0.5)
+    assert np.allclose(ball.normals, d / 0.5)
+    # the mesh was read relative to the YAML file
+    assert surf[4].n_faces == 320
+
+
+def test_json_and_export_roundtrip(scene_dir, tmp_path):
+    s = Scene.load(scene_dir / "scene.yaml")
+    out = tmp_path / "sub" / "copy.json"
+    s.save(out)
+    data = json.loads(out.read_text())
+    assert data["bodies"][4]["file"] == "../rock.obj"  # relative to the new file
+    s2 = Scene.load(out)
+    for a, b in zip(s.surfaces(), s2.surfaces()):
+        assert np.allclose(a.vertices, b.vertices)
+
+
+@pytest.mark.parametrize("name", scenes.names())
+def test_builtins_roundtrip_through_yaml(name, tmp_path):
+    s = scenes.get(name)
+    assert s.view is not None and len(s) >= 1
+    s.save(tmp_path / f"{name}.yaml")
+    s2 = Scene.load(tmp_path / f"{name}.yaml")
+    assert s2.body_names() == s.body_names()
+    for a, b in zip(s.surfaces(), s2.surfaces()):
+        assert np.allclose(a.vertices, b.vertices, atol=1e-6)
+    for a, b in zip(s, s2):
+        assert a.material == b.material
+
+
+def _load(tmp_path, text):
+    p = tmp_path / "bad.yaml"
+    p.write_text(text)
+    with pytest.raises(SceneError) as exc:
+        Scene.load(p)
+    return str(exc.value)
+
+
+@pytest.mark.parametrize(
+    "text, fragments",
+    [
+        ("bodies:\n  - {name: a, shape: torus, radius: 1}\n", ["bad.yaml", "body 'a'", "field 'shape'", "torus"]),
+        ("bodies:\n  - {name: a, shape: sphere}\n", ["body 'a'", "field 'radius'", "required"]),
+        ("bodies:\n  - {name: a, shape: sphere, radius: 1, colour: red}\n", ["body 'a'", "field 'colour'", "unknown field"]),
+        ("bodies:\n  - {name: a, shape: box, size: [1, -2, 1]}\n", ["body 'a'", "field 'size[1]'", "greater than 0"]),
+        ("bodies:\n  - {name: a, shape: sphere, radius: .nan}\n", ["body 'a'", "field 'radius'", "finite"]),
+        ("bodies:\n  - {name: a, shape: sphere, radius: 1, pose: {position: [0, .nan, 0]}}\n", ["field 'pose.position'", "finite"]),
+        ("bodies:\n  - {name: a, shape: sphere, radius: 1, pose: {rotation: [0, 0, 0]}}\n", ["field 'pose.rotation'"]),
+        ("bodies:\n  - {name: a, shape: sphere, radius: 1, material: {reflectivity: 2}}\n", ["field 'material.reflectivity'", "less than or equal to 1"]),
+        ("bodies:\n  - {name: a, shape: sphere, radius: 1, material: {color: [1, 0]}}\n", ["field 'material.color"]),
+        ("bodies:\n  - {name: a, shape: mesh, file: nope.obj}\n", ["body 'a'", "field 'file'", "not found"]),
+        ("bodies:\n  - {shape: sphere, radius: 1}\n", ["body #0", "field 'name'", "missing"]),
+        ("bodies:\n  - {name: a, shape: sphere, radius: 1}\n  - {name: a, shape: sphere, radius: 2}\n", ["body 'a' (#1)", "duplicate"]),
+        ("bodies: []\n", ["field 'bodies'"]),
+        ("bodys:\n  - {name: a, shape: sphere, radius: 1}\n", ["field 'bodys'", "unknown top-level"]),
+        ("bodies:\n  - {name: a, shape: sphere, radius: 1\n", ["not valid YAML"]),
+    ],
+)
+def test_bad_scene_files_name_file_body_field(tmp_path, text, fragments):
+    msg = _load(tmp_path, text)
+    for f in fragments:
+        assert f in msg, msg
+
+
+def test_unreadable_mesh(tmp_path):
+    (tmp_path / "junk.obj").write_text("this is not an obj file\n\x00\x01")
+    msg = _load(tmp_path, "bodies:\n  - {name: rock, shape: mesh, file: junk.obj}\n")
+    assert "body 'rock'" in msg and "field 'file'" in msg
+
+
+def test_missing_file():
+    with pytest.raises(SceneError, match="not found"):
+        Scene.load("/nonexistent/scene.yaml")
+
+
+def test_python_construction_validates():
+    with pytest.raises(ValueError, match="radius"):
+        Sphere(radius=-1)
+    with pytest.raises(SceneError, match="unique"):
+        Scene([Body("a", Sphere(radius=1)), Body("a", Sphere(radius=1))])
+    with pytest.raises(SceneError, match="non-empty"):
+        Body("", Sphere(radius=1))
+
+
+def test_tessellations_are_closed_and_outward():
+    for shape in (Box(size=(1, 2, 3)), Sphere(radius=0.7), Ellipsoid(radii=(0.6, 0.3, 0.2)), Cylinder(radius=0.3, height=1.2)):
+        s = shape.tessellate()
+        m = trimesh.Trimesh(s.vertices, s.faces, process=True)
+        assert m.is_watertight, shape
+        assert m.volume > 0, shape  # outward winding
+        # shading normals point outward: positive dot with (vertex - centroid)
+        assert np.all(np.einsum("ij,ij->i", s.normals, s.vertices) > 0), shape
+    # analytic volumes within tessellation error
+    assert np.isclose(trimesh.Trimesh(*_vf(Sphere(radius=1.0))).volume, 4 / 3 * np.pi, rtol=2e-3)
+    assert np.isclose(trimesh.Trimesh(*_vf(Cylinder(radius=1, height=2))).volume, 2 * np.pi, rtol=1e-3)
+
+
+def _vf(shape):
+    s = shape.tessellate()
+    return s.vertices, s.faces
+
+
+def test_ellipsoid_normals_are_gradients():
+    e = Ellipsoid(radii=(0.6, 0.3, 0.2))
+    s = e.tessellate()
+    g = s.vertices / np.array(e.radii) ** 2
+    g /= np.linalg.norm(g, axis=1, keepdims=True)
+    assert np.allclose(s.normals, g)
+
+
+def test_klein_bottle_size():
+    s = KleinBottle(height=0.5).tessellate()
+    ext = s.vertices.max(0) - s.vertices.min(0)
+    assert np.isclose(ext[2], 0.5, rtol=1e-2)
+    assert np.all(np.isfinite(s.normals)) and np.allclose(np.linalg.norm(s.normals, axis=1), 1)
+
+
+def test_rotation_convention_of_scene_files(tmp_path):
+    # rotation_deg is about fixed x, then y, then z: a box long in x, turned 90 deg about z, is long in y
+    p = tmp_path / "r.yaml"
+    p.write_text("bodies:\n  - {name: b, shape: box, size: [4, 1, 1], pose: {rotation_deg: [0, 0, 90]}}\n")
+    v = Scene.load(p).surfaces()[0].vertices
+    ext = v.max(0) - v.min(0)
+    assert np.allclose(ext, [1, 4, 1])
