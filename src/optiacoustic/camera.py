@@ -134,10 +134,11 @@ class PinholeCamera:
             import cv2
 
             pts = uv.reshape(-1, 1, 2).astype(np.float64)
-            und = cv2.undistortPointsIter(
-                pts, self.K, np.asarray(self.dist), None, None,
-                (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12),
-            )
+            crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
+            if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4
+                und = cv2.undistortPointsIter(pts, self.K, np.asarray(self.dist), None, None, crit)
+            else:  # OpenCV 5 dropped it; undistortPoints takes the criteria (with explicit R, P)
+                und = cv2.undistortPoints(pts, self.K, np.asarray(self.dist), R=np.eye(3), P=np.eye(3), criteria=crit)
             xn = und.reshape(uv.shape)
         return xn
 

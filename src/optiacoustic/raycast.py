@@ -210,6 +210,15 @@ class RayCaster:
             d64.reshape(shape + (3,)),
         )
 
+    def bare_intersect(self, origins32: np.ndarray, directions32: np.ndarray) -> None:
+        """Raw closest-hit query over the worker threads, with no conversion or post-processing.
+
+        For benchmarks: the floor under which no caster on this scene can go.
+        ``origins32``/``directions32`` are contiguous float32 ``(N, 3)`` arrays.
+        """
+        dists = np.full(len(origins32), _MISS_DIST, np.float32)
+        self._run_chunks(origins32, directions32, dists, "INTERSECT", True)
+
     def occluded(self, origins, directions, max_distance) -> np.ndarray:
         """True where something lies along the ray closer than ``max_distance`` (shadow rays)."""
         shape, o32, d32, _, _, dists = self._prepare(origins, directions, max_distance)

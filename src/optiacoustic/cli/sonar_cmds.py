@@ -20,7 +20,7 @@ def scenes_cmd():
     from .. import scenes
 
     t = Table(title="built-in scenes")
-    t.add_column("name")
+    t.add_column("name", no_wrap=True)
     t.add_column("bodies", justify="right")
     t.add_column("description")
     for n in scenes.names():
@@ -52,7 +52,8 @@ def presets_cmd():
     from ..sonar import SonarSpec
 
     t = Table(title="sonar presets", show_lines=True)
-    for c in ("name", "kHz", "beams", "fov (deg)", "range (m) / bins", "beam width", "source", "unverified"):
+    t.add_column("name", no_wrap=True)
+    for c in ("kHz", "beams", "fov (deg)", "range (m) / bins", "beam width", "source", "unverified"):
         t.add_column(c)
     for n in SonarSpec.preset_names():
         s = SonarSpec.preset(n)

@@ -183,11 +183,11 @@ def save_stage_figures(frame: SonarFrame, out_dir, *, prefix: str = "sonar", fan
     ):
         fan = frame.fan(which, width=fan_width)
         fig, ax = plt.subplots(figsize=(8, 6))
-        ax.imshow(to_display(fan.data, mode="gamma", reference=ref), extent=fan.extent, cmap="copper")
+        ax.imshow(to_display(fan.data, mode="db", dynamic_range_db=40, reference=ref), extent=fan.extent, cmap="copper")
         ax.set_facecolor("black")
         ax.set_xlabel("x_s (m)")
         ax.set_ylabel("y_s (m)")
-        ax.set_title("noise-free echo" if which == "intensity" else "with noise and reverberation")
+        ax.set_title(("noise-free echo" if which == "intensity" else "with noise and reverberation") + " (40 dB display)")
         fig.tight_layout()
         p = out / f"{prefix}_{name}.png"
         fig.savefig(p, dpi=90)

@@ -125,19 +125,24 @@ class NoiseModel:
             amp_b = np.sqrt(bottom)
         target = np.maximum(I - bottom, 0.0)
         noise = self.noise_power(I, spec.ranges, spec.frequency, options.propagation, options.water)[:, None]
+        if self.reverberation is None and not self.target_speckle:
+            # nothing fluctuates but the noise: the steady parts add in power
+            amp_b = np.sqrt(I)
+            if self.noise_floor_db is None:
+                return I.copy()
         if self.target_speckle:
             gauss_power = target + noise
             amp_t = None
         else:
             gauss_power = np.broadcast_to(noise, shape)
-            amp_t = np.sqrt(target)
+            amp_t = None if self.reverberation is None else np.sqrt(target)
         s = np.sqrt(gauss_power * 0.5, dtype=np.float32)
         z = rng.standard_normal((2,) + shape, dtype=np.float32)
         if amp_t is None:
             re = amp_b + s * z[0]
             im = s * z[1]
         else:
-            # a steady target echo adds to the bottom amplitude with an independent random phase
+            # a steady target echo adds to the fluctuating bottom echo with an independent random phase
             phase = rng.random(shape, dtype=np.float32) * np.float32(2 * np.pi)
             re = amp_b + amp_t * np.cos(phase) + s * z[0]
             im = amp_t * np.sin(phase) + s * z[1]
