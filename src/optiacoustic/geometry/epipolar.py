@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array
+from .._validate import as_array, as_positive
 from ..frames import fan_from_polar, sonar_from_spherical, spherical_from_sonar
 from ..rig import Rig
 from .projection import _bc, _check_rig, _sonar_window, normalized_coordinates
@@ -115,20 +115,24 @@ def _balanced(C: np.ndarray) -> np.ndarray:
     return Cb / np.linalg.norm(Cb, axis=(-2, -1))[..., None, None]
 
 
-def conic_type(conics, *, rtol: float = 1e-9) -> np.ndarray:
+def conic_type(conics, *, rtol: float = 1e-12) -> np.ndarray:
     """Classify conics (thesis eq. 4.15 and Table 4.1).
 
     The sign of ``Pi = c11 c22 - c12^2`` (product of the eigenvalues of the quadratic block)
-    gives ellipse (> 0), parabola (= 0) or hyperbola (< 0); ``det(C) = 0`` marks the degenerate
-    conics. Both signs are unchanged by an affine change of pixel coordinates (such as
-    ``K``), so the type is the same in pixels and in normalised coordinates.
+    gives ellipse (> 0), parabola (= 0) or hyperbola (< 0); a singular ``C`` is degenerate
+    (point, line pair, parallel lines, double line) and a definite one imaginary. Both signs
+    are unchanged by an affine change of pixel coordinates (such as ``K``), so the type is the
+    same in pixels and in normalised coordinates.
 
     Parameters
     ----------
     conics : array_like, shape (..., 3, 3)
         Symmetric conic matrices.
     rtol : float
-        Relative tolerance for "zero" (after balancing the matrix to unit norm).
+        Relative tolerance for "zero": singular values of the balanced matrix below ``rtol``
+        times the largest, and ``|Pi|`` below ``rtol |A|^2``. Epipolar conics of real rigs are
+        often thin (a circle seen nearly edge-on): their smallest eigenvalue can be 1e-8 of the
+        largest and still be a genuine hyperbola, hence the tight default.
 
     Returns
     -------
@@ -144,12 +148,12 @@ def conic_type(conics, *, rtol: float = 1e-9) -> np.ndarray:
     A = Cb[..., :2, :2]
     Anorm = np.linalg.norm(A, axis=(-2, -1))
     pi = np.linalg.det(A) / np.where(Anorm > 0, Anorm, 1.0) ** 2
+    sv = np.linalg.svd(Cb, compute_uv=False)
+    rank = np.sum(sv > rtol * sv[..., :1], axis=-1)
     det = np.linalg.det(Cb)
-    ev = np.linalg.eigvalsh(Cb)
-    rank = np.sum(np.abs(ev) > np.sqrt(rtol), axis=-1)  # numerical rank, looser than the det test
     tr = A[..., 0, 0] + A[..., 1, 1]
     pos, neg, zero = pi > rtol, pi < -rtol, np.abs(pi) <= rtol
-    degenerate = np.abs(det) <= rtol
+    degenerate = rank < 3
     out = np.full(C.shape[:-2], "parabola", dtype=object)
     out[pos & ~degenerate & (det * tr < 0)] = "ellipse"
     out[pos & ~degenerate & (det * tr > 0)] = "imaginary"
@@ -157,7 +161,7 @@ def conic_type(conics, *, rtol: float = 1e-9) -> np.ndarray:
     out[pos & degenerate] = "point"
     out[neg & degenerate] = "line pair"
     out[zero & degenerate] = "parallel lines"
-    out[degenerate & (rank <= 1)] = "double line"
+    out[rank <= 1] = "double line"
     return out.astype(str)
 
 
@@ -255,6 +259,12 @@ def _sample_runs(params: np.ndarray, evaluate, n_bisect: int = 40) -> list[list[
     return out
 
 
+def _n_samples(n) -> int:
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
+        raise ValueError(f"n_samples: expected an integer >= 2, got {n!r}")
+    return int(n)
+
+
 def _elevation_half(rig: Rig, clip_elevation: bool) -> float:
     return rig.fov_elevation / 2 if clip_elevation else np.pi / 2
 
@@ -298,7 +308,8 @@ def sonar_to_optical_curves(rig: Rig, ranges, azimuths, *, n_samples: int = 181,
         raise ValueError("ranges: must be > 0")
     half = _elevation_half(rig, clip_elevation)
     cam = rig.camera
-    phis = np.broadcast_to(np.linspace(-half, half, max(int(n_samples), 2)), (r.size, max(int(n_samples), 2)))
+    n = _n_samples(n_samples)
+    phis = np.broadcast_to(np.linspace(-half, half, n), (r.size, n))
 
     def evaluate(i, phi):
         p_o = rig.camera_from_sonar(sonar_from_spherical(r[i], th[i], phi))
@@ -382,7 +393,8 @@ def optical_to_sonar_curves(rig: Rig, pixels, *, n_samples: int = 200, coords: s
     clip_elevation : bool
         Keep only ``|phi| <= fov_elevation/2`` (sec. 4.3).
     clip_to_fan : bool
-        Keep only the sonar's azimuth aperture and range window (when the rig has a sonar).
+        Keep only the sonar's azimuth aperture and range window (without a sonar on the
+        rig: the half-space ahead, ``|theta| <= pi/2``).
     max_range : float, optional
         Farthest range sampled; default the sonar's ``range_max``, or 20 m without a sonar.
 
@@ -401,15 +413,14 @@ def optical_to_sonar_curves(rig: Rig, pixels, *, n_samples: int = 200, coords: s
     win = _sonar_window(rig)
     if max_range is None:
         max_range = win["range_max"] if np.isfinite(win["range_max"]) else 20.0
-    if not np.isfinite(max_range) or max_range <= 0:
-        raise ValueError(f"max_range: must be finite and > 0, got {max_range!r}")
+    max_range = as_positive(max_range, "max_range")
     # Depth at which the ray reaches max_range: positive root of |t + Z d|^2 = max_range^2.
     dd = np.einsum("ij,ij->i", d, d)
     td = d @ t
     disc = td * td - dd * (t @ t - max_range ** 2)
     zmax = (-td + np.sqrt(np.maximum(disc, 0.0))) / dd
     zmax = np.where(zmax > 0, zmax, 0.0)
-    n = max(int(n_samples), 2)
+    n = _n_samples(n_samples)
     params = zmax[:, None] * np.linspace(0.0, 1.0, n)[None, :]
     half = _elevation_half(rig, clip_elevation)
 
@@ -417,7 +428,7 @@ def optical_to_sonar_curves(rig: Rig, pixels, *, n_samples: int = 200, coords: s
         p = t + z[..., None] * d[i]
         r, th, ph = spherical_from_sonar(p)
         ok = (np.abs(ph) <= half) & (r <= max_range * (1 + 1e-12))
-        if clip_to_fan and rig.sonar is not None:
+        if clip_to_fan:
             ok &= (np.abs(th) <= win["fov_azimuth"] / 2) & (r >= win["range_min"]) & (r <= win["range_max"])
         out = np.stack([r, th], -1) if coords == "polar" else np.stack(fan_from_polar(r, th), -1)
         return out, ok
