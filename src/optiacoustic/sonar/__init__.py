@@ -1,13 +1,33 @@
 """The forward-looking imaging sonar: specs and presets, image formation, noise, display."""
 
 from .display import polar_to_fan, save_png, to_display
+from .distributions import (
+    BOTTOM_TYPES,
+    KDistribution,
+    Rayleigh,
+    RayleighMixture,
+    Weibull,
+    bottom_model,
+    compare_models,
+    goodness_of_fit,
+)
 from .formation import SonarOptions, caster_for, simulate_sonar
 from .frame import FanImage, SonarFrame, SonarGroundTruth, SonarRays
+from .noise import NoiseModel
 from .propagation import Seawater, absorption_db_per_m, two_way_gain
 from .spec import PRESETS, SonarSpec
 
 __all__ = [
+    "BOTTOM_TYPES",
     "FanImage",
+    "KDistribution",
+    "NoiseModel",
+    "Rayleigh",
+    "RayleighMixture",
+    "Weibull",
+    "bottom_model",
+    "compare_models",
+    "goodness_of_fit",
     "PRESETS",
     "Seawater",
     "SonarFrame",
