@@ -43,7 +43,9 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         rows = mod.run()
         for r in rows:
-            print(f"   {r['name']}: {r['value']:.4g} {r['unit']}  ratio {r.get('ratio', float('nan')):.3g} vs {r.get('reference', '')}")
+            ratio = r.get("ratio")
+            ratio_s = "" if ratio is None else f"  ratio {ratio:.3g} vs {r.get('reference', '')}"
+            print(f"   {r['name']}: {r['value']:.4g} {r['unit']}{ratio_s}")
         rows_by_module[path.stem] = (getattr(mod, "TITLE", path.stem), getattr(mod, "DESCRIPTION", ""), rows,
                                      time.perf_counter() - t0)
     machine = f"{platform.processor() or platform.machine()}, {len(os.sched_getaffinity(0))} cores, Python {sys.version.split()[0]}"

@@ -101,7 +101,7 @@ def readme_figure(path: Path) -> None:
     fig, axes = plt.subplots(1, 2, figsize=(13, 5))
     for ax, which, title in zip(axes, ("intensity", "image"), ("noise-free echo", "with bottom reverberation and noise")):
         fan = frame.fan(which, width=1000)
-        ax.imshow(to_display(fan.data, mode="gamma", reference=ref), extent=fan.extent, cmap="copper")
+        ax.imshow(to_display(fan.data, reference=ref), extent=fan.extent, cmap="copper")
         ax.set_xlim(-8, 8)
         ax.set_ylim(3, 15)
         ax.set_title(f"Simulated BlueView P900-90, thesis scene 1: {title}")

@@ -9,6 +9,7 @@ camera X right / Y down / Z forward, rig ``P_s = R P_o + t``.
 from . import scenes
 from .camera import PinholeCamera
 from .frames import Pose
+from .optical import Light, OpticalFrame, OpticalOptions, Water, simulate_optical
 from .rig import Rig
 from .scene import Body, Material, Scene
 from .sonar import SonarFrame, SonarOptions, SonarSpec, simulate_sonar
@@ -17,6 +18,11 @@ __version__ = "0.1.0"
 
 __all__ = [
     "Body",
+    "Light",
+    "OpticalFrame",
+    "OpticalOptions",
+    "Water",
+    "simulate_optical",
     "Material",
     "PinholeCamera",
     "Pose",

@@ -15,7 +15,7 @@ import numpy as np
 
 from ._validate import as_array
 from .camera import PinholeCamera
-from .frames import Pose, R_SONAR_FROM_CAMERA_FORWARD, is_rotation, rot_z, rotation_from_euler_xyz
+from .frames import Pose, R_SONAR_FROM_CAMERA_FORWARD, _rotate, is_rotation, rot_z, rotation_from_euler_xyz
 
 __all__ = ["Rig"]
 
@@ -140,12 +140,12 @@ class Rig:
     def sonar_from_camera(self, points_camera) -> np.ndarray:
         """``P_s = R P_o + t`` for points ``(..., 3)``."""
         p = as_array(points_camera, "points_camera", ("...", 3), finite=False)
-        return p @ self.R.T + self.t
+        return _rotate(p, self.R) + self.t
 
     def camera_from_sonar(self, points_sonar) -> np.ndarray:
         """``P_o = R^T (P_s - t)`` for points ``(..., 3)``."""
         p = as_array(points_sonar, "points_sonar", ("...", 3), finite=False)
-        return (p - self.t) @ self.R
+        return _rotate(p - self.t, self.R.T)
 
     @property
     def baseline(self) -> float:

@@ -113,9 +113,9 @@ def sonar_cmd(
             stem = "frame" if frames == 1 else f"frame_{k:04d}"
             frame.save_npz(out_dir / f"{stem}.npz")
             ref = np.percentile(frame.intensity[frame.intensity > 0], 99.5) if np.any(frame.intensity > 0) else 1.0
-            save_png(out_dir / f"{stem}_polar.png", to_display(frame.image, mode="gamma", reference=ref)[::-1])
+            save_png(out_dir / f"{stem}_polar.png", to_display(frame.image, reference=ref)[::-1])
             fan = frame.fan("image")
-            save_png(out_dir / f"{stem}_fan.png", to_display(fan.data, mode="gamma", reference=ref), mask=fan.mask)
+            save_png(out_dir / f"{stem}_fan.png", to_display(fan.data, reference=ref), mask=fan.mask)
             progress.advance(task)
     written = [out_dir / "frame.npz"] if frames == 1 else [out_dir / "frame_0000.npz"]
     if figures:

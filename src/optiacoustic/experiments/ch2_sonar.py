@@ -82,7 +82,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     for ax, (name, opt) in zip(np.atleast_1d(axes), variants):
         f = simulate_sonar(scene, SonarSpec.preset(name), pose, seed=seed, options=opt)
         fan = f.fan("image", width=700)
-        ax.imshow(to_display(fan.data, mode="db", dynamic_range_db=40), extent=fan.extent, cmap="copper")
+        ax.imshow(to_display(fan.data), extent=fan.extent, cmap="copper")
         ax.set_title(f"{name}" + (", spreading + azimuth beam pattern" if opt.propagation == "spreading" else ""))
         ax.set_xlabel("x_s (m)")
         ax.set_ylabel("y_s (m)")

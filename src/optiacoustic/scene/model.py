@@ -27,8 +27,10 @@ class SceneError(ValueError):
 
 @pyd_dataclass(frozen=True, config=_CONFIG)
 class Texture:
-    """A procedural optical texture, evaluated in the body frame's x-y coordinates.
+    """A procedural optical texture, evaluated in the body frame.
 
+    On planes it uses the body's x-y coordinates; on solids, the two coordinates across
+    the body axis nearest to the surface normal (so a box's every face is checkered).
     ``checker``: squares of side ``size`` alternating ``color`` and ``color2``.
     ``grid``: lines of width ``line_width`` every ``size`` metres in ``color2`` on ``color``.
     """

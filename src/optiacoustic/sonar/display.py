@@ -59,7 +59,7 @@ def polar_to_fan(image: np.ndarray, spec: SonarSpec, *, width: int = 800) -> Fan
     return FanImage(out, mask, extent, px)
 
 
-def to_display(image: np.ndarray, *, mode: str = "db", dynamic_range_db: float = 45.0, reference=None,
+def to_display(image: np.ndarray, *, mode: str = "db", dynamic_range_db: float = 40.0, reference=None,
                gamma: float = 0.5, percentile: float = 99.5) -> np.ndarray:
     """Map linear intensities to [0, 1] for display.
 

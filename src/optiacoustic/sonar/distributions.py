@@ -222,7 +222,7 @@ class Rayleigh(_Amplitude):
         c = as_positive(factor, "factor")
         return Rayleigh(self.lam * c * c)
 
-    def sample(self, size, rng=None) -> np.ndarray:
+    def sample(self, size, rng=None, dtype=np.float64) -> np.ndarray:
         """Draw amplitudes ``sqrt(lam E)``, ``E ~ Exp(1)``.
 
         Parameters
@@ -231,8 +231,11 @@ class Rayleigh(_Amplitude):
             Output shape.
         rng : int, numpy.random.Generator or None
             Seed or generator; the same seed gives the same draws.
+        dtype : numpy.float64 or numpy.float32
+            Precision of the draws (float32 is about twice as fast).
         """
-        return np.sqrt(self.lam * _rng(rng).standard_exponential(_size(size)))
+        e = _rng(rng).standard_exponential(_size(size), dtype=dtype)
+        return np.sqrt(dtype(self.lam) * e)
 
     @classmethod
     def fit(cls, samples) -> "Rayleigh":
@@ -295,7 +298,7 @@ class Weibull(_Amplitude):
         c = as_positive(factor, "factor")
         return Weibull(self.alpha * c ** (-self.beta), self.beta)
 
-    def sample(self, size, rng=None) -> np.ndarray:
+    def sample(self, size, rng=None, dtype=np.float64) -> np.ndarray:
         """Draw amplitudes by inversion, ``(E/alpha)^(1/beta)``, ``E ~ Exp(1)``.
 
         Parameters
@@ -304,9 +307,11 @@ class Weibull(_Amplitude):
             Output shape.
         rng : int, numpy.random.Generator or None
             Seed or generator.
+        dtype : numpy.float64 or numpy.float32
+            Precision of the draws (float32 is about twice as fast).
         """
-        e = _rng(rng).standard_exponential(_size(size))
-        return (e / self.alpha) ** (1.0 / self.beta)
+        e = _rng(rng).standard_exponential(_size(size), dtype=dtype)
+        return (e * dtype(1.0 / self.alpha)) ** dtype(1.0 / self.beta)
 
     @classmethod
     def fit(cls, samples) -> "Weibull":
@@ -383,7 +388,7 @@ class KDistribution(_Amplitude):
         c = as_positive(factor, "factor")
         return KDistribution(self.alpha * c * c, self.nu)
 
-    def sample(self, size, rng=None) -> np.ndarray:
+    def sample(self, size, rng=None, dtype=np.float64) -> np.ndarray:
         """Draw amplitudes ``sqrt(G E)``, ``G ~ Gamma(nu, alpha)``, ``E ~ Exp(1)``.
 
         Parameters
@@ -392,10 +397,13 @@ class KDistribution(_Amplitude):
             Output shape.
         rng : int, numpy.random.Generator or None
             Seed or generator.
+        dtype : numpy.float64 or numpy.float32
+            Precision of the draws (float32 is about twice as fast).
         """
         g = _rng(rng)
         shape = _size(size)
-        return np.sqrt(g.gamma(self.nu, self.alpha, shape) * g.standard_exponential(shape))
+        gam = g.standard_gamma(self.nu, shape, dtype=dtype)
+        return np.sqrt(dtype(self.alpha) * gam * g.standard_exponential(shape, dtype=dtype))
 
     @classmethod
     def fit(cls, samples) -> "KDistribution":
@@ -502,7 +510,7 @@ class RayleighMixture(_Amplitude):
         c = as_positive(factor, "factor")
         return RayleighMixture(self.weights, tuple(v * c * c for v in self.lams))
 
-    def sample(self, size, rng=None) -> np.ndarray:
+    def sample(self, size, rng=None, dtype=np.float64) -> np.ndarray:
         """Draw a component ``i`` with probability ``eps_i``, then ``sqrt(lam_i E)``, ``E ~ Exp(1)``.
 
         Parameters
@@ -511,12 +519,19 @@ class RayleighMixture(_Amplitude):
             Output shape.
         rng : int, numpy.random.Generator or None
             Seed or generator.
+        dtype : numpy.float64 or numpy.float32
+            Precision of the draws (float32 is about twice as fast).
         """
         g = _rng(rng)
         shape = _size(size)
         w, lam = self._wl()
-        comp = np.searchsorted(np.cumsum(w)[:-1], g.random(shape), side="right")
-        return np.sqrt(lam[comp] * g.standard_exponential(shape))
+        u = g.random(shape, dtype=dtype)
+        e = g.standard_exponential(shape, dtype=dtype)
+        # component by comparing u with the cumulative weights (cheaper than searchsorted for few components)
+        lam_u = np.full(shape, lam[-1], dtype)
+        for c, l in zip(np.cumsum(w)[:-1][::-1], lam[:-1][::-1]):
+            lam_u[u < c] = l
+        return np.sqrt(lam_u * e)
 
     @classmethod
     def fit(cls, samples, n_components: int = 3, *, tol: float = 1e-10, max_iter: int = 5000) -> "RayleighMixture":

@@ -165,7 +165,7 @@ def save_stage_figures(frame: SonarFrame, out_dir, *, prefix: str = "sonar", fan
     # --- decimated polar image
     ref = np.percentile(frame.intensity[frame.intensity > 0], 99.5) if np.any(frame.intensity > 0) else 1.0
     fig, ax = plt.subplots(figsize=(7, 6))
-    ax.imshow(to_display(frame.intensity, mode="gamma", reference=ref), origin="lower", aspect="auto", cmap="copper",
+    ax.imshow(to_display(frame.intensity, reference=ref), origin="lower", aspect="auto", cmap="copper",
               extent=(-az, az, spec.range_min, spec.range_max))
     ax.set_xlabel("azimuth (deg)")
     ax.set_ylabel("range (m)")
@@ -183,7 +183,7 @@ def save_stage_figures(frame: SonarFrame, out_dir, *, prefix: str = "sonar", fan
     ):
         fan = frame.fan(which, width=fan_width)
         fig, ax = plt.subplots(figsize=(8, 6))
-        ax.imshow(to_display(fan.data, mode="db", dynamic_range_db=40, reference=ref), extent=fan.extent, cmap="copper")
+        ax.imshow(to_display(fan.data, reference=ref), extent=fan.extent, cmap="copper")
         ax.set_facecolor("black")
         ax.set_xlabel("x_s (m)")
         ax.set_ylabel("y_s (m)")

@@ -105,6 +105,17 @@ def _ray_grid(spec: SonarSpec):
     return d.reshape(-1, 3), dd.reshape(-1, 3)
 
 
+@functools.lru_cache(maxsize=16)
+def _index_grids(spec: SonarSpec):
+    """Beam index and elevation-sample index of every ray, flattened (read-only, cached)."""
+    K, J = spec.elevation_samples, spec.n_beams
+    beam = np.tile(np.arange(J), K)
+    elev = np.repeat(np.arange(K), J)
+    beam.setflags(write=False)
+    elev.setflags(write=False)
+    return beam, elev
+
+
 def _elevation_weights(spec: SonarSpec, pattern: str) -> np.ndarray:
     ph = spec.elevations
     if pattern == "uniform":
@@ -153,8 +164,11 @@ def _decimate(fine: np.ndarray, n_bins: int, q: int, sigma_bins: float) -> np.nd
     padded[:, D : D + n_bins] = fine.reshape(J, n_bins, q)
     out = np.zeros((J, n_bins), np.float32)
     # energy of fine block b' goes to bin b' + delta: out[b] += blocks[b - delta] . W[:, delta]
+    # (elementwise multiply-adds: a stacked matmul here would go through the threaded BLAS)
     for k, delta in enumerate(range(-D, D + 1)):
-        out += padded[:, D - delta : D - delta + n_bins] @ W[:, k]
+        src = padded[:, D - delta : D - delta + n_bins]
+        for phase in range(q):
+            out += W[phase, k] * src[:, :, phase]
     return out
 
 
@@ -195,10 +209,12 @@ def _box_integrate(beam, lo, hi, energy, n_beams: int, n_cells: int, out=None) -
     return res
 
 
-def echo_profile(spec: SonarSpec, rays: SonarRays, *, cells_per_bin: int = 1, select=None, out=None) -> np.ndarray:
+def echo_profile(spec: SonarSpec, rays: SonarRays, *, cells_per_bin: int = 1, select=None, out=None,
+                 beams=None) -> np.ndarray:
     """Box-integrate the rays' energy footprints into ``(n_beams, n_bins * cells_per_bin)``.
 
-    ``select`` (bool, rays' shape) restricts the sum to some rays.
+    ``select`` (bool, rays' shape) restricts the sum to some rays; ``beams`` (sorted
+    indices) to some beams, giving ``(len(beams), ...)``.
     """
     hit = rays.energy > 0
     if select is not None:
@@ -207,7 +223,19 @@ def echo_profile(spec: SonarSpec, rays: SonarRays, *, cells_per_bin: int = 1, se
     scale = cells_per_bin / spec.bin_width
     lo = (rays.footprint_lo[hit] - spec.range_min) * scale
     hi = (rays.footprint_hi[hit] - spec.range_min) * scale
-    return _box_integrate(rays.beam_index[hit], lo, hi, rays.energy[hit], spec.n_beams, n, out=out)
+    beam = rays.beam_index[hit]
+    n_cols = spec.n_beams
+    if beams is not None:
+        col = np.full(spec.n_beams, -1, np.int64)
+        col[beams] = np.arange(len(beams))
+        beam = col[beam]
+        keep = beam >= 0
+        beam, lo, hi = beam[keep], lo[keep], hi[keep]
+        energy = rays.energy[hit][keep]
+        n_cols = len(beams)
+    else:
+        energy = rays.energy[hit]
+    return _box_integrate(beam, lo, hi, energy, n_cols, n, out=out)
 
 
 # --------------------------------------------------------------------------- main entry
@@ -263,13 +291,18 @@ def simulate_sonar(
             raise TypeError(f"noise: expected a NoiseModel, False or None, got {type(noise).__name__}")
 
     caster = caster_for(scene)
+    bottom_types = _bottom_types(scene)
+    draws = None
+    if noise is not False:
+        # the noise variates do not depend on the echo: draw them on the other core meanwhile
+        draws = _background().submit(noise.draw, (spec.n_bins, spec.n_beams), list(bottom_types), np.random.default_rng(seed))
     rays = _scan(scene, caster, spec, pose, options)
     intensity = _form_image(spec, rays, options)
-    shares = _seabed_shares(scene, spec, rays, options, intensity)
+    shares = _seabed_shares(bottom_types, spec, rays, options, intensity)
     if noise is False:
         image = intensity.copy()
     else:
-        image = noise.apply(intensity, spec=spec, seabed_share=shares, rng=np.random.default_rng(seed), options=options)
+        image = noise.apply(intensity, spec=spec, seabed_share=shares, options=options, draws=draws.result())
     intensity.setflags(write=False)
     image.setflags(write=False)
     gt = SonarGroundTruth(
@@ -281,43 +314,104 @@ def simulate_sonar(
                       body_names=tuple(scene.body_names()), seabed_share=shares)
 
 
-def _form_image(spec: SonarSpec, rays: SonarRays, options: SonarOptions, select=None) -> np.ndarray:
-    """Rays -> (n_bins, n_beams) echo per metre: exact box integration, anti-aliasing, decimation."""
+def _form_image(spec: SonarSpec, rays: SonarRays, options: SonarOptions, select=None, beams=None) -> np.ndarray:
+    """Rays -> (n_bins, n_beams) echo per metre: exact box integration, anti-aliasing, decimation.
+
+    ``select`` (bool, rays' shape) keeps some rays; ``beams`` (sorted beam indices)
+    computes only those columns, ``(n_bins, len(beams))``.
+    """
     q = options.range_oversample
-    ws = _workspace("fine", (spec.n_beams, spec.n_bins * q + 2), np.float64)
-    fine = echo_profile(spec, rays, cells_per_bin=q, select=select, out=ws)
+    n_cols = spec.n_beams if beams is None else len(beams)
+    ws = _workspace("fine" if beams is None else "fine_part", (n_cols, spec.n_bins * q + 2), np.float64)
+    fine = echo_profile(spec, rays, cells_per_bin=q, select=select, out=ws, beams=beams)
     sigma_bins = max(spec.pulse_width / spec.bin_width / 2.3548, 0.5)
     echo = _decimate(fine, spec.n_bins, q, sigma_bins)
     if options.azimuth_pattern and spec.beamwidth_azimuth > 0:
         from scipy.ndimage import gaussian_filter1d
 
+        if beams is not None:  # the pattern mixes neighbouring beams: work on all columns
+            full = np.zeros((spec.n_beams, spec.n_bins), np.float32)
+            full[beams] = echo
+            echo = full
         sigma_beams = spec.beamwidth_azimuth / spec.beam_spacing / 2.3548
         echo = gaussian_filter1d(echo, sigma_beams, axis=0, mode="constant", truncate=3.5)
+        if beams is not None:
+            echo = echo[beams]
     # energy per bin -> density per metre of range: independent of the bin width
     echo *= np.float32(1.0 / spec.bin_width)
+    # flush the cumulative sums' rounding residue (~1e-16) so that shadows are exactly dark
+    peak = float(echo.max()) if echo.size else 0.0
+    echo[echo < np.float32(1e-9 * peak)] = 0.0
     return np.ascontiguousarray(echo.T)
 
 
-def _seabed_shares(scene: Scene, spec: SonarSpec, rays: SonarRays, options: SonarOptions, intensity) -> dict:
-    """Share of each cell's echo that comes from seabed bodies, per bottom type."""
+def _bottom_types(scene: Scene) -> dict:
+    """Bottom type -> ids of the seabed bodies of that type, in scene order."""
     types: dict[str, list[int]] = {}
     for i, b in enumerate(scene.bodies):
         if b.material.bottom_type is not None:
             types.setdefault(b.material.bottom_type, []).append(i)
-    shares = {}
+    return types
+
+
+def _seabed_shares(bottom_types: dict, spec: SonarSpec, rays: SonarRays, options: SonarOptions, intensity) -> dict:
+    """Share of each cell's echo that comes from seabed bodies, per bottom type.
+
+    The echo splits into classes (each bottom type, and the targets). Every class but
+    the one with the most rays is integrated on its own, over the beams its rays reach;
+    the largest class is the remainder. Usually that means integrating only the targets.
+    """
+    if not bottom_types:
+        return {}
+    body = rays.body
+    lit = rays.energy > 0
+    classes = {name: lit & np.isin(body, ids) for name, ids in bottom_types.items()}
+    classes[None] = lit & ~np.any(np.stack(list(classes.values())), axis=0)
+    largest = max(classes, key=lambda k: int(classes[k].sum()))
+    shares: dict = {}
+    rest = np.ones_like(intensity)
     with np.errstate(invalid="ignore", divide="ignore"):
-        for name, ids in types.items():
-            part = _form_image(spec, rays, options, select=np.isin(rays.body, ids))
-            share = np.where(intensity > 0, np.clip(part / intensity, 0.0, 1.0), 0.0).astype(np.float32)
-            share.setflags(write=False)
+        for name, sel in classes.items():
+            if name == largest:
+                continue
+            share = np.zeros_like(intensity)
+            if sel.any():
+                beams = np.flatnonzero(np.bincount(rays.beam_index[sel], minlength=spec.n_beams))
+                if options.azimuth_pattern:
+                    beams = np.arange(spec.n_beams)
+                part = _form_image(spec, rays, options, select=sel, beams=beams)
+                sub = intensity[:, beams]
+                share[:, beams] = np.where(sub > 0, np.clip(part / sub, 0.0, 1.0), 0.0)
+            rest -= share
             shares[name] = share
-    return shares
+    shares[largest] = np.clip(rest, 0.0, 1.0)
+    out = {}
+    for name in bottom_types:
+        sh = shares[name].astype(np.float32)
+        sh[intensity <= 0] = 0.0
+        sh.setflags(write=False)
+        out[name] = sh
+    return out
+
+
+_BACKGROUND = None
+
+
+def _background():
+    """One worker thread for work that overlaps the scan (noise draws)."""
+    global _BACKGROUND
+    if _BACKGROUND is None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _BACKGROUND = ThreadPoolExecutor(max_workers=1, thread_name_prefix="oas-background")
+    return _BACKGROUND
+
 
 def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options: SonarOptions) -> SonarRays:
     """Cast the beams' rays and compute each ray's echo energy and range footprint (sec. 2.6.1)."""
     d_s, dd_s = _ray_grid(spec)
-    d_w = d_s @ pose.R.T
-    dd_w = dd_s @ pose.R.T
+    d_w = pose.directions_to_world(d_s)
+    dd_w = pose.directions_to_world(dd_s)
     hits = caster.cast(pose.t, d_w, max_distance=spec.range_max * 1.5)
     K, J = spec.elevation_samples, spec.n_beams
     hit = hits.body >= 0
@@ -336,8 +430,10 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     _refine_edges(caster, spec, pose, hits.body, r, slope, a, b)
 
     refl = np.array([bd.material.reflectivity for bd in scene.bodies] + [0.0])
-    w_el = np.tile(_elevation_weights(spec, options.elevation_pattern)[:, None], (1, J)).reshape(-1)
-    energy = refl[hits.body] * cos_inc * w_el * (a + b)
+    beam_grid, elev_grid = _index_grids(spec)
+    energy = refl[hits.body] * cos_inc * (a + b)
+    if options.elevation_pattern != "uniform":
+        energy *= _elevation_weights(spec, options.elevation_pattern)[elev_grid]
     if options.propagation == "spreading":
         energy = energy * np.where(hit, two_way_gain(np.where(hit, r, 1.0), spec.frequency, options.water), 0.0)
     # range footprint of the cell on the tangent plane; a floor on its width (1e-4 of a
@@ -348,7 +444,7 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     with np.errstate(invalid="ignore"):
         pad = np.maximum(0.0, 1e-4 * spec.bin_width - (hi - lo)) * 0.5
     lo, hi = np.where(hit, lo - pad, np.nan), np.where(hit, hi + pad, np.nan)
-    elev = np.repeat(spec.elevations, J)
+    elev = spec.elevations[elev_grid]
     energy = np.where(hit, energy, 0.0)
     shape = (K, J)
     return SonarRays(
@@ -358,7 +454,7 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
         cos_incidence=cos_inc.reshape(shape),
         footprint_lo=lo.reshape(shape),
         footprint_hi=hi.reshape(shape),
-        beam_index=np.tile(np.arange(J), K).reshape(shape),
+        beam_index=beam_grid.reshape(shape),
         elevation=elev.reshape(shape),
         elevation_lo=(elev - a).reshape(shape),
         elevation_hi=(elev + b).reshape(shape),
@@ -398,7 +494,7 @@ def _refine_edges(caster, spec, pose, body, r, slope, a, b) -> None:
     phi = spec.elevations[kk][:, None] + step * frac[None, :]
     th = spec.azimuths[jj][:, None]
     cp = np.cos(phi)
-    d = np.stack(np.broadcast_arrays(cp * np.sin(th), cp * np.cos(th), np.sin(phi)), -1) @ pose.R.T
+    d = pose.directions_to_world(np.stack(np.broadcast_arrays(cp * np.sin(th), cp * np.cos(th), np.sin(phi)), -1))
     h = caster.cast(pose.t, d, max_distance=spec.range_max * 1.5, smooth=False)
     lower = kk * J + jj
     upper = lower + J
@@ -468,7 +564,7 @@ def _shadow_mask(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.n
     footprint covers and that no direct ray lights are acoustic shadow.
     """
     d_s, dd_s = _ray_grid(spec)
-    d_w = d_s @ pose.R.T
+    d_w = pose.directions_to_world(d_s)
     first_body = rays.body.reshape(-1)
     r0 = rays.range.reshape(-1)
     active = np.flatnonzero(first_body >= 0)
@@ -499,7 +595,7 @@ def _shadow_mask(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.n
         return np.zeros((spec.n_bins, spec.n_beams), bool)
     r = hidden_r[sel]
     nd = np.abs(np.einsum("ij,ij->i", hidden_n[sel], d_w[sel]))
-    ndd = np.abs(np.einsum("ij,ij->i", hidden_n[sel], dd_s[sel] @ pose.R.T))
+    ndd = np.abs(np.einsum("ij,ij->i", hidden_n[sel], pose.directions_to_world(dd_s[sel])))
     half = 0.5 * spec.elevation_step * r * ndd / np.maximum(nd, _MIN_COS_FOOTPRINT)
     half = np.maximum(half, 0.5 * spec.bin_width * 1e-3)
     lo = (r - half - spec.range_min) / spec.bin_width

@@ -83,12 +83,15 @@ class NoiseModel:
         """Mean noise power per range bin, ``(n_bins,)``, in the image's units."""
         if self.noise_floor_db is None:
             return np.zeros(len(ranges), np.float32)
-        pos = intensity > 0
+        # medians over every 7th cell: a stable reference at a seventh of the cost
+        sub = intensity.reshape(-1)[::7]
+        rows = np.arange(intensity.size)[::7] // intensity.shape[1]
+        pos = sub > 0
         if self.reference_level is not None:
             ref = self.reference_level
         else:
-            ref = float(np.median(intensity[pos])) if pos.any() else 1.0
-        r_ref = float(np.median(np.broadcast_to(ranges[:, None], intensity.shape)[pos])) if pos.any() else float(np.median(ranges))
+            ref = float(np.median(sub[pos])) if pos.any() else 1.0
+        r_ref = float(np.median(ranges[rows[pos]])) if pos.any() else float(np.median(ranges))
         level = ref * 10.0 ** (self.noise_floor_db / 10.0)
         if propagation == "tvg" and self.tvg_noise:
             alpha = absorption_db_per_m(frequency, water)
@@ -97,53 +100,76 @@ class NoiseModel:
             gain = np.ones_like(ranges)
         return (level * gain).astype(np.float32)
 
-    def apply(self, intensity: np.ndarray, *, spec, seabed_share: dict, rng: np.random.Generator, options) -> np.ndarray:
-        """The noisy image ``(n_bins, n_beams)`` float32 from the noise-free ``intensity``.
+    def draw(self, shape: tuple, bottom_types, rng: np.random.Generator) -> "NoiseDraws":
+        """Draw every random variate the image needs; independent of the echo itself.
 
-        ``seabed_share[bottom_type]`` is the share of each cell's echo returned by seabed
-        bodies of that bottom type (``SonarFrame.seabed_share``).
+        ``simulate_sonar`` runs this in a background thread while it scans the scene.
+        The draws come in a fixed order, so a seed gives the same image.
         """
         from .distributions import bottom_model
 
+        x = {}
+        if self.reverberation is not None:
+            for b in bottom_types:
+                if b not in x:
+                    x[b] = bottom_model(self.bottom_type or b, self.reverberation).sample(shape, rng, dtype=np.float32)
+        z = rng.standard_normal((2,) + tuple(shape), dtype=np.float32)
+        phase = None
+        if self.reverberation is not None and not self.target_speckle:
+            phase = rng.random(shape, dtype=np.float32) * np.float32(2 * np.pi)
+        return NoiseDraws(z, x, phase)
+
+    def apply(self, intensity: np.ndarray, *, spec, seabed_share: dict, rng: np.random.Generator | None = None,
+              options, draws: "NoiseDraws | None" = None) -> np.ndarray:
+        """The noisy image ``(n_bins, n_beams)`` float32 from the noise-free ``intensity``.
+
+        ``seabed_share[bottom_type]`` is the share of each cell's echo returned by seabed
+        bodies of that bottom type (``SonarFrame.seabed_share``). Pass either ``draws``
+        (from :meth:`draw`) or ``rng``.
+        """
         I = np.asarray(intensity, np.float32)
         shape = I.shape
+        if draws is None:
+            draws = self.draw(shape, list(seabed_share), rng)
+        noise = self.noise_power(I, spec.ranges, spec.frequency, options.propagation, options.water)[:, None]
         bottom = np.zeros(shape, np.float32)
         amp_b = np.zeros(shape, np.float32)
-        if self.reverberation is not None:
-            for btype, share in seabed_share.items():
-                name = self.bottom_type or btype
-                part = I * share
-                cells = part > 0
-                n = int(cells.sum())
-                if n:
-                    x = np.asarray(bottom_model(name, self.reverberation).sample(n, rng), np.float32)
-                    amp_b[cells] += np.sqrt(part[cells]) * x
-                bottom += part
-        else:
-            for share in seabed_share.values():
-                bottom += I * share
-            amp_b = np.sqrt(bottom)
+        for btype, share in seabed_share.items():
+            part = I * share
+            bottom += part
+            if self.reverberation is not None:
+                amp_b += np.sqrt(part) * draws.x[btype]
         target = np.maximum(I - bottom, 0.0)
-        noise = self.noise_power(I, spec.ranges, spec.frequency, options.propagation, options.water)[:, None]
-        if self.reverberation is None and not self.target_speckle:
-            # nothing fluctuates but the noise: the steady parts add in power
-            amp_b = np.sqrt(I)
-            if self.noise_floor_db is None:
-                return I.copy()
-        if self.target_speckle:
-            gauss_power = target + noise
-            amp_t = None
-        else:
-            gauss_power = np.broadcast_to(noise, shape)
-            amp_t = None if self.reverberation is None else np.sqrt(target)
-        s = np.sqrt(gauss_power * 0.5, dtype=np.float32)
-        z = rng.standard_normal((2,) + shape, dtype=np.float32)
-        if amp_t is None:
-            re = amp_b + s * z[0]
-            im = s * z[1]
-        else:
+        if self.reverberation is None:
+            if self.target_speckle:
+                amp_b = np.sqrt(bottom)
+            else:  # nothing fluctuates but the noise: the steady parts add in power
+                if self.noise_floor_db is None:
+                    return I.copy()
+                amp_b = np.sqrt(I)
+                target = np.zeros_like(I)
+        gauss_power = target + noise if self.target_speckle else np.broadcast_to(noise, shape)
+        s = np.sqrt(gauss_power * np.float32(0.5), dtype=np.float32)
+        z = draws.z
+        re = amp_b + s * z[0]
+        im = s * z[1]
+        if draws.phase is not None:
             # a steady target echo adds to the fluctuating bottom echo with an independent random phase
-            phase = rng.random(shape, dtype=np.float32) * np.float32(2 * np.pi)
-            re = amp_b + amp_t * np.cos(phase) + s * z[0]
-            im = amp_t * np.sin(phase) + s * z[1]
-        return (re * re + im * im).astype(np.float32)
+            amp_t = np.sqrt(target)
+            re += amp_t * np.cos(draws.phase)
+            im += amp_t * np.sin(draws.phase)
+        re *= re
+        im *= im
+        re += im
+        return re
+
+
+@dataclass(frozen=True, eq=False)
+class NoiseDraws:
+    """Random variates of one frame: normals ``z`` (2, n_bins, n_beams), reverberation
+    amplitudes ``x[bottom_type]`` (n_bins, n_beams) with ``E[x^2] = 1``, and the phases of
+    steady target echoes (only when ``target_speckle`` is off)."""
+
+    z: np.ndarray
+    x: dict
+    phase: Optional[np.ndarray]

@@ -1,0 +1,123 @@
+"""Figures of the optical simulation stages (thesis Figs. 3.7-3.8) and of a sonar + camera pair."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .frame import OpticalFrame, auto_exposure, to_srgb8
+
+__all__ = ["save_stage_figures", "save_pair_figure", "save_ground_truth_figure"]
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save_stage_figures(frame: OpticalFrame, out_dir, *, prefix: str = "optical", title: str | None = None,
+                       individual: bool = True) -> list[tuple[Path, str]]:
+    """The four stages of Figs. 3.7-3.8 as one panel, the two scattered components alone,
+    and (``individual``) each stage as a full-resolution PNG.
+
+    ``clear`` is shown with its own exposure; the water stages share the final image's,
+    so that the veil is seen adding light and attenuation taking it away.
+    Returns ``[(path, caption), ...]``.
+    """
+    plt = _plt()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    e_clear = frame.exposure("clear")
+    e_img = frame.exposure("image")
+    panels = [
+        ("clear", e_clear, "a) clear (no water), Fig. 3.7a"),
+        ("attenuated", e_img, "b) attenuation, Fig. 3.7b"),
+        ("forward_scatter", e_img, "c) + forward scatter, Fig. 3.8a"),
+        ("image", e_img, "d) + backscatter, Fig. 3.8b"),
+    ]
+    figs = []
+    fig, axes = plt.subplots(2, 2, figsize=(12, 8.4))
+    for ax, (stage, e, label) in zip(axes.ravel(), panels):
+        ax.imshow(frame.to_srgb8(stage, e))
+        ax.set_title(label)
+        ax.axis("off")
+    w = frame.water
+    fig.suptitle(title or f"{w.name} water, c = ({', '.join(f'{x:.3g}' for x in w.c)}) /m (R, G, B)")
+    fig.tight_layout()
+    p = out / f"{prefix}_stages.png"
+    fig.savefig(p, dpi=80)
+    plt.close(fig)
+    figs.append((p, f"Underwater image formation step by step in {w.name} water (thesis Figs. 3.7-3.8): "
+                    "clear scene, attenuation (red fades first), forward scatter, and the veiling backscatter."))
+    for stage, e, label in panels if individual else ():
+        p = out / f"{prefix}_{stage}.png"
+        frame.save_png(p, stage, e)
+        figs.append((p, label.split(") ", 1)[1] + f" ({w.name} water), full resolution."))
+    # the veil alone (own exposure) and the forward-scattered light alone (magnified)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+    axes[0].imshow(frame.to_srgb8("backscatter"))
+    axes[0].set_title("backscatter (veiling light) alone, own exposure")
+    fs = np.asarray(frame.forward_scatter) - np.asarray(frame.attenuated)
+    axes[1].imshow(to_srgb8(fs, auto_exposure(fs) if np.any(fs > 0) else 1.0))
+    axes[1].set_title("forward-scattered light alone, own exposure")
+    for a in axes:
+        a.axis("off")
+    fig.tight_layout()
+    p = out / f"{prefix}_components.png"
+    fig.savefig(p, dpi=80)
+    plt.close(fig)
+    share = float(np.sum(frame.backscatter) / max(np.sum(frame.image), 1e-30))
+    figs.append((p, f"The two scattered components on their own: the veil ({100 * share:.0f} % of the image's light) "
+                    "is smooth and brightest towards the lamp; the forward-scattered light is a range-dependent blur "
+                    "of the scene."))
+    return figs
+
+
+def save_ground_truth_figure(frame: OpticalFrame, path) -> Path:
+    """Depth and body-id maps of a frame."""
+    plt = _plt()
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+    d = np.where(np.isfinite(frame.depth), frame.depth, np.nan)
+    im = axes[0].imshow(d, cmap="viridis")
+    fig.colorbar(im, ax=axes[0], label="range along the ray (m)")
+    axes[0].set_title("depth (range) ground truth")
+    b = np.where(frame.body >= 0, frame.body, np.nan)
+    im = axes[1].imshow(b, cmap="tab10", interpolation="nearest")
+    fig.colorbar(im, ax=axes[1], label="body id")
+    axes[1].set_title("body ids (open water blank)")
+    for a in axes:
+        a.set_xlabel("u (px)")
+        a.set_ylabel("v (px)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return Path(path)
+
+
+def save_pair_figure(sonar_frame, optical_frame: OpticalFrame, path, *, title: str | None = None) -> Path:
+    """A synchronised sonar fan image and camera image side by side."""
+    from ..sonar.display import to_display
+
+    plt = _plt()
+    fan = sonar_frame.fan("image", width=700)
+    ref = np.percentile(sonar_frame.intensity[sonar_frame.intensity > 0], 99.5) if np.any(sonar_frame.intensity > 0) else 1.0
+    fig, axes = plt.subplots(1, 2, figsize=(14, 5.2), gridspec_kw={"width_ratios": [1, 1.25]})
+    axes[0].imshow(to_display(fan.data, reference=ref), extent=fan.extent, cmap="copper")
+    axes[0].set_facecolor("black")
+    axes[0].set_xlabel("x_s (m)")
+    axes[0].set_ylabel("y_s (m)")
+    axes[0].set_title(f"sonar ({sonar_frame.spec.name}) at {np.round(sonar_frame.pose.t, 2).tolist()}")
+    axes[1].imshow(optical_frame.to_srgb8("image"))
+    axes[1].set_title(f"camera at {np.round(optical_frame.pose.t, 2).tolist()}, {optical_frame.water.name} water")
+    axes[1].axis("off")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return Path(path)
