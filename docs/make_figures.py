@@ -99,12 +99,12 @@ def readme_figure(path: Path) -> None:
     frame = simulate_sonar(scene, spec, Pose.look_at(scene.view.eye, scene.view.target), seed=1)
     ref = np.percentile(frame.intensity[frame.intensity > 0], 99.5)
     fig, axes = plt.subplots(1, 2, figsize=(13, 5))
-    for ax, which, title in zip(axes, ("intensity", "image"), ("noise-free echo", "with bottom reverberation and noise")):
+    for ax, which, title in zip(axes, ("intensity", "image"), ("noise-free echo", "with reverberation and noise")):
         fan = frame.fan(which, width=1000)
         ax.imshow(to_display(fan.data, reference=ref), extent=fan.extent, cmap="copper")
         ax.set_xlim(-8, 8)
         ax.set_ylim(3, 15)
-        ax.set_title(f"Simulated BlueView P900-90, thesis scene 1: {title}")
+        ax.set_title(f"BlueView P900-90, scene 1: {title}")
         ax.set_xlabel("x_s (m)")
         ax.set_ylabel("y_s (m)")
     fig.tight_layout()
