@@ -120,3 +120,18 @@ def test_validation_errors():
         pr.camera_from_sonar(rig, np.ones(3), np.zeros(3), np.zeros(2))
     with pytest.raises(ValueError, match="rig"):
         pr.project("not a rig", np.zeros(3))
+
+
+def test_cos_sin_roots_identity():
+    """Both roots satisfy a cos(phi) + b sin(phi) = c; NaN exactly when |c| > hypot(a, b)."""
+    from optiacoustic.geometry.projection import cos_sin_roots
+
+    rng = np.random.default_rng(42)
+    a, b = rng.normal(size=(2, 1000))
+    c = rng.uniform(-1.5, 1.5, 1000) * np.hypot(a, b)
+    roots = cos_sin_roots(a, b, c)
+    solvable = np.abs(c) <= np.hypot(a, b)
+    assert np.array_equal(np.isfinite(roots).all(0), solvable)
+    res = a * np.cos(roots) + b * np.sin(roots) - c
+    assert np.nanmax(np.abs(res)) < 1e-12
+    assert np.all(np.abs(roots[:, solvable]) <= np.pi)

@@ -112,7 +112,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     summary = (f"{spec.n_beams} x {spec.elevation_samples} rays per frame in {numbers['frame_ms_median']:.0f} ms "
                f"(thesis: 3.5 min); the image changes by {doubling.get(spec.elevation_samples, float('nan')) * 100:.2f}% "
                f"when the elevation sampling doubles; echo energy is conserved to "
-               f"{abs(energy_img / numbers['energy_rays_in_window'] - 1) * 100:.2f}%.")
+               f"{abs(energy_img / numbers['energy_rays_in_window'] - 1) * 100:.1g}%.")
     rows = [[str(K), f"{doubling[K] * 100:.2f}%", f"{conv[K] * 100:.2f}%"] for K in ks[:-1]]
     tables = [("Convergence in elevation sampling", ["samples per beam", "L1 change when doubled", f"L1 vs {ks[-1]}"], rows)]
     return ExperimentResult(NAME, figures, numbers, summary, tables)

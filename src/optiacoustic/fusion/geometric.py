@@ -24,6 +24,7 @@ from scipy.spatial import Delaunay, QhullError, cKDTree
 
 from .._validate import as_array
 from ..frames import Pose, polar_from_fan, sonar_from_spherical
+from ..geometry.projection import cos_sin_roots
 from ..rig import Rig
 from ._checks import check_matches, query_points
 
@@ -137,14 +138,10 @@ def _elevation_on_planes(normals, offsets, r, th, half, reference=0.0) -> Elevat
     """Vectorised root choice: ``normals (..., 3)``, ``offsets``, ``r``, ``th`` broadcast together."""
     A = normals[..., 0] * np.sin(th) + normals[..., 1] * np.cos(th)
     B = normals[..., 2] + 0.0 * A
-    C = np.hypot(A, B)
-    alpha = np.arctan2(B, A)
     with np.errstate(divide="ignore", invalid="ignore"):
-        c = offsets / (r * C)
-        ok = np.isfinite(c) & (np.abs(c) <= 1.0) & (C > 1e-12) & (r > 0)
-        beta = np.arccos(np.clip(np.where(ok, c, 0.0), -1.0, 1.0))
-    roots = np.stack([alpha + beta, alpha - beta], -1)
-    roots = (roots + np.pi) % (2 * np.pi) - np.pi  # wrap to [-pi, pi)
+        c = np.where(r > 0, offsets / np.where(r > 0, r, 1.0), np.nan)
+    roots = np.moveaxis(cos_sin_roots(A, B, c), 0, -1)  # the arc meets the plane (eq. 6.16)
+    ok = np.isfinite(roots[..., 0]) & (np.hypot(A, B) > 1e-12)
     inside = ok[..., None] & (np.abs(roots) <= half + 1e-12)
     distinct = np.abs(roots[..., 0] - roots[..., 1]) > 1e-12
     both = inside[..., 0] & inside[..., 1] & distinct

@@ -35,7 +35,26 @@ __all__ = [
     "pixel_rays_in_sonar",
     "normalized_coordinates",
     "ideal_pixels",
+    "cos_sin_roots",
 ]
+
+
+def cos_sin_roots(a, b, c) -> np.ndarray:
+    """Both solutions ``phi`` of ``a cos(phi) + b sin(phi) = c``, shape ``(2,) + broadcast``.
+
+    With ``a = n . (sin theta, cos theta, 0)``, ``b = n_z`` and ``c = d / r`` these are the
+    elevations where a sonar measurement's arc ``r (cos phi sin theta, cos phi cos theta,
+    sin phi)`` meets the plane ``n . P = d`` (thesis eqs. 6.15-6.16, corrected in
+    docs/derivations.md): ``phi = atan2(b, a) +- arccos(c / hypot(a, b))``, wrapped to
+    ``[-pi, pi)``. NaN where there is none (``|c| > hypot(a, b)``, or ``a = b = 0``).
+    """
+    a, b, c = np.broadcast_arrays(np.asarray(a, float), np.asarray(b, float), np.asarray(c, float))
+    rho = np.hypot(a, b)
+    psi = np.arctan2(b, a)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        q = np.arccos(c / rho)
+    roots = np.stack([psi + q, psi - q])
+    return (roots + np.pi) % (2 * np.pi) - np.pi
 
 
 def _check_rig(rig) -> Rig:

@@ -1,0 +1,365 @@
+"""Motion from opti-acoustic sequences (thesis ch. 6): identities, noise-free recovery,
+Monte Carlo against the truth, and degenerate input."""
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from optiacoustic import PinholeCamera, Pose, Rig, SonarSpec
+from optiacoustic.frames import project_to_sonar, rot_x, rot_y, rot_z, spherical_from_sonar
+from optiacoustic.geometry import motion
+from optiacoustic.geometry import _bundle as B
+
+CAM = PinholeCamera.from_sensor(600, 400, (36, 24), 50)
+SPEC = SonarSpec.preset("blueview-p900-90")
+RIG = Rig.toed_in(CAM, baseline=0.25, vergence=np.deg2rad(2.3), sonar=SPEC)
+SP, SR, SA = 1.0, 0.01, 0.005
+SIG = dict(sigma_pixel=SP, sigma_range=SR, sigma_azimuth=SA)
+
+
+# --------------------------------------------------------------------------- synthetic views
+def plane_points(rng, n, center, normal, size):
+    normal = np.asarray(normal, float) / np.linalg.norm(normal)
+    a = np.cross(normal, [0, 0, 1.0])
+    if np.linalg.norm(a) < 1e-6:  # a horizontal plane
+        a = np.cross(normal, [1.0, 0, 0])
+    a /= np.linalg.norm(a)
+    b = np.cross(normal, a)
+    uv = rng.uniform(-size / 2, size / 2, (n, 2))
+    return np.asarray(center, float) + uv[:, :1] * a + uv[:, 1:] * b
+
+
+def wall(rng, n, cx, cy, ang):
+    a = np.array([np.cos(ang), np.sin(ang), 0.0])
+    return np.array([cx, cy, 0.0]) + rng.uniform(-1, 1, n)[:, None] * a + rng.uniform(-1, 1, n)[:, None] * [0, 0, 1.0]
+
+
+S1 = Pose.look_at([0, -1, 0], [0, 0.7, 0])
+S2 = Pose(rot_z(0.08) @ rot_x(0.05) @ S1.R, S1.t + np.array([0.25, 0.05, 0.1]))
+
+
+def views(rng, pts, s1=S1, s2=S2, n_opt=200, n_son=50, noise=0.0, outliers=0.0, rig=RIG):
+    """Matches of world points seen from two rig positions, with noise and planted outliers."""
+    c1, c2 = rig.camera_pose(s1), rig.camera_pose(s2)
+    u1, u2 = CAM.project(c1.to_body(pts)), CAM.project(c2.to_body(pts))
+    vis = CAM.in_image(u1) & CAM.in_image(u2)
+    kw = dict(fov_azimuth=SPEC.fov_azimuth, fov_elevation=SPEC.fov_elevation, range_min=SPEC.range_min,
+              range_max=SPEC.range_max)
+    a1, a2 = project_to_sonar(s1.to_body(pts), **kw), project_to_sonar(s2.to_body(pts), **kw)
+    io = rng.choice(np.flatnonzero(vis), n_opt, replace=False)
+    is_ = rng.choice(np.flatnonzero(a1.in_fan & a2.in_fan), n_son, replace=False)
+    p1 = u1[io] + rng.normal(0, SP * noise, (n_opt, 2))
+    p2 = u2[io] + rng.normal(0, SP * noise, (n_opt, 2))
+    r1 = a1.ranges[is_] + rng.normal(0, SR * noise, n_son)
+    t1 = a1.azimuths[is_] + rng.normal(0, SA * noise, n_son)
+    r2 = a2.ranges[is_] + rng.normal(0, SR * noise, n_son)
+    t2 = a2.azimuths[is_] + rng.normal(0, SA * noise, n_son)
+    out_o, out_s = np.zeros(n_opt, bool), np.zeros(n_son, bool)
+    if outliers:
+        k = int(outliers * n_opt)
+        j = rng.choice(n_opt, k, replace=False)
+        out_o[j] = True
+        p2[j] = np.stack([rng.uniform(0, 599, k), rng.uniform(0, 399, k)], -1)
+        k = int(outliers * n_son)
+        j = rng.choice(n_son, k, replace=False)
+        out_s[j] = True
+        r2[j] = rng.uniform(r2.min(), r2.max(), k)
+        t2[j] = rng.uniform(-0.7, 0.7, k)
+    rel = c2.inverse() @ c1
+    return dict(p1=p1, p2=p2, s1=(r1, t1), s2=(r2, t2), R_o=rel.R, t_o=rel.t, out_o=out_o, out_s=out_s,
+                X=c1.to_body(pts[io]), Ps=s1.to_body(pts[is_]), c1=c1)
+
+
+def plane_truth(c1, center, normal):
+    n = c1.R.T @ (np.asarray(normal, float) / np.linalg.norm(normal))
+    d = n @ c1.to_body(np.asarray(center, float))
+    return (n, d) if d > 0 else (-n, -d)
+
+
+PLANE_C, PLANE_N = np.array([0, 0.7, 0.0]), np.array([0.3, -1, 0.2])
+
+
+def rot_err(Ra, Rb):
+    return float(np.linalg.norm(B.log_so3(Ra @ Rb.T)))
+
+
+def run(D, **kw):
+    return motion.estimate(RIG, D["p1"], D["p2"], D["s1"], D["s2"], **{**SIG, **kw})
+
+
+# --------------------------------------------------------------------------- identities
+def random_rotation(rng, s=0.3):
+    return rot_z(rng.normal(0, s)) @ rot_y(rng.normal(0, s)) @ rot_x(rng.normal(0, s))
+
+
+def test_sonar_motion_is_the_rig_conjugate_of_the_camera_motion_eq_6_5():
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        rig = Rig(random_rotation(rng), rng.normal(0, 0.3, 3), CAM)
+        R_o, t_o = random_rotation(rng), rng.normal(0, 0.5, 3)
+        P_o = rng.normal(0, 2, (20, 3))
+        R_s, t_s = motion.sonar_motion(rig, R_o, t_o)
+        lhs = rig.sonar_from_camera(P_o @ R_o.T + t_o)  # P'_s from the camera motion
+        assert np.allclose(lhs, rig.sonar_from_camera(P_o) @ R_s.T + t_s, atol=1e-12)
+        # the thesis's t_s = (I - R R_o R^T) + R t_o drops the factor t
+        t_thesis = (np.eye(3) - R_s) @ np.ones(3) + rig.R @ t_o
+        assert not np.allclose(lhs, rig.sonar_from_camera(P_o) @ R_s.T + t_thesis, atol=1e-3)
+
+
+def test_plane_in_the_sonar_frame_eq_6_7():
+    rng = np.random.default_rng(1)
+    rig = Rig(random_rotation(rng), rng.normal(0, 0.3, 3), CAM)
+    n = rng.normal(size=3)
+    n /= np.linalg.norm(n)
+    plane = motion.Plane(n, 1.7)
+    pts = plane_points(rng, 30, n * 1.7, n, 2.0)
+    n_s, d_s = plane.in_sonar(rig)
+    assert np.allclose(rig.sonar_from_camera(pts) @ n_s, d_s)
+    assert np.allclose(pts @ plane.m, 1.0)
+
+
+def test_sonar_image_homography_eq_6_11_with_the_corrected_third_column():
+    """Fan coordinates of plane points: (x'_s, y'_s) = alpha (q11 x_s + q12 y_s) + beta q13 (and q2.)."""
+    rng = np.random.default_rng(2)
+    R_s, t_s = rot_z(0.1) @ rot_x(0.08), np.array([0.2, 0.1, 0.15])
+    n_s = np.array([0.2, -0.9, 0.3])
+    n_s /= np.linalg.norm(n_s)
+    d_s = 1.5
+    c0 = np.array([0, 1.5, 0])
+    P = plane_points(rng, 40, c0 + n_s * (d_s - n_s @ c0), n_s, 0.5)
+    assert np.allclose(P @ n_s, d_s)
+    Q = R_s + np.outer(t_s, n_s) / d_s  # P'_s = Q P_s on the plane (our form of eq. 6.10)
+    P2 = P @ R_s.T + t_s
+    assert np.allclose(P @ Q.T, P2)
+    r, th, ph = spherical_from_sonar(P)
+    r2, th2, ph2 = spherical_from_sonar(P2)
+    xs, ys = r * np.sin(th), r * np.cos(th)
+    alpha = np.cos(ph) / np.cos(ph2)
+    beta = r * np.sin(ph) / np.cos(ph2)
+    x2 = alpha * (Q[0, 0] * xs + Q[0, 1] * ys) + beta * Q[0, 2]
+    y2 = alpha * (Q[1, 0] * xs + Q[1, 1] * ys) + beta * Q[1, 2]
+    assert np.allclose(x2, r2 * np.sin(th2)) and np.allclose(y2, r2 * np.cos(th2))
+    # the thesis's beta q11 in both rows does not
+    assert not np.allclose(alpha * (Q[1, 0] * xs + Q[1, 1] * ys) + beta * Q[0, 0], r2 * np.cos(th2), atol=1e-3)
+
+
+def test_elevation_from_the_plane_eq_6_16_has_the_true_root():
+    rng = np.random.default_rng(3)
+    n_s = np.array([0.1, -0.8, 0.5])
+    n_s /= np.linalg.norm(n_s)
+    P = plane_points(rng, 50, np.array([0, 1.6, 0]), n_s, 0.6)
+    d_s = P[0] @ n_s
+    r, th, ph = spherical_from_sonar(P)
+    u = np.stack([np.sin(th), np.cos(th), np.zeros_like(th)], -1)
+    A, Bz, C = r * (u @ n_s), r * n_s[2], np.full_like(r, d_s)
+    roots = motion._trig_roots(A, Bz, C)
+    assert np.min(np.abs(roots - ph), axis=0).max() < 1e-12
+    # the thesis's phi_s = atan(A/B) + asin(C/rho) has the sign of the first term flipped
+    rho = np.hypot(A, Bz)
+    ours = np.arcsin(C / rho) - np.arctan(A / Bz)
+    thesis = np.arcsin(C / rho) + np.arctan(A / Bz)
+    assert np.allclose(A * np.cos(ours) + Bz * np.sin(ours), C)
+    assert not np.allclose(A * np.cos(thesis) + Bz * np.sin(thesis), C, atol=1e-3)
+
+
+def test_bundle_jacobians_match_finite_differences():
+    rng = np.random.default_rng(4)
+    D = views(rng, plane_points(rng, 4000, PLANE_C, PLANE_N, 3.0), n_opt=30, n_son=10, noise=1.0)
+    d = motion._data(RIG, D["p1"], D["p2"], D["s1"], D["s2"], SP, SR, SA)
+    n, dist = plane_truth(D["c1"], PLANE_C, PLANE_N)
+    m = (n / dist)[None]
+    prob, bo, bs, _, _ = motion._problem(d, np.zeros(30, int), np.zeros(10, int), "plane", D["R_o"], m)
+    th0 = motion._theta(D["t_o"], m) + np.r_[0.01, -0.02, 0.01, 0.01, 0.0, -0.01, 0.02, 0.0, 0.01]
+    Rv, cv, planes = prob.unpack(th0)
+    h = 1e-7
+    for blk in (bo, bs):
+        p0 = np.asarray(blk.init(Rv, cv, planes, blk.plane), float)
+        p = (p0[:, 0] if p0.ndim == 3 else p0) + 1e-3
+
+        def res(th, p):
+            R_, c_, pl_ = prob.unpack(th)
+            return prob._residual(blk, p, pl_[blk.plane], R_, c_, th[:3], want_theta=True)
+
+        e, Jp, Jt = res(th0, p)
+        for i in range(th0.size):
+            dt = np.zeros(th0.size)
+            dt[i] = h
+            fd = (res(th0 + dt, p)[0] - res(th0 - dt, p)[0]) / (2 * h)
+            assert np.allclose(fd, Jt[:, :, i], rtol=1e-5, atol=1e-4 * np.abs(Jt).max())
+        for i in range(p.shape[1]):
+            dp = np.zeros_like(p)
+            dp[:, i] = h
+            fd = (res(th0, p + dp)[0] - res(th0, p - dp)[0]) / (2 * h)
+            assert np.allclose(fd, Jp[:, :, i], rtol=1e-5, atol=1e-4 * np.abs(Jp).max())
+
+
+# --------------------------------------------------------------------------- noise-free recovery
+def test_noise_free_single_plane_is_recovered_exactly():
+    rng = np.random.default_rng(5)
+    D = views(rng, plane_points(rng, 4000, PLANE_C, PLANE_N, 3.0))
+    res = run(D, planes=1)
+    assert res, res.message
+    assert rot_err(res.R_o, D["R_o"]) < 1e-6
+    assert np.max(np.abs(res.t_o - D["t_o"])) < 1e-6
+    n, d = plane_truth(D["c1"], PLANE_C, PLANE_N)
+    assert np.max(np.abs(res.planes[0].normal - n)) < 1e-6 and abs(res.planes[0].distance - d) < 1e-6
+    assert res.inliers_optical.all() and res.inliers_sonar.all()
+    init = res.stage("initial")  # the single-match estimate is exact too on exact data
+    assert rot_err(init.R_o, D["R_o"]) < 1e-5 and np.max(np.abs(init.t_o - D["t_o"])) < 1e-5
+    assert np.allclose(res.R_s, RIG.R @ D["R_o"] @ RIG.R.T, atol=1e-6)
+    # every stage's triangulation puts the matches back where they were
+    st = res.stage("planar")
+    assert np.max(np.abs(st.points_optical - D["X"])) < 1e-5
+    assert np.max(np.abs(st.points_sonar - D["Ps"])) < 1e-5
+
+
+def test_noise_free_essential_path_is_recovered_exactly():
+    rng = np.random.default_rng(6)
+    s1 = Pose.look_at([0, -1, 0.3], [0, 0.7, 0])
+    s2 = Pose(rot_z(0.06) @ s1.R @ rot_x(0.05), s1.t + np.array([0.25, 0.1, 0.15]))
+    pts = s1.to_world(np.stack([rng.uniform(-1, 1, 20000), rng.uniform(1.2, 2.5, 20000), rng.uniform(-0.6, 0.6, 20000)], -1))
+    D = views(rng, pts, s1, s2)
+    res = run(D, model="essential")
+    assert res, res.message
+    assert res.model == "essential" and res.planes == ()
+    assert rot_err(res.R_o, D["R_o"]) < 1e-6 and np.max(np.abs(res.t_o - D["t_o"])) < 1e-6
+
+
+S1_TILT = Pose.look_at([0.05, -1, 0.3], [0, 0.7, 0])
+S2_TILT = Pose(rot_z(0.06) @ S1_TILT.R @ rot_x(0.04), S1_TILT.t + np.array([0.25, 0.1, 0.12]))
+
+
+def corner_walls(rng):
+    s = 0.5**0.5
+    return np.concatenate([wall(rng, 6000, -s, 0.7 - s, np.deg2rad(45)), wall(rng, 4000, s, 0.7 - s, np.deg2rad(-45))])
+
+
+def test_noise_free_perpendicular_planes_are_clustered_and_recovered():
+    rng = np.random.default_rng(7)
+    D = views(rng, corner_walls(rng), S1_TILT, S2_TILT)
+    res = run(D, planes="auto")
+    assert res, res.message
+    assert [s.name for s in res.stages] == ["initial", "planar", "clustered"]
+    assert len(res.planes) == 2
+    assert abs(res.planes[0].normal @ res.planes[1].normal) < 1e-6  # perpendicular walls
+    assert rot_err(res.R_o, D["R_o"]) < 1e-6 and np.max(np.abs(res.t_o - D["t_o"])) < 1e-6
+    # a single plane cannot explain the corner: the planar stage leaves the other wall out
+    assert res.stage("planar").n_outliers > 40 and res.stage("clustered").n_outliers == 0
+
+
+def test_the_dual_solution_is_eliminated_by_the_sonar():
+    # moving forward (towards the plane) leaves both interpretations in front of the camera
+    rng = np.random.default_rng(8)
+    s2 = Pose(rot_z(0.05) @ S1_TILT.R @ rot_x(0.03), S1_TILT.t + S1_TILT.R @ np.array([0.1, 0.2, 0.05]))
+    found = False
+    for _ in range(3):
+        D = views(rng, plane_points(rng, 4000, PLANE_C, [0.1, -1, 0.6], 3.0), S1_TILT, s2)
+        res = run(D, planes=1)
+        if len(res.monocular) < 2:
+            continue
+        found = True
+        errs = sorted(rot_err(s.R_o, D["R_o"]) for s in res.monocular)
+        assert errs[0] < 1e-5 < 1e-2 < errs[1]  # one true, one dual interpretation
+        assert rot_err(res.R_o, D["R_o"]) < 1e-6
+        assert min(res.dual_support) < max(res.dual_support)  # the dual explains fewer sonar matches
+    assert found, "no configuration produced two visible interpretations"
+
+
+# --------------------------------------------------------------------------- Monte Carlo
+def test_monte_carlo_ml_beats_the_single_match_estimate_and_is_consistent():
+    rng = np.random.default_rng(9)
+    pts = plane_points(rng, 5000, PLANE_C, PLANE_N, 3.0)
+    E = {"initial": [], "planar": []}
+    nees, prec, rec = [], [], []
+    runs = 30
+    for k in range(runs):
+        D = views(rng, pts, noise=1.0, outliers=0.2)
+        res = run(D, planes=1)
+        assert res, res.message
+        for name in E:
+            st = res.stage(name)
+            E[name].append((rot_err(st.R_o, D["R_o"]), np.linalg.norm(st.t_o - D["t_o"]),
+                            abs(np.linalg.norm(st.t_o) / np.linalg.norm(D["t_o"]) - 1)))
+        nees.append(res.nees(D["R_o"], D["t_o"]))
+        removed = np.r_[~res.inliers_optical, ~res.inliers_sonar]
+        planted = np.r_[D["out_o"], D["out_s"]]
+        prec.append((removed & planted).sum() / removed.sum())
+        rec.append((removed & planted).sum() / planted.sum())
+    ini, ml = np.mean(E["initial"], 0), np.mean(E["planar"], 0)
+    assert np.all(ml < ini), (ini, ml)  # rotation, translation and scale
+    assert np.all(ml > 0) and ml[0] < np.deg2rad(1.0) and ml[1] < 0.05 and ml[2] < 0.05
+    lo, hi = chi2.ppf([0.025, 0.975], 6 * runs) / runs
+    assert lo < np.mean(nees) < hi
+    assert np.mean(prec) >= 0.9 and np.mean(rec) >= 0.9
+
+
+def test_noisy_perpendicular_planes_clustering_beats_the_planar_estimate():
+    rng = np.random.default_rng(10)
+    pts = corner_walls(rng)
+    planar, clustered = [], []
+    for k in range(5):
+        D = views(rng, pts, S1_TILT, S2_TILT, noise=1.0, outliers=0.2)
+        res = run(D, planes="auto", seed=k)
+        assert res, res.message
+        planar.append(rot_err(res.stage("planar").R_o, D["R_o"]))
+        clustered.append(rot_err(res.R_o, D["R_o"]))
+        assert len(res.planes) == 2
+    assert 0 < np.mean(clustered) < np.mean(planar)
+
+
+# --------------------------------------------------------------------------- degenerate input
+def test_degenerate_input_gives_a_falsy_result_with_a_message():
+    rng = np.random.default_rng(11)
+    D = views(rng, plane_points(rng, 4000, PLANE_C, PLANE_N, 3.0), n_opt=100, n_son=20)
+    cases = {}
+    cases["too few"] = run(dict(D, p1=D["p1"][:3], p2=D["p2"][:3]))
+    cases["no sonar"] = run(dict(D, s1=([], []), s2=([], [])))
+    line = np.array([0, 0.7, 0]) + np.linspace(-0.4, 0.4, 3000)[:, None] * np.array([1, 0.2, 0.1])
+    Dl = views(rng, line, n_opt=50, n_son=5)
+    cases["collinear"] = run(dict(D, p1=Dl["p1"], p2=Dl["p2"]))
+    c1 = RIG.camera_pose(S1)
+    edge = plane_points(rng, 4000, c1.t + 1.5 * c1.R[:, 2], np.cross(c1.R[:, 2], [0, 0, 1.0]), 3.0)
+    De = views(rng, edge, n_opt=50, n_son=5)
+    cases["edge-on"] = run(dict(D, p1=De["p1"], p2=De["p2"]))
+    floor = plane_points(rng, 20000, [0, 4, -0.8], [0, 0, 1.0], 4.0)  # the sonar's fan misses it
+    c2 = RIG.camera_pose(S2)
+    u1, u2 = CAM.project(c1.to_body(floor)), CAM.project(c2.to_body(floor))
+    vis = np.flatnonzero(CAM.in_image(u1) & CAM.in_image(u2))[:100]
+    cases["no sonar match on the plane"] = run(dict(D, p1=u1[vis], p2=u2[vis]))
+    cases["essential, too few"] = run(dict(D, p1=D["p1"][:4], p2=D["p2"][:4]), model="essential")
+    expected = {"too few": "too few", "no sonar": "no sonar", "collinear": "collinear", "edge-on": "edge-on",
+                "no sonar match on the plane": "no sonar match", "essential, too few": "too few"}
+    for name, res in cases.items():
+        assert not res, name
+        assert expected[name] in res.message, (name, res.message)
+        assert np.all(np.isnan(res.R_o)) and np.all(np.isnan(res.t_o))
+
+
+def test_random_matches_give_no_answer_rather_than_a_wrong_one():
+    rng = np.random.default_rng(12)
+    for _ in range(5):
+        p1, p2 = rng.uniform(0, 599, (150, 2)), rng.uniform(0, 399, (150, 2))
+        son = (rng.uniform(1, 2.5, 30), rng.uniform(-0.7, 0.7, 30))
+        son2 = (rng.uniform(1, 2.5, 30), rng.uniform(-0.7, 0.7, 30))
+        for model in ("homography", "essential"):
+            res = motion.estimate(RIG, p1, p2, son, son2, model=model, **SIG)
+            assert not res and res.message, (model, res.message)
+
+
+@pytest.mark.parametrize("kw, match", [
+    (dict(pixels_1=np.zeros((5, 3))), "pixels_1"),
+    (dict(pixels_2=np.zeros((4, 2))), "pixels_1, pixels_2"),
+    (dict(sonar_1=[1.0, 2.0, 3.0]), "sonar_1"),
+    (dict(sonar_2=([1.0], [0.1, 0.2])), "sonar_2"),
+    (dict(sigma_pixel=0.0), "sigma_pixel"),
+    (dict(model="affine"), "model"),
+    (dict(planes=0), "planes"),
+    (dict(rig="rig"), "rig"),
+    (dict(min_inlier_fraction=1.5), "min_inlier_fraction"),
+])
+def test_caller_mistakes_raise_value_error_naming_the_argument(kw, match):
+    args = dict(rig=RIG, pixels_1=np.zeros((5, 2)), pixels_2=np.zeros((5, 2)), sonar_1=([1.0], [0.1]),
+                sonar_2=([1.0], [0.1]), **SIG)
+    args.update(kw)
+    with pytest.raises(ValueError, match=match):
+        motion.estimate(**args)

@@ -1,0 +1,175 @@
+"""Two-view sonar triangulation (appendix B): identities, noise-free recovery, Monte Carlo, degeneracies."""
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from optiacoustic.frames import rot_x, rot_y, rot_z, sonar_from_spherical, spherical_from_sonar
+from optiacoustic.geometry import sonar_stereo as ss
+from optiacoustic.geometry.sonar_stereo import _linear_system, _whitened
+
+FOV = np.deg2rad(20.0)
+SR, SA = 0.01, np.deg2rad(0.2)
+
+
+def points(rng, n, r=(1.0, 3.0), half_el=np.deg2rad(9.0)):
+    return sonar_from_spherical(rng.uniform(*r, n), rng.uniform(-0.7, 0.7, n), rng.uniform(-half_el, half_el, n))
+
+
+# a motion with heave and pitch: elevation parallax
+R_GOOD, T_GOOD = rot_x(0.15) @ rot_z(0.1), np.array([0.2, 0.1, 0.4])
+
+
+def test_measure_is_the_spherical_projection_in_both_views():
+    rng = np.random.default_rng(0)
+    P = points(rng, 50)
+    m = ss.measure(P, R_GOOD, T_GOOD)
+    r2, th2, ph2 = spherical_from_sonar(P @ R_GOOD.T + T_GOOD)
+    assert np.allclose(m.ranges_2, r2) and np.allclose(m.azimuths_2, th2) and np.allclose(m.elevations_2, ph2)
+    assert np.allclose(m.ranges_1, np.linalg.norm(P, axis=1))
+
+
+def test_linear_rows_B1_B2_hold_for_true_points_and_b3_needs_the_correction():
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        R = rot_z(rng.normal(0, 0.2)) @ rot_y(rng.normal(0, 0.2)) @ rot_x(rng.normal(0, 0.2))
+        t = rng.normal(0, 0.3, 3)
+        P = points(rng, 40)
+        m = ss.measure(P, R, t)
+        A, b = _linear_system(m.ranges_1, m.azimuths_1, m.ranges_2, m.azimuths_2, R, t)
+        assert np.allclose(np.einsum("nij,nj->ni", A, P), b, atol=1e-10)
+        # the thesis's (b3) = r'^2 - r^2 - |t|^2 / 2 does not hold
+        b3_thesis = m.ranges_2**2 - m.ranges_1**2 - t @ t / 2
+        assert np.max(np.abs(np.einsum("ni,ni->n", A[:, 2], P) - b3_thesis)) > 1e-3
+
+
+def test_closed_forms_and_ml_recover_noise_free_points():
+    rng = np.random.default_rng(2)
+    P = points(rng, 100)
+    m = ss.measure(P, R_GOOD, T_GOOD)
+    cf = ss.closed_forms(m.ranges_1, m.azimuths_1, m.ranges_2, m.azimuths_2, R_GOOD, T_GOOD)
+    for name in ("b3", "b5", "b7"):
+        assert np.max(np.abs(getattr(cf, name) - P)) < 1e-9, name
+    # one of the two roots of the azimuth planes and the range sphere is the point
+    err = np.min(np.linalg.norm(cf.planes - P[:, None], axis=2), axis=1)
+    assert err.max() < 1e-8
+    for method in ("ml", "b3", "b5", "b7", "planes"):
+        # at 1 mm / 0.02 deg noise no second root fits (at 1 cm a few points are truly ambiguous)
+        res = ss.triangulate(m.ranges_1, m.azimuths_1, m.ranges_2, m.azimuths_2, R_GOOD, T_GOOD,
+                             fov_elevation=FOV, method=method, sigma_range=1e-3, sigma_azimuth=SA / 10)
+        assert res and np.max(np.abs(res.points - P)) < 1e-6, method
+        assert not res.degenerate.any() and not res.ambiguous.any()
+
+
+def test_batched_equals_a_loop_of_singles():
+    rng = np.random.default_rng(3)
+    P = points(rng, 12)
+    m = ss.measure(P, R_GOOD, T_GOOD)
+    noisy = [x + rng.normal(0, s, x.shape) for x, s in
+             ((m.ranges_1, SR), (m.azimuths_1, SA), (m.ranges_2, SR), (m.azimuths_2, SA))]
+    batch = ss.triangulate(*noisy, R_GOOD, T_GOOD, fov_elevation=FOV)
+    for i in range(len(P)):
+        one = ss.triangulate(*(x[i:i + 1] for x in noisy), R_GOOD, T_GOOD, fov_elevation=FOV)
+        assert np.allclose(one.points[0], batch.points[i], atol=1e-7)
+        assert np.allclose(one.covariance[0], batch.covariance[i], rtol=1e-5)
+
+
+def test_jacobian_matches_finite_differences():
+    rng = np.random.default_rng(4)
+    n = 20
+    x = np.stack([rng.uniform(1, 3, n), rng.uniform(-0.6, 0.6, n), rng.uniform(-0.15, 0.15, n)], -1)
+    meas = [rng.uniform(1, 3, n), rng.uniform(-0.6, 0.6, n), rng.uniform(1, 3, n), rng.uniform(-0.6, 0.6, n)]
+    e, J, _ = _whitened(x, *meas, R_GOOD, T_GOOD, SR, SA)
+    h = 1e-7
+    for k in range(3):
+        dx = np.zeros(3)
+        dx[k] = h
+        ep = _whitened(x + dx, *meas, R_GOOD, T_GOOD, SR, SA)[0]
+        em = _whitened(x - dx, *meas, R_GOOD, T_GOOD, SR, SA)[0]
+        assert np.allclose((ep - em) / (2 * h), J[:, :, k], rtol=1e-5, atol=1e-3)
+
+
+def test_monte_carlo_ml_is_consistent_and_beats_the_linear_closed_form():
+    # 5 mm / 0.1 deg: the elevation's standard deviation is about 1 deg, where first order holds
+    # (at 1 cm it is 2 deg and the average NEES creeps a few percent above 3)
+    sr, sa = 0.005, np.deg2rad(0.1)
+    rng = np.random.default_rng(5)
+    P = points(rng, 60)
+    m = ss.measure(P, R_GOOD, T_GOOD)
+    nees, e_ml, e_b3 = [], [], []
+    for _ in range(20):
+        noisy = [x + rng.normal(0, s, x.shape) for x, s in
+                 ((m.ranges_1, sr), (m.azimuths_1, sa), (m.ranges_2, sr), (m.azimuths_2, sa))]
+        res = ss.triangulate(*noisy, R_GOOD, T_GOOD, sigma_range=sr, sigma_azimuth=sa, fov_elevation=FOV)
+        b3 = ss.closed_forms(*noisy, R_GOOD, T_GOOD).b3
+        v = res.valid
+        d = res.points - P
+        nees.append(np.einsum("ni,nij,nj->n", d[v], np.linalg.inv(res.covariance[v]), d[v]))
+        e_ml.append(np.linalg.norm(d, axis=1))
+        e_b3.append(np.linalg.norm(b3 - P, axis=1))
+    nees = np.concatenate(nees)
+    k = nees.size
+    lo, hi = chi2.ppf([0.025, 0.975], 3 * k) / k
+    assert lo < nees.mean() < hi
+    rms_ml = np.sqrt(np.mean(np.concatenate(e_ml) ** 2))
+    rms_b3 = np.sqrt(np.nanmean(np.concatenate(e_b3) ** 2))
+    assert 1e-3 < rms_ml < 0.05  # errors are there, and they are cm-level (the elevation's ~1 deg)
+    assert rms_ml < rms_b3
+
+
+def test_pure_rotation_is_flagged_b3_is_singular_and_the_planes_form_still_triangulates():
+    rng = np.random.default_rng(6)
+    P = points(rng, 50)
+    R = rot_x(0.1) @ rot_z(0.1)
+    m = ss.measure(P, R, np.zeros(3))
+    res = ss.triangulate(m.ranges_1, m.azimuths_1, m.ranges_2, m.azimuths_2, R, np.zeros(3), fov_elevation=FOV)
+    assert res.flags == ("pure_rotation",) and "pure_rotation" in res.message
+    assert np.all(np.isnan(res.closed.b3)) and np.all(~np.isfinite(res.condition) | (res.condition > 1e8))
+    ok = res.valid
+    assert ok.any()
+    assert np.max(np.abs(res.points[ok] - P[ok])) < 1e-6
+    # a yaw about the sonar centre tells nothing about elevation: every point degenerate, falsy
+    m2 = ss.measure(P, rot_z(0.1), np.zeros(3))
+    res2 = ss.triangulate(m2.ranges_1, m2.azimuths_1, m2.ranges_2, m2.azimuths_2, rot_z(0.1), np.zeros(3),
+                          fov_elevation=FOV)
+    assert not res2 and res2.degenerate.all()
+    assert "pure rotation" in res2.message and "planar_motion" in res2.flags
+
+
+def test_motion_within_the_azimuth_plane_is_ambiguous_and_falsy():
+    rng = np.random.default_rng(7)
+    P = points(rng, 50, half_el=np.deg2rad(9))
+    R, t = rot_z(0.1), np.array([0.6, 0.3, 0.0])
+    m = ss.measure(P, R, t)
+    res = ss.triangulate(m.ranges_1, m.azimuths_1, m.ranges_2, m.azimuths_2, R, t, fov_elevation=FOV)
+    assert res.flags == ("planar_motion",)
+    assert not res
+    assert (res.ambiguous | res.degenerate).all()
+    assert "azimuth plane" in res.message
+    # (B.3) is singular for every point
+    assert np.all(np.isnan(res.closed.b3))
+    # the mirror image fits exactly as well: both roots of the planes form reproduce the measurements
+    mirror = P * np.array([1, 1, -1])
+    mm = ss.measure(mirror, R, t)
+    assert np.allclose(mm.ranges_2, m.ranges_2) and np.allclose(mm.azimuths_2, m.azimuths_2)
+
+
+def test_empty_input_is_falsy():
+    res = ss.triangulate([], [], [], [], np.eye(3), np.array([0.1, 0, 0.1]))
+    assert not res and res.message == "no points"
+
+
+@pytest.mark.parametrize("bad, match", [
+    (dict(azimuths_1=[0.1, 0.2, 0.3]), "azimuths_1"),
+    (dict(R_s=np.ones((3, 3))), "R_s"),
+    (dict(t_s=[0, 1]), "t_s"),
+    (dict(ranges_1=[-1.0, 1.0]), "ranges"),
+    (dict(method="x"), "method"),
+    (dict(sigma_range=0.0), "sigma_range"),
+])
+def test_caller_mistakes_raise_value_error_naming_the_argument(bad, match):
+    kw = dict(ranges_1=[1.0, 2.0], azimuths_1=[0.1, 0.2], ranges_2=[1.1, 2.1], azimuths_2=[0.1, 0.2],
+              R_s=np.eye(3), t_s=[0.1, 0.0, 0.1])
+    kw.update(bad)
+    with pytest.raises(ValueError, match=match):
+        ss.triangulate(**kw)

@@ -1,0 +1,65 @@
+"""Data flows one way: scene -> ray caster -> sensors -> geometry and fusion -> experiments -> CLI.
+
+Checked on the source: every import of every module, resolved to an absolute name.
+"""
+
+import ast
+from pathlib import Path
+
+import pytest
+
+PKG = Path(__file__).resolve().parents[1] / "src" / "optiacoustic"
+
+# module prefix -> prefixes it must never import
+FORBIDDEN = {
+    "optiacoustic.frames": ["optiacoustic.scene", "optiacoustic.sonar", "optiacoustic.optical", "optiacoustic.geometry"],
+    "optiacoustic.scene": ["optiacoustic.raycast", "optiacoustic.sonar", "optiacoustic.optical", "optiacoustic.geometry"],
+    "optiacoustic.raycast": ["optiacoustic.sonar", "optiacoustic.optical", "optiacoustic.geometry", "optiacoustic.fusion"],
+    "optiacoustic.sonar": ["optiacoustic.optical", "optiacoustic.geometry", "optiacoustic.fusion", "optiacoustic.experiments"],
+    "optiacoustic.optical": ["optiacoustic.geometry", "optiacoustic.fusion", "optiacoustic.experiments"],
+    "optiacoustic.geometry": ["optiacoustic.sonar", "optiacoustic.optical", "optiacoustic.raycast", "optiacoustic.fusion",
+                              "optiacoustic.experiments", "embreex"],
+    "optiacoustic.fusion": ["optiacoustic.sonar", "optiacoustic.optical", "optiacoustic.raycast", "optiacoustic.experiments",
+                            "embreex"],
+    "optiacoustic.experiments": ["optiacoustic.cli"],
+}
+
+
+def _modules():
+    for path in sorted(PKG.rglob("*.py")):
+        rel = path.relative_to(PKG.parent).with_suffix("")
+        parts = list(rel.parts)
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        yield ".".join(parts), path
+
+
+def _imports(name: str, path: Path):
+    tree = ast.parse(path.read_text())
+    package = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                yield a.name
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[: len(base) - node.level + 1]
+                mod = ".".join(base + ([node.module] if node.module else []))
+            else:
+                mod = node.module
+            yield mod
+            for a in node.names:  # `from . import sonar` imports a submodule
+                yield f"{mod}.{a.name}"
+
+
+@pytest.mark.parametrize("name, path", list(_modules()), ids=lambda x: str(x) if isinstance(x, str) else "")
+def test_imports_flow_one_way(name, path):
+    rules = [bad for prefix, bads in FORBIDDEN.items() if name == prefix or name.startswith(prefix + ".") for bad in bads]
+    offending = sorted({m for m in _imports(name, path) if any(m == b or m.startswith(b + ".") for b in rules)})
+    assert not offending, f"{name} imports {offending}"
+
+
+def test_embree_is_behind_the_ray_caster():
+    users = sorted(n for n, p in _modules() if any(m.startswith("embreex") for m in _imports(n, p)))
+    assert users == ["optiacoustic.raycast"]
