@@ -192,9 +192,12 @@ class RayCaster:
         if smooth:
             gi = self._tri_offset[np.maximum(geom, 0)] + np.maximum(prim, 0)
             cn = self._corner_normals[gi]  # (n, 3, 3) float32
-            u = cat("u")[:, None]
-            v = cat("v")[:, None]
-            nrm = cn[:, 0] + u * (cn[:, 1] - cn[:, 0]) + v * (cn[:, 2] - cn[:, 0])
+            u, v = cat("u"), cat("v")
+            w = np.empty((len(u), 3), np.float32)  # barycentric weights of the three corners
+            w[:, 1] = u
+            w[:, 2] = v
+            w[:, 0] = 1.0 - u - v
+            nrm = np.einsum("nk,nkj->nj", w, cn)
         else:
             nrm = cat("Ng")
         nrm = nrm.astype(np.float64)

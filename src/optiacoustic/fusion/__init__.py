@@ -9,7 +9,7 @@
 * :func:`overlay`, :func:`map_fan`: draw sonar points or a whole fan image into the optical
   image.
 
-Derivations: docs/derivations/ch7_fusion.md. Nothing here imports the simulators.
+Derivations: docs/derivations.md (ch. 7). Nothing here imports the simulators.
 """
 
 from .enhance import map_fan, overlay

@@ -4,7 +4,7 @@ A sonar measurement ``(r, theta)`` fixes a 3D point up to its elevation ``phi``.
 plane ``n . P_s = d`` (sonar frame) the elevation solves ``r (A cos phi + B sin phi) = d`` with
 ``A = n_x sin theta + n_y cos theta`` and ``B = n_z``: two roots ``phi = alpha +- arccos(d / (r C))``,
 ``C = hypot(A, B)``, ``alpha = atan2(B, A)``; the one inside the elevation aperture is kept
-(docs/derivations/ch7_fusion.md). The point then goes through the rig into the camera.
+(docs/derivations.md (ch. 7)). The point then goes through the rig into the camera.
 
 * :class:`PlaneMapping`: one plane for the whole scene (given, or the least-squares plane of
   the training matches reconstructed in 3D).

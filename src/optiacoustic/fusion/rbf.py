@@ -2,7 +2,7 @@
 
 The input is a sonar fan coordinate ``(x_s, y_s) = r (sin theta, cos theta)`` (m), the output
 an optical pixel ``(u, v)``. There is no global closed form (the pixel also depends on the
-unknown elevation, docs/derivations/ch7_fusion.md), so the mapping is interpolated from
+unknown elevation, docs/derivations.md (ch. 7)), so the mapping is interpolated from
 matches with :class:`scipy.interpolate.RBFInterpolator`:
 
 ``f(x) = b(x) + sum_i w_i exp(-|x - c_i|^2 / (2 sigma^2))``  (thesis eqs. 7.6-7.7)

@@ -12,7 +12,7 @@ Optical to sonar (sec. 4.2.2): a pixel's viewing ray crosses the azimuth half-pl
 samples it in the polar ``(r, theta)`` or fan ``(x_s, y_s)`` sonar image, and every such
 curve starts at the :func:`epipole`, the camera centre seen by the sonar.
 
-The derivations are in ``docs/derivations/geometry_ch4_ch5.md``.
+The derivations are in ``docs/derivations.md (ch. 4-5)``.
 """
 
 from __future__ import annotations

@@ -31,7 +31,7 @@ or, for non-planar scenes (``model="essential"``), the five-point essential matr
 USAC + ``recoverPose``), the scale from the sonar matches triangulated with the up-to-scale
 motion, and the same maximum likelihood with free 3D points.
 
-Derivations: ``docs/derivations/geometry_ch6_appendices.md``.
+Derivations: ``docs/derivations.md (ch. 6, app. A-B)``.
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ measurements, three unknowns:
 
 Measurement noise is Gaussian and independent: ``sigma_pixel`` on the ideal (undistorted)
 pixel coordinates, ``sigma_range`` (m), ``sigma_azimuth`` (rad). All points are in the camera
-frame (m). Derivations: ``docs/derivations/geometry_ch4_ch5.md``.
+frame (m). Derivations: ``docs/derivations.md (ch. 4-5)``.
 """
 
 from __future__ import annotations

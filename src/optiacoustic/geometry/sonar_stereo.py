@@ -17,7 +17,7 @@ A point ``P`` (sonar frame of view 1) is measured as ``(r, theta)`` in view 1 an
   mirror image of motion within the azimuth plane), and the motion's own flags
   (``"pure_rotation"``, ``"planar_motion"``).
 
-Derivations: ``docs/derivations/geometry_ch6_appendices.md`` (appendix B).
+Derivations: ``docs/derivations.md (ch. 6, app. A-B)`` (appendix B).
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 ``simulate_optical(scene, camera, pose, water=..., lights=...)`` renders an
 :class:`OpticalFrame` with every stage of the model (clear, attenuated, forward scatter,
 backscatter, final image) and ground truth (depth, body ids, normals). Derivations of
-every formula: docs/derivations/optical.md.
+every formula: docs/derivations.md (ch. 3).
 """
 
 from .frame import STAGES, OpticalFrame, auto_exposure, save_png, to_srgb8

@@ -1,6 +1,6 @@
 """The underwater camera: Jaffe-McGlamery image formation (thesis sec. 3.2.3-3.3).
 
-``E_T = E_D + E_fs + E_bs`` (eq. 3.7), each term derived in docs/derivations/optical.md:
+``E_T = E_D + E_fs + E_bs`` (eq. 3.7), each term derived in docs/derivations.md (ch. 3):
 
 * direct (eq. 3.8): a Lambertian surface of albedo ``rho`` lit by point lights of radiant
   intensity ``I`` (W/sr) has radiance ``rho / pi * sum_l I s cos(gamma) e^{-c R_s} / R_s^2``

@@ -6,7 +6,7 @@ is ``c = a + b`` (thesis eq. 3.4) and the volume scattering function (VSF) is
 ``beta(psi) = b p(psi)`` so that ``2 pi int_0^pi beta(psi) sin(psi) dpsi = b`` (eq. 3.2).
 
 The phase function is a per-channel mixture of four normalised shapes
-(docs/derivations/optical.md, sec. 1):
+(docs/derivations.md (ch. 3), sec. 1):
 
 * ``water``: molecular (Einstein-Smoluchowski) scattering, ``(1 + 0.835 cos^2 psi) / 16.06``
   (Morel 1974; the thesis's eq. 3.5 gives only its wavelength dependence and drops the
@@ -205,7 +205,7 @@ _GORDON = 1.0395
 def jerlov_iops(kd_rgb) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Absorption and scattering consistent with a Jerlov ``K_d`` triple (650, 550, 450 nm).
 
-    Derivation (docs/derivations/optical.md, sec. 6): ``K_d = 1.04 (a + b_b)``
+    Derivation (docs/derivations.md (ch. 3), sec. 6): ``K_d = 1.04 (a + b_b)``
     (Gordon 1989), Case-1 particle scattering ``b_p = 0.30 C^0.62 (550 / lambda)``
     (Gordon & Morel 1983) with backscatter ratio 0.0183 (Petzold), and the chlorophyll
     ``C`` (mg m^-3) fixed by the blue excess absorption ``0.06 C^0.65 (1 + 0.2)``

@@ -1,7 +1,7 @@
 """Amplitude statistics of sonar bottom reverberation (thesis sec. 2.7, Tables 2.1-2.3).
 
 Four models of the amplitude ``x >= 0`` of one resolution cell's echo, parametrised as in
-thesis Table 2.1 (derivations, samplers and the EM updates: ``docs/derivations/sonar_noise.md``):
+thesis Table 2.1 (derivations, samplers and the EM updates: ``docs/derivations.md (sec. 2.7)``):
 
 ===================  ================================================================
 ``Rayleigh``         ``p(x) = (2x/lam) exp(-x^2/lam)``, ``E[x^2] = lam``
@@ -619,7 +619,7 @@ def fit_rayleigh_mixture(
 ) -> MixtureFit:
     """Fit a Rayleigh mixture by expectation-maximisation (SQUAREM-accelerated).
 
-    EM updates (docs/derivations/sonar_noise.md): with responsibilities
+    EM updates (docs/derivations.md (sec. 2.7)): with responsibilities
     ``r_ij = eps_j p_j(x_i) / sum_k eps_k p_k(x_i)``,
     ``eps_j <- mean_i r_ij`` and ``lam_j <- sum_i r_ij x_i^2 / sum_i r_ij``.
     Plain EM crawls when components overlap (thousands of updates), so cycles of two

@@ -124,7 +124,11 @@ def save_stage_figures(frame: SonarFrame, out_dir, *, prefix: str = "sonar", fan
     im = axes[0].imshow(rng_map, origin="lower", aspect="auto", extent=ext, cmap="viridis")
     fig.colorbar(im, ax=axes[0], label="range (m)")
     axes[0].set_title("range of each ray")
-    im = axes[1].imshow(rays.energy / rays.elevation_step, origin="lower", aspect="auto", extent=ext, cmap="copper")
+    # per unit of elevation: each ray's energy over its own cell's width (edge cells differ)
+    cell = np.where(np.isfinite(rays.range), rays.elevation_hi - rays.elevation_lo, np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        lambert = rays.energy / cell
+    im = axes[1].imshow(lambert, origin="lower", aspect="auto", extent=ext, cmap="copper")
     fig.colorbar(im, ax=axes[1], label="reflectivity x cos(incidence)")
     axes[1].set_title("intensity of each ray (eq. 2.10)")
     body = np.where(rays.body >= 0, rays.body, np.nan)
@@ -146,7 +150,7 @@ def save_stage_figures(frame: SonarFrame, out_dir, *, prefix: str = "sonar", fan
     fig, ax = plt.subplots(1, 2, figsize=(12, 3.8))
     r = rays.range[:, j]
     ok = np.isfinite(r)
-    ax[0].scatter(r[ok], rays.energy[ok, j] / rays.elevation_step, s=4, c=rays.body[ok, j], cmap="tab10")
+    ax[0].scatter(r[ok], lambert[ok, j], s=4, c=rays.body[ok, j], cmap="tab10")
     ax[0].set_xlabel("range (m)")
     ax[0].set_ylabel("ray intensity")
     ax[0].set_title(f"beam {j}: raw returns (Fig. 2.7/2.11a)")

@@ -25,7 +25,7 @@ from typing import Literal
 
 import numpy as np
 
-from ..frames import Pose
+from ..frames import Pose, _rotate
 from ..raycast import RayCaster
 from ..scene import Scene
 from .frame import SonarFrame, SonarGroundTruth, SonarRays
@@ -116,6 +116,21 @@ def _index_grids(spec: SonarSpec):
     return beam, elev
 
 
+def _world_ray_grid(spec: SonarSpec, R: np.ndarray):
+    """World-frame ray directions ``d`` and their elevation derivatives ``d'``, ``(K * J, 3)``.
+
+    The grid is separable: ``R d(theta, phi) = cos(phi) a(theta) + sin(phi) R_z`` with
+    ``a(theta) = sin(theta) R_x + cos(theta) R_y`` (``R_x, R_y, R_z`` the columns of ``R``),
+    so one broadcast does what a per-ray rotation would (and no BLAS call is involved).
+    """
+    th, ph = spec.azimuths, spec.elevations
+    a = np.sin(th)[:, None] * R[:, 0] + np.cos(th)[:, None] * R[:, 1]  # (J, 3)
+    cp, sp = np.cos(ph)[:, None, None], np.sin(ph)[:, None, None]
+    d = cp * a[None] + sp * R[:, 2]
+    dd = -sp * a[None] + cp * R[:, 2]
+    return d.reshape(-1, 3), dd.reshape(-1, 3)
+
+
 def _elevation_weights(spec: SonarSpec, pattern: str) -> np.ndarray:
     ph = spec.elevations
     if pattern == "uniform":
@@ -155,20 +170,22 @@ def _workspace(name: str, shape: tuple, dtype) -> np.ndarray:
 
 
 def _decimate(fine: np.ndarray, n_bins: int, q: int, sigma_bins: float) -> np.ndarray:
-    """Low-pass filter then downsample ``fine`` (J, n_bins * q) to a new (J, n_bins) float32."""
+    """Low-pass filter then downsample ``fine`` (J, n_bins * q) to a new (J, n_bins) float32.
+
+    The energy of fine sample ``q b' + p`` goes to bin ``b' + delta`` with weight
+    ``W[p, delta]``: for each phase ``p`` a 1D convolution along range of the phase's
+    samples, done by ``cv2.filter2D`` (correlation with the reversed kernel, zero borders).
+    """
+    import cv2
+
     W, D = _decimation_weights(n_bins, q, sigma_bins)
     J = fine.shape[0]
-    padded = _workspace("decimate", (J, n_bins + 2 * D, q), np.float32)
-    padded[:, :D] = 0.0
-    padded[:, D + n_bins :] = 0.0
-    padded[:, D : D + n_bins] = fine.reshape(J, n_bins, q)
+    blocks = fine.reshape(J, n_bins, q)
     out = np.zeros((J, n_bins), np.float32)
-    # energy of fine block b' goes to bin b' + delta: out[b] += blocks[b - delta] . W[:, delta]
-    # (elementwise multiply-adds: a stacked matmul here would go through the threaded BLAS)
-    for k, delta in enumerate(range(-D, D + 1)):
-        src = padded[:, D - delta : D - delta + n_bins]
-        for phase in range(q):
-            out += W[phase, k] * src[:, :, phase]
+    for phase in range(q):
+        src = np.ascontiguousarray(blocks[:, :, phase], dtype=np.float32)
+        kernel = np.ascontiguousarray(W[phase, ::-1][None, :])
+        out += cv2.filter2D(src, cv2.CV_32F, kernel, anchor=(D, 0), borderType=cv2.BORDER_CONSTANT)
     return out
 
 
@@ -297,8 +314,10 @@ def simulate_sonar(
         # the noise variates do not depend on the echo: draw them on the other core meanwhile
         draws = _background().submit(noise.draw, (spec.n_bins, spec.n_beams), list(bottom_types), np.random.default_rng(seed))
     rays = _scan(scene, caster, spec, pose, options)
+    # the seabed/target split needs only the rays: integrate it on the other core meanwhile
+    parts = _background().submit(_class_parts, bottom_types, spec, rays, options)
     intensity = _form_image(spec, rays, options)
-    shares = _seabed_shares(bottom_types, spec, rays, options, intensity)
+    shares = _seabed_shares(bottom_types, *parts.result(), intensity)
     if noise is False:
         image = intensity.copy()
     else:
@@ -354,32 +373,46 @@ def _bottom_types(scene: Scene) -> dict:
     return types
 
 
-def _seabed_shares(bottom_types: dict, spec: SonarSpec, rays: SonarRays, options: SonarOptions, intensity) -> dict:
+def _class_parts(bottom_types: dict, spec: SonarSpec, rays: SonarRays, options: SonarOptions):
+    """The echo of each class (each bottom type, and the targets) but the one with most rays.
+
+    Returns ``(parts, largest)``: ``parts[name] = (beams, image)`` with the class's echo
+    on the beams its rays reach, and the name of the class left out (``None`` = targets).
+    Usually only the targets are integrated: a few rays, on a few beams.
+    """
+    if not bottom_types:
+        return {}, None
+    lit = rays.energy > 0
+    classes = {name: lit & np.isin(rays.body, ids) for name, ids in bottom_types.items()}
+    classes[None] = lit & ~np.any(np.stack(list(classes.values())), axis=0)
+    largest = max(classes, key=lambda k: int(classes[k].sum()))
+    parts = {}
+    for name, sel in classes.items():
+        if name == largest or not sel.any():
+            continue
+        beams = np.flatnonzero(np.bincount(rays.beam_index[sel], minlength=spec.n_beams))
+        if options.azimuth_pattern:
+            beams = np.arange(spec.n_beams)
+        parts[name] = (beams, _form_image(spec, rays, options, select=sel, beams=beams))
+    return parts, largest
+
+
+def _seabed_shares(bottom_types: dict, parts, largest, intensity) -> dict:
     """Share of each cell's echo that comes from seabed bodies, per bottom type.
 
-    The echo splits into classes (each bottom type, and the targets). Every class but
-    the one with the most rays is integrated on its own, over the beams its rays reach;
-    the largest class is the remainder. Usually that means integrating only the targets.
+    The largest class's share is the remainder of the others'.
     """
     if not bottom_types:
         return {}
-    body = rays.body
-    lit = rays.energy > 0
-    classes = {name: lit & np.isin(body, ids) for name, ids in bottom_types.items()}
-    classes[None] = lit & ~np.any(np.stack(list(classes.values())), axis=0)
-    largest = max(classes, key=lambda k: int(classes[k].sum()))
     shares: dict = {}
     rest = np.ones_like(intensity)
     with np.errstate(invalid="ignore", divide="ignore"):
-        for name, sel in classes.items():
+        for name in list(bottom_types) + [None]:
             if name == largest:
                 continue
             share = np.zeros_like(intensity)
-            if sel.any():
-                beams = np.flatnonzero(np.bincount(rays.beam_index[sel], minlength=spec.n_beams))
-                if options.azimuth_pattern:
-                    beams = np.arange(spec.n_beams)
-                part = _form_image(spec, rays, options, select=sel, beams=beams)
+            if name in parts:
+                beams, part = parts[name]
                 sub = intensity[:, beams]
                 share[:, beams] = np.where(sub > 0, np.clip(part / sub, 0.0, 1.0), 0.0)
             rest -= share
@@ -409,9 +442,7 @@ def _background():
 
 def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options: SonarOptions) -> SonarRays:
     """Cast the beams' rays and compute each ray's echo energy and range footprint (sec. 2.6.1)."""
-    d_s, dd_s = _ray_grid(spec)
-    d_w = pose.directions_to_world(d_s)
-    dd_w = pose.directions_to_world(dd_s)
+    d_w, dd_w = _world_ray_grid(spec, pose.R)
     hits = caster.cast(pose.t, d_w, max_distance=spec.range_max * 1.5)
     K, J = spec.elevation_samples, spec.n_beams
     hit = hits.body >= 0

@@ -85,7 +85,7 @@ class NoiseModel:
             return np.zeros(len(ranges), np.float32)
         # medians over every 7th cell: a stable reference at a seventh of the cost
         sub = intensity.reshape(-1)[::7]
-        rows = np.arange(intensity.size)[::7] // intensity.shape[1]
+        rows = np.arange(0, intensity.size, 7) // intensity.shape[1]
         pos = sub > 0
         if self.reference_level is not None:
             ref = self.reference_level
