@@ -15,20 +15,12 @@ import time
 
 import numpy as np
 
+from _timing import median_ms
+
 TITLE = "Opti-acoustic geometry (ch. 4-5)"
 DESCRIPTION = ("Points per second of the closed forms, epipolar curves, maximum-likelihood refinement and "
                "stereo triangulation, as ratios to a plain numpy rigid transform `R p + t` (einsum) of the same "
                "points, measured in the same run.")
-
-
-def _median_time(fn, repeat=5):
-    fn()  # warm-up
-    ts = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t0)
-    return float(np.median(ts))
 
 
 def _setting(n, seed=0):
@@ -60,30 +52,30 @@ def run() -> list[dict]:
     rig, P, px, r, th = _setting(n)
     # The reference: the rigid transform R p + t of the same points in plain numpy. einsum (no BLAS)
     # rather than P @ R.T, whose multi-threaded BLAS path swings 40x with the machine's load.
-    ref = n / _median_time(lambda: np.einsum("ij,nj->ni", rig.R, P) + rig.t)
+    ref = n / (median_ms(lambda: np.einsum("ij,nj->ni", rig.R, P) + rig.t) / 1e3)
     rows.append(dict(name="reference: numpy R p + t (einsum)", value=ref, unit="points/s", reference="itself",
                      ratio=1.0, note=f"{n} points (N, 3)"))
     refname = "numpy R p + t (einsum)"
-    mm = n / _median_time(lambda: P @ rig.R.T + rig.t)
+    mm = n / (median_ms(lambda: P @ rig.R.T + rig.t) / 1e3)
     rows.append(dict(name="numpy P @ R.T + t (BLAS)", value=mm, unit="points/s", reference=refname, ratio=mm / ref,
                      note="threaded BLAS: unstable under load"))
-    add("range_solution (exact root)", n, _median_time(lambda: rc.range_solution(rig, px, r)), ref, refname,
+    add("range_solution (exact root)", n, (median_ms(lambda: rc.range_solution(rig, px, r)) / 1e3), ref, refname,
         f"{n} matches; target >= 5e6/s")
-    add("azimuth_solution", n, _median_time(lambda: rc.azimuth_solution(rig, px, th)), ref, refname,
+    add("azimuth_solution", n, (median_ms(lambda: rc.azimuth_solution(rig, px, th)) / 1e3), ref, refname,
         f"{n} matches; target >= 5e6/s")
-    add("combined_solution (BLUE)", n, _median_time(lambda: rc.combined_solution(rig, px, r, th, **sig)), ref, refname,
+    add("combined_solution (BLUE)", n, (median_ms(lambda: rc.combined_solution(rig, px, r, th, **sig)) / 1e3), ref, refname,
         f"{n} matches, with first-order variances")
-    add("epipolar.sonar_range r(theta)", n, _median_time(lambda: ep.sonar_range(rig, px, th)), ref, refname,
+    add("epipolar.sonar_range r(theta)", n, (median_ms(lambda: ep.sonar_range(rig, px, th)) / 1e3), ref, refname,
         f"{n} (pixel, azimuth) pairs")
     m = 200_000
-    add("epipolar.conic", m, _median_time(lambda: ep.conic(rig, r[:m], th[:m])), ref, refname,
+    add("epipolar.conic", m, (median_ms(lambda: ep.conic(rig, r[:m], th[:m])) / 1e3), ref, refname,
         f"{m} sonar points -> 3x3 conics")
 
     m = 100_000
-    add("refine direct (batched LM)", m, _median_time(lambda: rc.refine(rig, px[:m], r[:m], th[:m], **sig), 3), ref,
+    add("refine direct (batched LM)", m, (median_ms(lambda: rc.refine(rig, px[:m], r[:m], th[:m], **sig), 3) / 1e3), ref,
         refname, f"{m} matches; target >= 1e5/s")
     add("refine indirect (constrained GN)", m,
-        _median_time(lambda: rc.refine(rig, px[:m], r[:m], th[:m], **sig, method="indirect"), 3), ref, refname,
+        (median_ms(lambda: rc.refine(rig, px[:m], r[:m], th[:m], **sig, method="indirect"), 3) / 1e3), ref, refname,
         f"{m} matches")
     # The same batched problem through one scipy least_squares call (block-sparse Jacobian), on clean
     # data and with 1% gross outliers (wrong matches), which a shared trust region has to carry.
@@ -94,18 +86,18 @@ def run() -> list[dict]:
         out = np.random.default_rng(5).choice(k, int(bad * k), replace=False)
         rr[out] += np.random.default_rng(6).uniform(-1, 1, out.size)
         pp[out] += np.random.default_rng(7).uniform(-30, 30, (out.size, 2))
-        t_sp = _median_time(lambda: rc.refine(rig, pp, rr, th[:k], **sig, solver="scipy"), 2)
-        t_lm = _median_time(lambda: rc.refine(rig, pp, rr, th[:k], **sig), 2)
+        t_sp = (median_ms(lambda: rc.refine(rig, pp, rr, th[:k], **sig, solver="scipy"), 2) / 1e3)
+        t_lm = (median_ms(lambda: rc.refine(rig, pp, rr, th[:k], **sig), 2) / 1e3)
         rows.append(dict(name=f"refine direct, {label}: batched LM vs scipy", value=k / t_lm, unit="points/s",
                          reference="refine(solver='scipy'): least_squares trf+lsmr, block-sparse jac, same points",
                          ratio=t_sp / t_lm, note=f"{k} matches; scipy {k / t_sp:.3g} points/s"))
 
     stereo = st.StereoRig.from_rig(rig)
     sp_ = st.project(stereo, P[:m])
-    add("stereo triangulate_linear (batched SVD)", m, _median_time(lambda: st.triangulate_linear(stereo, sp_.pixels1, sp_.pixels2), 3),
+    add("stereo triangulate_linear (batched SVD)", m, (median_ms(lambda: st.triangulate_linear(stereo, sp_.pixels1, sp_.pixels2), 3) / 1e3),
         ref, refname, f"{m} pairs")
     add("stereo triangulate_optimal (batched LM)", m,
-        _median_time(lambda: st.triangulate_optimal(stereo, sp_.pixels1 + 1.0, sp_.pixels2 - 1.0, sigma_pixel=2.0), 3),
+        (median_ms(lambda: st.triangulate_optimal(stereo, sp_.pixels1 + 1.0, sp_.pixels2 - 1.0, sigma_pixel=2.0), 3) / 1e3),
         ref, refname, f"{m} pairs")
     return rows
 

@@ -6,21 +6,12 @@ import time
 
 import numpy as np
 
+from _timing import median_ms
+
 TITLE = "Motion, two-view sonar triangulation and calibration"
 DESCRIPTION = ("`motion.estimate` on 200 optical and 50 sonar matches (1 px, 1 cm, 20% planted outliers) against "
                "one OpenCV USAC/MAGSAC `findHomography` call on the same optical matches; the two-view sonar "
                "triangulation's maximum likelihood against its closed forms; calibration from 6 grid views.")
-
-
-def _median_ms(f, repeat=15, warmup=2):
-    for _ in range(warmup):
-        f()
-    ts = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        f()
-        ts.append(time.perf_counter() - t0)
-    return 1e3 * float(np.median(ts))
 
 
 def _scenario(rng, pts, s1, s2, rig, n_opt=200, n_son=50, sp=1.0, sr=0.01, sa=0.005):
@@ -68,12 +59,12 @@ def run() -> list[dict]:
     p1, p2, son1, son2 = _scenario(rng, plane, s1, s2, rig)
     sig = dict(sigma_pixel=1.0, sigma_range=0.01, sigma_azimuth=0.005)
     rows = []
-    t_ref = _median_ms(lambda: cv2.findHomography(p1, p2, cv2.USAC_MAGSAC, 3.0), repeat=50)
-    t_plane = _median_ms(lambda: motion.estimate(rig, p1, p2, son1, son2, planes=1, **sig))
+    t_ref = median_ms(lambda: cv2.findHomography(p1, p2, cv2.USAC_MAGSAC, 3.0), repeat=50)
+    t_plane = median_ms(lambda: motion.estimate(rig, p1, p2, son1, son2, planes=1, **sig))
     rows.append(dict(name="motion.estimate, one plane (200 + 50 matches)", value=t_plane, unit="ms",
                      reference="cv2.findHomography USAC_MAGSAC, same matches", ratio=t_plane / t_ref,
                      note=f"target <= 50 ms; the reference takes {t_ref:.2f} ms"))
-    t_auto = _median_ms(lambda: motion.estimate(rig, p1, p2, son1, son2, planes="auto", **sig))
+    t_auto = median_ms(lambda: motion.estimate(rig, p1, p2, son1, son2, planes="auto", **sig))
     rows.append(dict(name="motion.estimate, planes='auto' on one plane", value=t_auto, unit="ms",
                      reference="cv2.findHomography USAC_MAGSAC, same matches", ratio=t_auto / t_ref,
                      note="looks for a second plane among the outliers and finds none"))
@@ -88,7 +79,7 @@ def run() -> list[dict]:
     t2 = Pose(rot_z(0.06) @ t1.R @ rot_x(0.04), t1.t + np.array([0.25, 0.1, 0.12]))
     w1, w2, ws1, ws2 = _scenario(rng, np.concatenate(walls), t1, t2, rig, sa=0.0067)
     sig_w = dict(sigma_pixel=1.0, sigma_range=0.01, sigma_azimuth=0.0067)
-    t_walls = _median_ms(lambda: motion.estimate(rig, w1, w2, ws1, ws2, planes="auto", **sig_w), repeat=7)
+    t_walls = median_ms(lambda: motion.estimate(rig, w1, w2, ws1, ws2, planes="auto", **sig_w), repeat=7)
     rows.append(dict(name="motion.estimate, two walls clustered (200 + 50)", value=t_walls, unit="ms",
                      reference="cv2.findHomography USAC_MAGSAC, same matches", ratio=t_walls / t_ref,
                      note="initial interpretations refined and compared, then two-plane ML"))
@@ -96,9 +87,9 @@ def run() -> list[dict]:
     vol = t1.to_world(np.stack([rng.uniform(-1, 1, 20000), rng.uniform(1.2, 2.5, 20000),
                                 rng.uniform(-0.6, 0.6, 20000)], -1))
     e1, e2, es1, es2 = _scenario(rng, vol, t1, t2, rig)
-    t_e_ref = _median_ms(lambda: cv2.findEssentialMat(e1, e2, cam.K, method=cv2.USAC_MAGSAC, prob=0.999,
+    t_e_ref = median_ms(lambda: cv2.findEssentialMat(e1, e2, cam.K, method=cv2.USAC_MAGSAC, prob=0.999,
                                                       threshold=3.0), repeat=30)
-    t_ess = _median_ms(lambda: motion.estimate(rig, e1, e2, es1, es2, model="essential", **sig), repeat=7)
+    t_ess = median_ms(lambda: motion.estimate(rig, e1, e2, es1, es2, model="essential", **sig), repeat=7)
     rows.append(dict(name="motion.estimate, essential model (200 + 50)", value=t_ess, unit="ms",
                      reference="cv2.findEssentialMat USAC_MAGSAC, same matches", ratio=t_ess / t_e_ref,
                      note=f"the reference takes {t_e_ref:.2f} ms"))
@@ -108,8 +99,8 @@ def run() -> list[dict]:
     m = sonar_stereo.measure(P, R_s, t_s)
     meas = [x + rng.normal(0, sd, x.shape) for x, sd in ((m.ranges_1, 0.01), (m.azimuths_1, 0.003),
                                                           (m.ranges_2, 0.01), (m.azimuths_2, 0.003))]
-    t_cf = _median_ms(lambda: sonar_stereo.closed_forms(*meas, R_s, t_s), repeat=20)
-    t_ml = _median_ms(lambda: sonar_stereo.triangulate(*meas, R_s, t_s, fov_elevation=np.deg2rad(20)), repeat=7)
+    t_cf = median_ms(lambda: sonar_stereo.closed_forms(*meas, R_s, t_s), repeat=20)
+    t_ml = median_ms(lambda: sonar_stereo.triangulate(*meas, R_s, t_s, fov_elevation=np.deg2rad(20)), repeat=7)
     rows.append(dict(name="sonar_stereo.triangulate, 1000 points (ML)", value=t_ml, unit="ms",
                      reference="sonar_stereo.closed_forms (B.3, B.5, B.7, planes)", ratio=t_ml / t_cf,
                      note=f"the closed forms take {t_cf:.2f} ms"))
@@ -118,8 +109,8 @@ def run() -> list[dict]:
                [-0.25, 0.02, 0.05], cam, SonarSpec.preset("blueview-p900-90"))
     views, _ = calibrate.simulate_views(crig, 6, sigma_pixel=0.5, sigma_range=0.005, sigma_azimuth=0.002, seed=1)
     csig = dict(sigma_pixel=0.5, sigma_range=0.005, sigma_azimuth=0.002)
-    t_cal = _median_ms(lambda: calibrate.extrinsics(cam, views, sonar=crig.sonar, **csig), repeat=5, warmup=1)
-    t_cal1 = _median_ms(lambda: calibrate.extrinsics(cam, views, sonar=crig.sonar, initial=(crig.R, crig.t), **csig),
+    t_cal = median_ms(lambda: calibrate.extrinsics(cam, views, sonar=crig.sonar, **csig), repeat=5, warmup=1)
+    t_cal1 = median_ms(lambda: calibrate.extrinsics(cam, views, sonar=crig.sonar, initial=(crig.R, crig.t), **csig),
                         repeat=5, warmup=1)
     rows.append(dict(name="calibrate.extrinsics, 6 views x 35 corners", value=t_cal, unit="ms",
                      reference="one least-squares run from a given start", ratio=t_cal / t_cal1,

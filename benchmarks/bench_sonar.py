@@ -7,6 +7,8 @@ import time
 
 import numpy as np
 
+from _timing import median_ms
+
 TITLE = "Sonar simulator (thesis scene 1, BlueView P900-90)"
 DESCRIPTION = (
     "Reference: a bare two-thread Embree closest-hit query of 512 beams x 750 elevation rays "
@@ -16,17 +18,6 @@ DESCRIPTION = (
     "reverberation, and the fan image (cv2.remap). Ground truth is computed on first access; "
     "its cost is listed separately. The thesis took 3.5 min per frame in MATLAB."
 )
-
-
-def _median_ms(fn, repeat=15, warmup=3):
-    for _ in range(warmup):
-        fn()
-    t = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        t.append(time.perf_counter() - t0)
-    return 1e3 * float(np.median(t))
 
 
 def run() -> list[dict]:
@@ -45,18 +36,18 @@ def run() -> list[dict]:
     d, _ = _ray_grid(thesis_spec)
     d32 = np.ascontiguousarray(d @ pose.R.T, np.float32)
     o32 = np.ascontiguousarray(np.broadcast_to(pose.t, d32.shape), np.float32)
-    bare = _median_ms(lambda: caster.bare_intersect(o32, d32))
+    bare = median_ms(lambda: caster.bare_intersect(o32, d32))
 
     seeds = iter(range(10_000))
-    frame_ms = _median_ms(lambda: simulate_sonar(scene, spec, pose, seed=next(seeds)).fan("image"))
-    clean_ms = _median_ms(lambda: simulate_sonar(scene, spec, pose, noise=False))
+    frame_ms = median_ms(lambda: simulate_sonar(scene, spec, pose, seed=next(seeds)).fan("image"))
+    clean_ms = median_ms(lambda: simulate_sonar(scene, spec, pose, noise=False))
 
     def with_truth():
         f = simulate_sonar(scene, spec, pose, seed=1)
         f.ground_truth.body, f.ground_truth.shadow
 
-    truth_ms = _median_ms(with_truth, repeat=7)
-    thesis_ms = _median_ms(lambda: simulate_sonar(scene, thesis_spec, pose, seed=1).fan("image"), repeat=7)
+    truth_ms = median_ms(with_truth, repeat=7)
+    thesis_ms = median_ms(lambda: simulate_sonar(scene, thesis_spec, pose, seed=1).fan("image"), repeat=7)
     a = simulate_sonar(scene, spec, pose, noise=False).intensity.astype(float)
     b = simulate_sonar(scene, thesis_spec, pose, noise=False).intensity.astype(float)
     l1 = float(np.abs(a - b).sum() / b.sum())

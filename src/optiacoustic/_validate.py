@@ -11,7 +11,7 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["as_array", "as_positive", "broadcast_arrays", "check_finite"]
+__all__ = ["as_array", "as_positive", "broadcast_arrays", "broadcast_points", "check_finite"]
 
 
 def _shape_str(shape: Sequence[int | None | str]) -> str:
@@ -104,3 +104,16 @@ def broadcast_arrays(**arrays) -> list[np.ndarray]:
     except ValueError:
         shapes = ", ".join(f"{k}{tuple(np.shape(v))}" for k, v in arrays.items())
         raise ValueError(f"shapes do not broadcast together: {shapes}") from None
+
+
+def broadcast_points(x, name: str, shape: tuple) -> np.ndarray:
+    """Points ``(..., 3)`` broadcast to ``shape + (3,)`` and flattened to ``(N, 3)``.
+
+    For optional per-point inputs such as an initial guess; NaN is allowed (the caller
+    decides what an invalid point means).
+    """
+    arr = as_array(x, name, ("...", 3), finite=False)
+    try:
+        return np.broadcast_to(arr, tuple(shape) + (3,)).reshape(-1, 3)
+    except ValueError:
+        raise ValueError(f"{name}: expected shape {tuple(shape) + (3,)}, got {arr.shape}") from None

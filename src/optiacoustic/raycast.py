@@ -152,14 +152,19 @@ class RayCaster:
         d = np.broadcast_to(d, shape + (3,)).reshape(-1, 3)
         o = np.broadcast_to(o, shape + (3,)).reshape(-1, 3)
         n2 = np.einsum("ij,ij->i", d, d)
-        if np.any(n2 == 0):
+        lo2, hi2 = (n2.min(), n2.max()) if n2.size else (1.0, 1.0)
+        if lo2 == 0:
             raise ValueError("directions: zero-length direction vector")
-        if np.any(np.abs(n2 - 1.0) > 1e-6):
+        if lo2 < 1.0 - 1e-6 or hi2 > 1.0 + 1e-6:
             d = d / np.sqrt(n2)[:, None]
         if np.any(np.isnan(md)) or np.any(md <= 0):
             raise ValueError("max_distance: must be > 0")
         dists = np.minimum(np.broadcast_to(md, shape).reshape(-1), _MISS_DIST).astype(np.float32)
-        return shape, np.ascontiguousarray(o, np.float32), np.ascontiguousarray(d, np.float32), d, o, dists
+        o32 = np.empty(d.shape, np.float32)
+        o32[...] = o  # broadcast assignment: much cheaper than a strided copy of a broadcast view
+        d32 = np.empty(d.shape, np.float32)
+        d32[...] = d
+        return shape, o32, d32, d, o, dists
 
     # ------------------------------------------------------------------ queries
     def cast(self, origins, directions, *, max_distance=np.inf, smooth: bool = True) -> Hits:
@@ -200,8 +205,8 @@ class RayCaster:
             nrm = np.einsum("nk,nkj->nj", w, cn)
         else:
             nrm = cat("Ng")
+        nrm /= np.sqrt(np.einsum("ij,ij->i", nrm, nrm))[:, None] + np.float32(1e-30)  # in float32, then widen once
         nrm = nrm.astype(np.float64)
-        nrm /= np.sqrt(np.einsum("ij,ij->i", nrm, nrm))[:, None] + 1e-300
         nrm[miss] = np.nan
         prim = np.where(miss, -1, prim).astype(np.int32)
         return Hits(

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array, as_positive
+from .._validate import as_array, broadcast_points, as_positive
 from ..rig import Rig
 from .projection import _bc, _check_rig, normalized_coordinates
 
@@ -820,11 +820,7 @@ def refine(rig: Rig, pixels, ranges, azimuths, *, sigma_pixel, sigma_range, sigm
             z0, _, _, _ = _combined_depth(rig, x, y, r, th, tuple(sig_n ** 2 * np.array([cam.fx ** 2, cam.fy ** 2, 1, 1])))
             init = np.stack([z0 * x, z0 * y, z0], -1)
         else:
-            init = as_array(initial, "initial", ("...", 3), finite=False)
-            try:
-                init = np.broadcast_to(init, shape + (3,)).reshape(-1, 3)
-            except ValueError:
-                raise ValueError(f"initial: expected shape {shape + (3,)}, got {init.shape}") from None
+            init = broadcast_points(initial, "initial", shape)
         no_init = ~np.all(np.isfinite(init), -1) | ~(init[:, 2] > 0)
         init = np.where(no_init[:, None], np.array([0.0, 0.0, 1.0]), init)
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array
+from .._validate import as_array, broadcast_points
 from ..camera import PinholeCamera
 from ..frames import R_SONAR_FROM_CAMERA_FORWARD, is_rotation
 from ..rig import Rig
@@ -240,11 +240,7 @@ def triangulate_optimal(stereo: StereoRig, pixels1, pixels2, *, sigma_pixel=1.0,
         with np.errstate(invalid="ignore", divide="ignore"):
             init = init[:, :3] / init[:, 3:]
     else:
-        init = as_array(initial, "initial", ("...", 3), finite=False)
-        try:
-            init = np.broadcast_to(init, shape + (3,)).reshape(-1, 3)
-        except ValueError:
-            raise ValueError(f"initial: expected shape {shape + (3,)}, got {init.shape}") from None
+        init = broadcast_points(initial, "initial", shape)
     z2 = init @ stereo.R[2] + stereo.t[2]
     no_init = ~np.all(np.isfinite(init), -1) | ~(init[:, 2] > 0) | ~(z2 > 0)
     init = np.where(no_init[:, None], np.array([0.0, 0.0, 1.0]), init)
