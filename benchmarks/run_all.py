@@ -49,7 +49,13 @@ def main(argv=None) -> int:
             print(f"   {r['name']}: {r['value']:.4g} {r['unit']}{ratio_s}")
         rows_by_module[path.stem] = (getattr(mod, "TITLE", path.stem), getattr(mod, "DESCRIPTION", ""), rows,
                                      time.perf_counter() - t0)
-    machine = f"{platform.processor() or platform.machine()}, {len(os.sched_getaffinity(0))} cores, Python {sys.version.split()[0]}"
+    cpu = platform.processor() or platform.machine()
+    try:
+        cpu = next(l.split(":", 1)[1].strip() for l in Path("/proc/cpuinfo").read_text().splitlines()
+                   if l.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    machine = f"{cpu}, {len(os.sched_getaffinity(0))} cores, Python {sys.version.split()[0]}"
     text = HEADER.format(machine=machine, date=time.strftime("%Y-%m-%d"))
     for stem, (title, desc, rows, dt) in rows_by_module.items():
         text += f"## {title}\n\n{desc}\n\n| measurement | value | unit | reference | ratio | note |\n|---|---|---|---|---|---|\n"
