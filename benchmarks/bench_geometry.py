@@ -11,7 +11,6 @@ block-diagonal Jacobian), on clean data and with 1% gross outliers.
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 

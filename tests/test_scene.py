@@ -7,8 +7,8 @@ import pytest
 import trimesh
 
 from optiacoustic import scenes
-from optiacoustic.frames import Pose
-from optiacoustic.scene import Body, Box, Cylinder, Ellipsoid, KleinBottle, Material, Plane, Scene, SceneError, Sphere
+
+from optiacoustic.scene import Body, Box, Cylinder, Ellipsoid, KleinBottle, Scene, SceneError, Sphere
 
 ISSUE_YAML = """
 bodies:

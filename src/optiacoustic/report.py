@@ -79,7 +79,7 @@ def build_report(out_dir, *, only=None, quick: bool = False, seed: int = 0, prog
         try:
             res = experiments.run(name, out_dir / name, quick=quick, seed=seed)
             sections.append(_section(name, res, out_dir, time.perf_counter() - t0))
-        except Exception as exc:  # keep the other chapters; report and fail at the end
+        except Exception:  # keep the other chapters; report and fail at the end
             import traceback
 
             failures.append(name)

@@ -1,4 +1,4 @@
-"""Numeric proofs of the formulas of docs/derivations/ch7_fusion.md (no fusion code involved)."""
+"""Numeric proofs of the formulas of docs/derivations.md (ch. 7) (no fusion code involved)."""
 
 import numpy as np
 

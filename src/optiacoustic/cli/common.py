@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import functools
-import sys
 from pathlib import Path
 
 import typer
@@ -68,6 +67,3 @@ def resolve_view(scene, eye, target):
         target = scene.view.target if scene.view is not None else (0.0, 0.0, 0.0)
     return np.asarray(eye, float), np.asarray(target, float)
 
-
-def stdout_is_tty() -> bool:
-    return sys.stdout.isatty()

@@ -61,46 +61,12 @@ def left_jacobian(w) -> np.ndarray:
     return np.eye(3) + (1 - np.cos(a)) / a**2 * W + (a - np.sin(a)) / a**3 * (W @ W)
 
 
-def rotation_angle(R) -> float:
-    """Angle (rad) of a rotation matrix."""
-    return float(np.arccos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)))
-
-
 def wrap(a):
     """Angles wrapped to ``(-pi, pi]``."""
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
 
 
 # --------------------------------------------------------------------------- measurements
-def camera_measure(Y, K):
-    """Ideal pixels ``(N, 2)`` of camera-frame points ``Y (N, 3)`` and their Jacobian ``(N, 2, 3)``."""
-    fx, fy, cx, cy = K
-    z = Y[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        iz = 1.0 / z
-        x, y = Y[:, 0] * iz, Y[:, 1] * iz
-        uv = np.stack([fx * x + cx, fy * y + cy], -1)
-        J = np.zeros(Y.shape[:1] + (2, 3))
-        J[:, 0, 0] = fx * iz
-        J[:, 0, 2] = -fx * x * iz
-        J[:, 1, 1] = fy * iz
-        J[:, 1, 2] = -fy * y * iz
-    return uv, J
-
-
-def sonar_measure(Y):
-    """``(range, azimuth)`` ``(N, 2)`` of sonar-frame points ``Y (N, 3)`` and the Jacobian ``(N, 2, 3)``."""
-    r = np.linalg.norm(Y, axis=-1)
-    rho2 = Y[:, 0] ** 2 + Y[:, 1] ** 2
-    meas = np.stack([r, np.arctan2(Y[:, 0], Y[:, 1])], -1)
-    J = np.zeros(Y.shape[:1] + (2, 3))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        J[:, 0, :] = Y / r[:, None]
-        J[:, 1, 0] = Y[:, 1] / rho2
-        J[:, 1, 1] = -Y[:, 0] / rho2
-    return meas, J
-
-
 @dataclass(frozen=True)
 class Channel:
     """One sensor view of a block of points.
@@ -208,13 +174,6 @@ class Problem:
         return exp_so3(w) @ self.R_ref, c, planes
 
     # ---------------------------------------------------------------- per-point model
-    def _channel_frames(self, ch: Channel, X, Rv, cv):
-        """``Y`` and ``dY/dX`` for a channel."""
-        if ch.moving:
-            A = ch.A @ Rv
-            return X @ (ch.A @ Rv).T + ch.A @ cv + ch.b, A
-        return X @ ch.A.T + ch.b, ch.A
-
     def _residual(self, block: Block, p, m, Rv, cv, w, want_theta=False, meas=None, plane=None):
         """Whitened residuals ``(N, 2C)`` with ``J_p (N, 2C, n_p)`` and optionally ``J_theta``.
 

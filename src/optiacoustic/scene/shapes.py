@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import ClassVar, Union
 
 import numpy as np
-from pydantic import ConfigDict, Field, PositiveFloat, PositiveInt, field_validator
+from pydantic import ConfigDict, Field, PositiveFloat
 from pydantic.dataclasses import dataclass
 from typing_extensions import Annotated
 

@@ -25,7 +25,7 @@ from typing import Literal
 
 import numpy as np
 
-from ..frames import Pose, _rotate
+from ..frames import Pose
 from ..raycast import RayCaster
 from ..scene import Scene
 from .frame import SonarFrame, SonarGroundTruth, SonarRays
