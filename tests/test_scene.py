@@ -166,3 +166,18 @@ def test_rotation_convention_of_scene_files(tmp_path):
     v = Scene.load(p).surfaces()[0].vertices
     ext = v.max(0) - v.min(0)
     assert np.allclose(ext, [1, 4, 1])
+
+
+@pytest.mark.parametrize("ext", ["obj", "stl", "ply", "glb"])
+def test_mesh_formats(tmp_path, ext):
+    """Meshes load through trimesh from OBJ, STL, PLY and GLB with the same geometry."""
+    rock = trimesh.creation.icosphere(subdivisions=2, radius=0.4)
+    rock.export(tmp_path / f"rock.{ext}")
+    (tmp_path / "s.yaml").write_text(f"bodies:\n  - {{name: rock, shape: mesh, file: rock.{ext}, scale: 2.0,"
+                                     f" pose: {{position: [1, 2, 3]}}}}\n")
+    surf = Scene.load(tmp_path / "s.yaml").surfaces()[0]
+    assert surf.n_faces == len(rock.faces)
+    assert np.allclose(np.linalg.norm(surf.vertices - [1, 2, 3], axis=1), 0.8, atol=1e-5)
+    # smooth shading on a smooth mesh: vertex normals close to radial
+    radial = (surf.vertices - [1, 2, 3]) / 0.8
+    assert np.min(np.einsum("ij,ij->i", surf.normals, radial)) > 0.98
