@@ -132,6 +132,22 @@ def _rotate(v: np.ndarray, R: np.ndarray) -> np.ndarray:
     return np.einsum("ij,...j->...i", R, v)
 
 
+def checked_rigid(R, t, owner: str, tol: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """Validated, read-only copies of a rigid transform's ``R`` (3, 3) and ``t`` (3,).
+
+    The one check behind :class:`Pose`, ``Rig`` and ``StereoRig``: finite, the right
+    shapes, ``R`` a proper rotation to ``tol``; errors name ``owner.R`` / ``owner.t``.
+    """
+    R = as_array(R, f"{owner}.R", (3, 3))
+    t = as_array(t, f"{owner}.t", (3,))
+    if not is_rotation(R, tol):
+        raise ValueError(f"{owner}.R: not a proper rotation (R^T R != I or det != 1): {np.round(R, 6).tolist()}")
+    R, t = R.copy(), t.copy()
+    R.setflags(write=False)
+    t.setflags(write=False)
+    return R, t
+
+
 # --------------------------------------------------------------------------- pose
 @dataclass(frozen=True, eq=False)
 class Pose:
@@ -149,14 +165,7 @@ class Pose:
     t: np.ndarray
 
     def __post_init__(self):
-        R = as_array(self.R, "Pose.R", (3, 3))
-        t = as_array(self.t, "Pose.t", (3,))
-        if not is_rotation(R, 1e-5):
-            raise ValueError(f"Pose.R: not a proper rotation matrix (R^T R != I or det != 1): {R.tolist()}")
-        R = R.copy()
-        t = t.copy()
-        R.setflags(write=False)
-        t.setflags(write=False)
+        R, t = checked_rigid(self.R, self.t, "Pose", tol=1e-5)
         object.__setattr__(self, "R", R)
         object.__setattr__(self, "t", t)
 

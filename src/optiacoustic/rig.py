@@ -15,7 +15,7 @@ import numpy as np
 
 from ._validate import as_array
 from .camera import PinholeCamera
-from .frames import Pose, R_SONAR_FROM_CAMERA_FORWARD, _rotate, is_rotation, rot_z, rotation_from_euler_xyz
+from .frames import Pose, R_SONAR_FROM_CAMERA_FORWARD, _rotate, checked_rigid, rot_z, rotation_from_euler_xyz
 
 __all__ = ["Rig"]
 
@@ -41,15 +41,9 @@ class Rig:
     sonar: Any = None
 
     def __post_init__(self):
-        R = as_array(self.R, "Rig.R", (3, 3))
-        t = as_array(self.t, "Rig.t", (3,))
-        if not is_rotation(R, 1e-6):
-            raise ValueError(f"Rig.R: not a proper rotation (R^T R != I or det != 1): {np.round(R, 6).tolist()}")
+        R, t = checked_rigid(self.R, self.t, "Rig")
         if not isinstance(self.camera, PinholeCamera):
             raise ValueError(f"Rig.camera: expected a PinholeCamera, got {type(self.camera).__name__}")
-        R, t = R.copy(), t.copy()
-        R.setflags(write=False)
-        t.setflags(write=False)
         object.__setattr__(self, "R", R)
         object.__setattr__(self, "t", t)
 

@@ -17,7 +17,7 @@ import numpy as np
 
 from .._validate import as_array, broadcast_points
 from ..camera import PinholeCamera
-from ..frames import R_SONAR_FROM_CAMERA_FORWARD, is_rotation
+from ..frames import R_SONAR_FROM_CAMERA_FORWARD, checked_rigid
 from ..rig import Rig
 from .projection import _bc
 from .reconstruct import ClosedFormSolution, FirstOrderError, Refinement, _inv3, _lm, _message, _normal_equations
@@ -52,16 +52,10 @@ class StereoRig:
     camera2: PinholeCamera
 
     def __post_init__(self):
-        R = as_array(self.R, "StereoRig.R", (3, 3))
-        t = as_array(self.t, "StereoRig.t", (3,))
-        if not is_rotation(R, 1e-6):
-            raise ValueError("StereoRig.R: not a proper rotation (R^T R != I or det != 1)")
+        R, t = checked_rigid(self.R, self.t, "StereoRig")
         for name in ("camera1", "camera2"):
             if not isinstance(getattr(self, name), PinholeCamera):
                 raise ValueError(f"StereoRig.{name}: expected a PinholeCamera, got {type(getattr(self, name)).__name__}")
-        R, t = R.copy(), t.copy()
-        R.setflags(write=False)
-        t.setflags(write=False)
         object.__setattr__(self, "R", R)
         object.__setattr__(self, "t", t)
 
