@@ -21,6 +21,8 @@ FORBIDDEN = {
                               "optiacoustic.experiments", "embreex"],
     "optiacoustic.fusion": ["optiacoustic.sonar", "optiacoustic.optical", "optiacoustic.raycast", "optiacoustic.experiments",
                             "embreex"],
+    "optiacoustic.matching": ["optiacoustic.sonar", "optiacoustic.optical", "optiacoustic.raycast", "optiacoustic.fusion",
+                              "optiacoustic.experiments", "optiacoustic.scene", "embreex"],
     "optiacoustic.experiments": ["optiacoustic.cli"],
 }
 

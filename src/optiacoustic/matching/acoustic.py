@@ -1,0 +1,212 @@
+"""What the sonar image says about elevation: the seabed plane and the acoustic shadows.
+
+A sonar measures range and azimuth, not elevation. Two things in its image do constrain
+elevation, and both survive the change of modality because they are geometry:
+
+* **The seabed.** Where the seabed enters the fan (the echo onset of each beam) it meets
+  the lower edge of the elevation aperture. The onsets of all beams, placed at elevation
+  ``-fov_elevation / 2``, are points of the seabed plane: a robust plane fit gives the
+  seabed in the sonar frame, hence the seabed's elevation at every ``(r, theta)``.
+* **Shadows.** Behind an object that stands on the seabed the beam is dark until the ray
+  that grazes the object's top reaches the seabed. That ray's elevation is the seabed's
+  elevation at the end of the shadow, so an echo at range ``r`` just in front of the
+  shadow comes from an elevation between the seabed's at ``r`` and the grazing ray's.
+  A bright return with no shadow behind it lies on (or barely above) the seabed.
+
+:func:`elevation_bounds` gives, for each sonar feature, the elevation interval these allow.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage as ndi
+
+from ..geometry.projection import cos_sin_roots
+
+__all__ = ["SeabedPlane", "fit_seabed", "seabed_elevation", "elevation_bounds"]
+
+
+@dataclass(frozen=True, eq=False)
+class SeabedPlane:
+    """The plane ``normal . P_s = offset`` of the seabed in the sonar frame (unit normal, pointing up).
+
+    Attributes
+    ----------
+    normal : ndarray, shape (3,)
+    offset : float
+        (m); the sonar's height above the seabed is ``-offset``.
+    rms : float
+        Residual of the fit (m).
+    n_beams : int
+        Beams whose onset supported the fit.
+    message : str
+        Why no plane was found (the object is then falsy).
+    """
+
+    normal: np.ndarray
+    offset: float
+    rms: float
+    n_beams: int
+    message: str = ""
+
+    def __bool__(self) -> bool:
+        return bool(np.all(np.isfinite(self.normal)))
+
+    def height(self, points_sonar) -> np.ndarray:
+        """Signed height (m) of sonar-frame points ``(..., 3)`` above the plane."""
+        return np.asarray(points_sonar, float) @ self.normal - self.offset
+
+
+_NO_PLANE = dict(normal=np.full(3, np.nan), offset=np.nan, rms=np.nan)
+
+
+def _smoothed(image):
+    return ndi.uniform_filter(np.asarray(image, np.float64), (9, 3), mode="nearest")
+
+
+def fit_seabed(image, ranges, azimuths, fov_elevation: float, *, min_beams: int = 20,
+               onset_fraction: float = 0.3) -> SeabedPlane:
+    """Fit the seabed plane to the echo onsets of the beams (robust, ``scipy.optimize.least_squares``).
+
+    Parameters
+    ----------
+    image : array_like, shape (n_bins, n_beams)
+        Linear intensity.
+    ranges, azimuths : array_like
+        Bin centres (m), beam centres (rad).
+    fov_elevation : float
+        Elevation aperture (rad).
+    min_beams : int
+        Fewer onsets than this: no plane.
+    onset_fraction : float
+        The onset is the first bin above this fraction of the beam's median echo.
+
+    Returns
+    -------
+    SeabedPlane
+        Falsy with a message when the onsets do not support a plane (no seabed in view, the
+        seabed already inside the aperture at the nearest range, or a poor fit).
+    """
+    from scipy.optimize import least_squares
+
+    sm = _smoothed(image)
+    r = np.asarray(ranges, float)
+    th = np.asarray(azimuths, float)
+    pos = np.where(sm > 0, sm, np.nan)
+    with np.errstate(invalid="ignore"):
+        level = np.nanmedian(pos, axis=0)
+    above = sm > onset_fraction * np.nan_to_num(level)[None, :]
+    has = above.any(0)
+    onset = np.argmax(above, axis=0)
+    # An onset at the first bins means the seabed was already in the aperture there: no edge.
+    ok = has & (onset > 3) & (onset < r.size - 3) & np.isfinite(level)
+    if ok.sum() < min_beams:
+        return SeabedPlane(**_NO_PLANE, n_beams=int(ok.sum()),
+                           message=f"seabed: only {int(ok.sum())} beams show an echo onset (need {min_beams})")
+    phi = -fov_elevation / 2
+    ro, to = r[onset[ok]], th[ok]
+    P = np.stack([ro * np.cos(phi) * np.sin(to), ro * np.cos(phi) * np.cos(to), np.full(ro.shape, ro * np.sin(phi))], -1)
+    P = np.atleast_2d(P)
+
+    # z = a x + b y + c, robust to onsets that are objects rather than seabed.
+    def res(p):
+        return P[:, 2] - (p[0] * P[:, 0] + p[1] * P[:, 1] + p[2])
+
+    fit = least_squares(res, np.array([0.0, 0.0, float(np.median(P[:, 2]))]), loss="soft_l1", f_scale=0.05)
+    a, b, c = fit.x
+    n = np.array([-a, -b, 1.0])
+    norm = np.linalg.norm(n)
+    resid = res(fit.x) / norm
+    rms = float(np.sqrt(np.median(resid ** 2)))
+    if not np.isfinite(rms) or rms > 0.15:
+        return SeabedPlane(**_NO_PLANE, n_beams=int(ok.sum()), message=f"seabed: onsets do not lie on a plane "
+                           f"(median residual {rms:.2f} m)")
+    return SeabedPlane(n / norm, float(c / norm), rms, int(ok.sum()))
+
+
+def seabed_elevation(plane: SeabedPlane, ranges, azimuths) -> np.ndarray:
+    """Elevation (rad) at which the arc ``(r, theta)`` meets the seabed; NaN where it does not.
+
+    Of the two crossings the one nearer to the horizontal (``|phi| < pi/2``, below the
+    sonar's horizon for a sonar above the seabed) is returned.
+    """
+    r = np.asarray(ranges, float)
+    th = np.asarray(azimuths, float)
+    n = plane.normal
+    a = n[0] * np.sin(th) + n[1] * np.cos(th)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        roots = cos_sin_roots(a, n[2], plane.offset / r)
+    good = np.abs(roots) < np.pi / 2
+    return np.where(good[0], roots[0], np.where(good[1], roots[1], np.nan))
+
+
+def elevation_bounds(image, ranges, azimuths, bins, beams, plane: SeabedPlane, fov_elevation: float, *,
+                     dark_fraction: float = 0.2, min_shadow_bins: int = 6, search_m: float = 1.0):
+    """Elevation interval ``[low, high]`` (rad) of each sonar feature, from the seabed and the shadows.
+
+    Parameters
+    ----------
+    image : array_like, shape (n_bins, n_beams)
+    ranges, azimuths : array_like
+        Bin and beam centres (m, rad).
+    bins, beams : array_like of int, shape (N,)
+        The features' cells.
+    plane : SeabedPlane
+        Without a plane, the interval is the aperture.
+    fov_elevation : float
+    dark_fraction : float
+        A shadow cell is below this fraction of the beam's median echo.
+    min_shadow_bins : int
+        Shortest run of dark cells taken for a shadow.
+    search_m : float
+        How far beyond the feature (m) the shadow may start.
+
+    Returns
+    -------
+    low, high : ndarray, shape (N,)
+        Elevation bounds (rad). ``high`` is the grazing ray's elevation when a shadow follows
+        the feature, the seabed's when none does (a return with no shadow is on the seabed),
+        and the aperture's top when the shadow runs out of the image.
+    shadowed : ndarray of bool, shape (N,)
+        A shadow follows the feature.
+    """
+    bins = np.asarray(bins, int)
+    beams = np.asarray(beams, int)
+    half = fov_elevation / 2
+    N = bins.size
+    low, high = np.full(N, -half), np.full(N, half)
+    shadowed = np.zeros(N, bool)
+    if not plane or N == 0:
+        return low, high, shadowed
+    r = np.asarray(ranges, float)
+    th = np.asarray(azimuths, float)
+    sm = _smoothed(image)
+    pos = np.where(sm > 0, sm, np.nan)
+    with np.errstate(invalid="ignore"):
+        level = np.nan_to_num(np.nanmedian(pos, axis=0))
+    dark = sm < dark_fraction * level[None, :]
+    dr = float(np.median(np.diff(r))) if r.size > 1 else 1.0
+    n_search = max(1, int(round(search_m / dr)))
+    # Each feature's beam from its bin onwards, as an (N, K) window (K bins ahead).
+    K = min(r.size, n_search + int(round(6.0 / dr)))
+    idx = bins[:, None] + np.arange(K)[None, :]
+    inside = idx < r.size
+    win = np.where(inside, dark[np.minimum(idx, r.size - 1), beams[:, None]], False)
+    # First dark cell within the search window, then the end of that dark run.
+    first = np.argmax(win[:, :n_search], axis=1)
+    has_dark = win[:, :n_search].any(1)
+    after = np.arange(K)[None, :] >= first[:, None]
+    lit_after = after & ~win & inside
+    end = np.where(lit_after.any(1), np.argmax(lit_after, axis=1), K)
+    run = end - first
+    shadowed = has_dark & (run >= min_shadow_bins)
+    runs_out = shadowed & ~lit_after.any(1)
+    r_end = r[np.minimum(bins + end, r.size - 1)]
+    phi_end = seabed_elevation(plane, r_end, th[beams])
+    phi_sb = seabed_elevation(plane, r[bins], th[beams])
+    low = np.where(np.isfinite(phi_sb), np.maximum(phi_sb, -half), -half)
+    high = np.where(shadowed & ~runs_out & np.isfinite(phi_end), np.minimum(phi_end, half), half)
+    high = np.where(~shadowed & np.isfinite(phi_sb), low, high)
+    return low, np.maximum(high, low), shadowed
