@@ -187,6 +187,9 @@ def elevation_bounds(image, ranges, azimuths, bins, beams, plane: SeabedPlane, f
     with np.errstate(invalid="ignore"):
         level = np.nan_to_num(np.nanmedian(pos, axis=0))
     dark = sm < dark_fraction * level[None, :]
+    # Speckle and the range-amplified noise floor light isolated cells inside a shadow:
+    # bridge lit gaps shorter than a few bins along range.
+    dark = ndi.binary_closing(dark, structure=np.ones((7, 1), bool), border_value=1)
     dr = float(np.median(np.diff(r))) if r.size > 1 else 1.0
     n_search = max(1, int(round(search_m / dr)))
     # Each feature's beam from its bin onwards, as an (N, K) window (K bins ahead).

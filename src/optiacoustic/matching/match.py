@@ -88,9 +88,9 @@ class MatchOptions:
 
     gate: float = 9.0
     null_cost: float = 9.0
-    elevation_sigma: float = float(np.deg2rad(0.75))
+    elevation_sigma: float = float(np.deg2rad(1.5))
     seabed_clearance: float = 0.10
-    smoothness: bool = True
+    smoothness: bool = False
     use_acoustic: bool = True
     cfar: CfarOptions = field(default_factory=CfarOptions)
     keypoints: KeypointOptions = field(default_factory=KeypointOptions)
