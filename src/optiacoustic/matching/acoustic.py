@@ -91,7 +91,8 @@ def fit_seabed(image, ranges, azimuths, fov_elevation: float, *, min_beams: int 
     """
     from scipy.optimize import least_squares
 
-    sm = _smoothed(image)
+    # Little smoothing along range: a long window crosses the threshold before the step.
+    sm = ndi.uniform_filter(np.asarray(image, np.float64), (3, 3), mode="nearest")
     r = np.asarray(ranges, float)
     th = np.asarray(azimuths, float)
     pos = np.where(sm > 0, sm, np.nan)
@@ -183,29 +184,38 @@ def elevation_bounds(image, ranges, azimuths, bins, beams, plane: SeabedPlane, f
     r = np.asarray(ranges, float)
     th = np.asarray(azimuths, float)
     sm = _smoothed(image)
-    pos = np.where(sm > 0, sm, np.nan)
-    with np.errstate(invalid="ignore"):
-        level = np.nan_to_num(np.nanmedian(pos, axis=0))
-    dark = sm < dark_fraction * level[None, :]
+    # The seabed's echo level at each range: the median over beams (objects and shadows fill
+    # few beams). Echo falls with range and the noise floor rises with it, so "dark" is
+    # judged against this profile, and ranges where the seabed is not lit (before it enters
+    # the aperture, after it leaves) have no shadows to see.
+    level = ndi.uniform_filter1d(np.median(sm, axis=1), 15, mode="nearest")
+    floor = max(float(np.min(level)), 1e-30)
+    lit_range = level > 10.0 * floor
+    dark = (sm < dark_fraction * level[:, None]) & lit_range[:, None]
     # Speckle and the range-amplified noise floor light isolated cells inside a shadow:
     # bridge lit gaps shorter than a few bins along range.
     dark = ndi.binary_closing(dark, structure=np.ones((7, 1), bool), border_value=1)
     dr = float(np.median(np.diff(r))) if r.size > 1 else 1.0
     n_search = max(1, int(round(search_m / dr)))
     # Each feature's beam from its bin onwards, as an (N, K) window (K bins ahead).
-    K = min(r.size, n_search + int(round(6.0 / dr)))
+    K = r.size
     idx = bins[:, None] + np.arange(K)[None, :]
     inside = idx < r.size
     win = np.where(inside, dark[np.minimum(idx, r.size - 1), beams[:, None]], False)
+    win = win | (~lit_range[np.minimum(idx, r.size - 1)] & inside)
     # First dark cell within the search window, then the end of that dark run.
     first = np.argmax(win[:, :n_search], axis=1)
     has_dark = win[:, :n_search].any(1)
     after = np.arange(K)[None, :] >= first[:, None]
-    lit_after = after & ~win & inside
+    unlit = ~lit_range[np.minimum(idx, r.size - 1)] | ~inside
+    lit_after = after & ~win & ~unlit
     end = np.where(lit_after.any(1), np.argmax(lit_after, axis=1), K)
+    # A shadow that reaches the far edge of the lit seabed runs out of the image.
+    reach = after & unlit
+    first_unlit = np.where(reach.any(1), np.argmax(reach, axis=1), K)
     run = end - first
     shadowed = has_dark & (run >= min_shadow_bins)
-    runs_out = shadowed & ~lit_after.any(1)
+    runs_out = shadowed & (first_unlit <= end)
     r_end = r[np.minimum(bins + end, r.size - 1)]
     phi_end = seabed_elevation(plane, r_end, th[beams])
     phi_sb = seabed_elevation(plane, r[bins], th[beams])
@@ -213,3 +223,67 @@ def elevation_bounds(image, ranges, azimuths, bins, beams, plane: SeabedPlane, f
     high = np.where(shadowed & ~runs_out & np.isfinite(phi_end), np.minimum(phi_end, half), half)
     high = np.where(~shadowed & np.isfinite(phi_sb), low, high)
     return low, np.maximum(high, low), shadowed
+
+
+#: States of :func:`seabed_view`.
+SEABED_UNKNOWN, SEABED_LIT, SEABED_SHADOWED = 0, 1, 2
+
+
+def seabed_view(rig, plane: SeabedPlane, pixels, image, ranges, azimuths, *, dark_fraction: float = 0.2):
+    """What the sonar says about the seabed point behind each camera pixel.
+
+    Each pixel's ray meets the seabed plane at ``Q``. If the sonar's cell of ``Q`` is lit at
+    the seabed's level, the sonar sees ``Q``; from a viewpoint a baseline away the camera
+    sees it too, so the pixel shows the seabed at ``Q``'s depth. If the cell is dark while
+    the seabed is lit at that range elsewhere, ``Q`` lies in an acoustic shadow: something
+    stands between the sensors and ``Q``, and the pixel shows that occluder, nearer than ``Q``.
+
+    Parameters
+    ----------
+    rig : Rig
+    plane : SeabedPlane
+    pixels : array_like, shape (M, 2)
+    image, ranges, azimuths : the sonar image and its bin and beam centres.
+    dark_fraction : float
+        As in :func:`elevation_bounds`.
+
+    Returns
+    -------
+    state : ndarray of int, shape (M,)
+        ``SEABED_LIT`` (1), ``SEABED_SHADOWED`` (2) or ``SEABED_UNKNOWN`` (0: no plane, the ray
+        misses the seabed, or ``Q`` is outside the sonar's lit seabed).
+    depth : ndarray, shape (M,)
+        Camera-frame Z of ``Q`` (m); NaN where the ray misses the seabed.
+    """
+    from ..frames import spherical_from_sonar
+    from ..geometry.projection import pixel_rays_in_sonar
+
+    px = np.asarray(pixels, float).reshape(-1, 2)
+    M = len(px)
+    state = np.zeros(M, int)
+    depth = np.full(M, np.nan)
+    if not plane or M == 0:
+        return state, depth
+    rays = pixel_rays_in_sonar(rig, px)
+    n = plane.normal
+    den = rays.directions @ n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = (plane.offset - rays.origin @ n) / den
+    hit = np.isfinite(z) & (z > 0)
+    depth[hit] = z[hit]
+    Q = rays.origin + np.where(hit, z, 0.0)[:, None] * rays.directions
+    rq, tq, pq = spherical_from_sonar(Q)
+    r = np.asarray(ranges, float)
+    th = np.asarray(azimuths, float)
+    sm = _smoothed(image)
+    level = ndi.uniform_filter1d(np.median(sm, axis=1), 15, mode="nearest")
+    floor = max(float(np.min(level)), 1e-30)
+    lit_range = level > 10.0 * floor
+    inside = hit & (rq >= r[0]) & (rq <= r[-1]) & (tq >= th[0]) & (tq <= th[-1])
+    b = np.clip(np.searchsorted(r, rq) , 0, r.size - 1)
+    k = np.clip(np.searchsorted(th, tq), 0, th.size - 1)
+    known = inside & lit_range[b]
+    bright = sm[b, k] >= dark_fraction * level[b]
+    state[known & bright] = SEABED_LIT
+    state[known & ~bright] = SEABED_SHADOWED
+    return state, depth

@@ -32,7 +32,7 @@ from ..frames import spherical_from_sonar
 from ..geometry import epipolar as ep
 from ..geometry import reconstruct as rc
 from ..rig import Rig
-from .acoustic import SeabedPlane, elevation_bounds, fit_seabed
+from .acoustic import SEABED_LIT, SEABED_SHADOWED, SeabedPlane, elevation_bounds, fit_seabed, seabed_view
 from .camera_features import CameraFeatures, KeypointOptions, detect_camera_features
 from .gating import mahalanobis_sq
 from .sonar_features import CfarOptions, SonarFeatures, detect_sonar_features
@@ -308,11 +308,20 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     if opt.use_acoustic:
         seabed = fit_seabed(img_s, r_bins, th_beams, rig.fov_elevation)
         if seabed:
-            low, high, _ = elevation_bounds(img_s, r_bins, th_beams, sf.bins, sf.beams, seabed, rig.fov_elevation)
+            low, high, shadowed = elevation_bounds(img_s, r_bins, th_beams, sf.bins, sf.beams, seabed, rig.fov_elevation)
             lo, hi = low[rows], high[rows]
             e = np.maximum(0.0, np.maximum(lo - phi, phi - hi)) / opt.elevation_sigma
             cost = cost + e ** 2
-            cost = np.where(seabed.height(P_s) < -opt.seabed_clearance, np.inf, cost)
+            height = seabed.height(P_s)
+            cost = np.where(height < -opt.seabed_clearance, np.inf, cost)
+            # The camera sees the seabed at this pixel: the point must be on the seabed. The
+            # seabed there is in an acoustic shadow: the pixel shows an occluder, so the point
+            # cannot be a seabed echo (a feature with no shadow behind it).
+            state, _ = seabed_view(rig, seabed, cf.pixels, img_s, r_bins, th_beams)
+            st = state[cols]
+            on_bed = np.abs(height) <= opt.seabed_clearance
+            cost = np.where((st == SEABED_LIT) & ~on_bed, np.inf, cost)
+            cost = np.where((st == SEABED_SHADOWED) & ~shadowed[rows], np.inf, cost)
 
     keep = np.isfinite(cost) & (cost < opt.null_cost)
     if not keep.any():
