@@ -25,7 +25,7 @@ from scipy import ndimage as ndi
 
 from ..geometry.projection import cos_sin_roots
 
-__all__ = ["SeabedPlane", "fit_seabed", "seabed_elevation", "elevation_bounds"]
+__all__ = ["SeabedPlane", "fit_seabed", "seabed_elevation", "elevation_maps", "elevation_bounds", "occluded", "seabed_view"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -143,86 +143,147 @@ def seabed_elevation(plane: SeabedPlane, ranges, azimuths) -> np.ndarray:
     return np.where(good[0], roots[0], np.where(good[1], roots[1], np.nan))
 
 
-def elevation_bounds(image, ranges, azimuths, bins, beams, plane: SeabedPlane, fov_elevation: float, *,
-                     dark_fraction: float = 0.2, min_shadow_bins: int = 6, search_m: float = 1.0):
-    """Elevation interval ``[low, high]`` (rad) of each sonar feature, from the seabed and the shadows.
+def _seabed_level(sm):
+    """The seabed's echo level per range (median over beams), and where the seabed is lit at all."""
+    level = ndi.uniform_filter1d(np.median(sm, axis=1), 15, mode="nearest")
+    floor = max(float(np.min(level)), 1e-30)
+    return level, level > 10.0 * floor
+
+
+def _next_index(mask):
+    """For every cell, the row of the next True cell at or below it in its column (``n_rows`` if none)."""
+    n = mask.shape[0]
+    idx = np.where(mask, np.arange(n)[:, None], n)
+    return np.minimum.accumulate(idx[::-1], axis=0)[::-1]
+
+
+def elevation_maps(image, ranges, azimuths, plane: SeabedPlane, fov_elevation: float, *,
+                   dark_fraction: float = 0.2, min_shadow_bins: int = 6, search_m: float = 1.0):
+    """Elevation interval ``[low, high]`` (rad) of an echo in every cell, from the seabed and the shadows.
 
     Parameters
     ----------
     image : array_like, shape (n_bins, n_beams)
     ranges, azimuths : array_like
         Bin and beam centres (m, rad).
-    bins, beams : array_like of int, shape (N,)
-        The features' cells.
     plane : SeabedPlane
         Without a plane, the interval is the aperture.
     fov_elevation : float
     dark_fraction : float
-        A shadow cell is below this fraction of the beam's median echo.
+        A shadow cell is below this fraction of the seabed's echo level at its range.
     min_shadow_bins : int
         Shortest run of dark cells taken for a shadow.
     search_m : float
-        How far beyond the feature (m) the shadow may start.
+        How far beyond the cell (m) the shadow may start.
 
     Returns
     -------
-    low, high : ndarray, shape (N,)
-        Elevation bounds (rad). ``high`` is the grazing ray's elevation when a shadow follows
-        the feature, the seabed's when none does (a return with no shadow is on the seabed),
-        and the aperture's top when the shadow runs out of the image.
-    shadowed : ndarray of bool, shape (N,)
-        A shadow follows the feature.
+    low, high : ndarray, shape (n_bins, n_beams)
+        ``low`` is the seabed's elevation at the cell's range; ``high`` the elevation of the
+        ray grazing the end of the shadow that follows the cell, the seabed's when no shadow
+        follows (an echo with no shadow behind it is on the seabed), and the aperture's top
+        when the shadow runs past the lit seabed.
+    shadowed : ndarray of bool, shape (n_bins, n_beams)
+        A shadow follows the cell.
     """
-    bins = np.asarray(bins, int)
-    beams = np.asarray(beams, int)
+    sm = _smoothed(image)
+    n_bins, n_beams = sm.shape
     half = fov_elevation / 2
-    N = bins.size
-    low, high = np.full(N, -half), np.full(N, half)
-    shadowed = np.zeros(N, bool)
-    if not plane or N == 0:
+    low = np.full(sm.shape, -half)
+    high = np.full(sm.shape, half)
+    shadowed = np.zeros(sm.shape, bool)
+    if not plane:
         return low, high, shadowed
     r = np.asarray(ranges, float)
     th = np.asarray(azimuths, float)
-    sm = _smoothed(image)
-    # The seabed's echo level at each range: the median over beams (objects and shadows fill
-    # few beams). Echo falls with range and the noise floor rises with it, so "dark" is
-    # judged against this profile, and ranges where the seabed is not lit (before it enters
-    # the aperture, after it leaves) have no shadows to see.
-    level = ndi.uniform_filter1d(np.median(sm, axis=1), 15, mode="nearest")
-    floor = max(float(np.min(level)), 1e-30)
-    lit_range = level > 10.0 * floor
+    # Echo falls with range and the noise floor rises with it, so "dark" is judged against
+    # the seabed's level at each range; where the seabed is not lit there is no shadow to see.
+    level, lit_range = _seabed_level(sm)
     dark = (sm < dark_fraction * level[:, None]) & lit_range[:, None]
-    # Speckle and the range-amplified noise floor light isolated cells inside a shadow:
-    # bridge lit gaps shorter than a few bins along range.
-    dark = ndi.binary_closing(dark, structure=np.ones((7, 1), bool), border_value=1)
+    # Speckle and the range-amplified noise floor light isolated cells inside a shadow.
+    dark = ndi.binary_closing(dark, structure=np.ones((7, 1), bool), border_value=1) & lit_range[:, None]
+    unlit = np.broadcast_to(~lit_range[:, None], sm.shape)
     dr = float(np.median(np.diff(r))) if r.size > 1 else 1.0
     n_search = max(1, int(round(search_m / dr)))
-    # Each feature's beam from its bin onwards, as an (N, K) window (K bins ahead).
-    K = r.size
-    idx = bins[:, None] + np.arange(K)[None, :]
-    inside = idx < r.size
-    win = np.where(inside, dark[np.minimum(idx, r.size - 1), beams[:, None]], False)
-    win = win | (~lit_range[np.minimum(idx, r.size - 1)] & inside)
-    # First dark cell within the search window, then the end of that dark run.
-    first = np.argmax(win[:, :n_search], axis=1)
-    has_dark = win[:, :n_search].any(1)
-    after = np.arange(K)[None, :] >= first[:, None]
-    unlit = ~lit_range[np.minimum(idx, r.size - 1)] | ~inside
-    lit_after = after & ~win & ~unlit
-    end = np.where(lit_after.any(1), np.argmax(lit_after, axis=1), K)
-    # A shadow that reaches the far edge of the lit seabed runs out of the image.
-    reach = after & unlit
-    first_unlit = np.where(reach.any(1), np.argmax(reach, axis=1), K)
-    run = end - first
-    shadowed = has_dark & (run >= min_shadow_bins)
+    rows = np.arange(n_bins)[:, None]
+    cols = np.broadcast_to(np.arange(n_beams)[None, :], sm.shape)
+    # Next dark (or unlit) cell, then the first lit seabed cell after it: the shadow's end.
+    start = _next_index(dark | unlit)
+    lit = ~dark & ~unlit
+    next_lit = _next_index(lit)
+    end = next_lit[np.minimum(start, n_bins - 1), cols]
+    end = np.where(start >= n_bins, n_bins, end)
+    next_unlit = _next_index(unlit)
+    first_unlit = next_unlit[np.minimum(start, n_bins - 1), cols]
+    shadowed = (start - rows <= n_search) & (end - start >= min_shadow_bins) & (start < n_bins)
     runs_out = shadowed & (first_unlit <= end)
-    r_end = r[np.minimum(bins + end, r.size - 1)]
-    phi_end = seabed_elevation(plane, r_end, th[beams])
-    phi_sb = seabed_elevation(plane, r[bins], th[beams])
+    phi_end = seabed_elevation(plane, r[np.minimum(end, n_bins - 1)], th[None, :])
+    phi_sb = seabed_elevation(plane, r[:, None], th[None, :])
     low = np.where(np.isfinite(phi_sb), np.maximum(phi_sb, -half), -half)
     high = np.where(shadowed & ~runs_out & np.isfinite(phi_end), np.minimum(phi_end, half), half)
     high = np.where(~shadowed & np.isfinite(phi_sb), low, high)
     return low, np.maximum(high, low), shadowed
+
+
+def elevation_bounds(image, ranges, azimuths, bins, beams, plane: SeabedPlane, fov_elevation: float, **kwargs):
+    """:func:`elevation_maps` at the cells ``(bins, beams)`` of ``N`` features: ``low, high, shadowed``, shape (N,)."""
+    low, high, sh = elevation_maps(image, ranges, azimuths, plane, fov_elevation, **kwargs)
+    b, k = np.asarray(bins, int), np.asarray(beams, int)
+    return low[b, k], high[b, k], sh[b, k]
+
+
+def occluded(rig, pixels, depths, detected, low, high, ranges, azimuths, *, margin: float = 0.5,
+             tolerance: float = 0.01, n_samples: int = 48) -> np.ndarray:
+    """Whether an echo the sonar sees lies on each pixel's ray before the given depth (no closer occluder).
+
+    The ray from the camera centre to depth ``depths - margin`` (camera Z) is sampled; a
+    sample occludes when its sonar cell holds a detected echo whose elevation interval
+    (:func:`elevation_maps`) contains the sample's elevation. The margin spares the
+    candidate's own object: its other cells along the ray lie within an object's depth.
+
+    Parameters
+    ----------
+    rig : Rig
+    pixels : array_like, shape (M, 2)
+    depths : array_like, shape (M,)
+        Camera-frame Z of the candidate points (m).
+    detected, low, high : ndarray, shape (n_bins, n_beams)
+        CFAR detections and their elevation intervals (rad).
+    ranges, azimuths : array_like
+        Bin and beam centres.
+    margin : float
+        Only echoes nearer than the candidate by this much (m, along the ray) count.
+    tolerance : float
+        Slack on the elevation intervals (rad).
+
+    Returns
+    -------
+    ndarray of bool, shape (M,)
+    """
+    from ..frames import spherical_from_sonar
+    from ..geometry.projection import pixel_rays_in_sonar
+
+    px = np.asarray(pixels, float).reshape(-1, 2)
+    z = np.asarray(depths, float).reshape(-1)
+    if px.shape[0] == 0:
+        return np.zeros(0, bool)
+    rays = pixel_rays_in_sonar(rig, px)
+    scale = np.linalg.norm(rays.directions, axis=-1)
+    zmax = z - margin / scale
+    f = np.linspace(0.02, 1.0, n_samples)
+    zs = np.maximum(zmax, 0.0)[:, None] * f[None, :]
+    Q = rays.origin + zs[..., None] * rays.directions[:, None, :]
+    rq, tq, pq = spherical_from_sonar(Q)
+    r = np.asarray(ranges, float)
+    th = np.asarray(azimuths, float)
+    dr = r[1] - r[0] if r.size > 1 else 1.0
+    b = np.rint((rq - r[0]) / dr).astype(int)
+    k = np.clip(np.searchsorted(th, tq), 1, th.size - 1)
+    k = np.where(np.abs(th[k - 1] - tq) < np.abs(th[k] - tq), k - 1, k)
+    inside = (b >= 0) & (b < r.size) & (tq >= th[0]) & (tq <= th[-1]) & (zmax[:, None] > 0)
+    bb = np.clip(b, 0, r.size - 1)
+    occ = inside & detected[bb, k] & (pq >= low[bb, k] - tolerance) & (pq <= high[bb, k] + tolerance)
+    return occ.any(axis=1)
 
 
 #: States of :func:`seabed_view`.
@@ -276,9 +337,7 @@ def seabed_view(rig, plane: SeabedPlane, pixels, image, ranges, azimuths, *, dar
     r = np.asarray(ranges, float)
     th = np.asarray(azimuths, float)
     sm = _smoothed(image)
-    level = ndi.uniform_filter1d(np.median(sm, axis=1), 15, mode="nearest")
-    floor = max(float(np.min(level)), 1e-30)
-    lit_range = level > 10.0 * floor
+    level, lit_range = _seabed_level(sm)
     inside = hit & (rq >= r[0]) & (rq <= r[-1]) & (tq >= th[0]) & (tq <= th[-1])
     b = np.clip(np.searchsorted(r, rq) , 0, r.size - 1)
     k = np.clip(np.searchsorted(th, tq), 0, th.size - 1)

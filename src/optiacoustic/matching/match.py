@@ -32,10 +32,10 @@ from ..frames import spherical_from_sonar
 from ..geometry import epipolar as ep
 from ..geometry import reconstruct as rc
 from ..rig import Rig
-from .acoustic import SEABED_LIT, SEABED_SHADOWED, SeabedPlane, elevation_bounds, fit_seabed, seabed_view
+from .acoustic import SEABED_LIT, SEABED_SHADOWED, SeabedPlane, elevation_maps, fit_seabed, occluded, seabed_view
 from .camera_features import CameraFeatures, KeypointOptions, detect_camera_features
 from .gating import mahalanobis_sq
-from .sonar_features import CfarOptions, SonarFeatures, detect_sonar_features
+from .sonar_features import CfarOptions, SonarFeatures, cfar_map, detect_sonar_features
 
 __all__ = ["MatchNoise", "MatchOptions", "Matches", "match"]
 
@@ -79,6 +79,11 @@ class MatchOptions:
         Softness (rad) of the elevation interval from the seabed and shadows.
     seabed_clearance : float
         A point more than this (m) under the fitted seabed is rejected.
+    occluder_margin : float
+        Echoes on the pixel's ray nearer than the point by more than this (m) occlude it.
+    occupancy_factor : float
+        An echo this many times its CFAR background counts as a possible occluder (lower
+        than the detection factor: a weak echo still hides what is behind it).
     smoothness : bool
         Second assignment pass with the neighbours' depth agreement in the cost.
     use_acoustic : bool
@@ -90,6 +95,8 @@ class MatchOptions:
     null_cost: float = 9.0
     elevation_sigma: float = float(np.deg2rad(1.5))
     seabed_clearance: float = 0.10
+    occluder_margin: float = 0.5
+    occupancy_factor: float = 3.0
     smoothness: bool = False
     use_acoustic: bool = True
     cfar: CfarOptions = field(default_factory=CfarOptions)
@@ -308,8 +315,9 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     if opt.use_acoustic:
         seabed = fit_seabed(img_s, r_bins, th_beams, rig.fov_elevation)
         if seabed:
-            low, high, shadowed = elevation_bounds(img_s, r_bins, th_beams, sf.bins, sf.beams, seabed, rig.fov_elevation)
-            lo, hi = low[rows], high[rows]
+            low_map, high_map, shadow_map = elevation_maps(img_s, r_bins, th_beams, seabed, rig.fov_elevation)
+            lo, hi = low_map[sf.bins, sf.beams][rows], high_map[sf.bins, sf.beams][rows]
+            shadowed = shadow_map[sf.bins, sf.beams]
             e = np.maximum(0.0, np.maximum(lo - phi, phi - hi)) / opt.elevation_sigma
             cost = cost + e ** 2
             height = seabed.height(P_s)
@@ -322,6 +330,13 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
             on_bed = np.abs(height) <= opt.seabed_clearance
             cost = np.where((st == SEABED_LIT) & ~on_bed, np.inf, cost)
             cost = np.where((st == SEABED_SHADOWED) & ~shadowed[rows], np.inf, cost)
+            # No closer occluder: no echo the sonar sees lies on the pixel's ray well before the point.
+            alive = np.nonzero(np.isfinite(cost) & (cost < opt.null_cost))[0]
+            smooth, background = cfar_map(img_s, opt.cfar)
+            detected = smooth > opt.occupancy_factor * background
+            occ = occluded(rig, cf.pixels[cols[alive]], P[alive, 2], detected, low_map, high_map, r_bins, th_beams,
+                           margin=opt.occluder_margin)
+            cost[alive[occ]] = np.inf
 
     keep = np.isfinite(cost) & (cost < opt.null_cost)
     if not keep.any():
