@@ -26,9 +26,9 @@ class KeypointOptions:
         contrast falls with distance, so corners are found on local, not global, contrast.
     """
 
-    max_corners: int = 3000
-    quality: float = 0.005
-    min_distance: float = 3.0
+    max_corners: int = 6000
+    quality: float = 0.001
+    min_distance: float = 2.0
     clahe_clip: float = 2.0
 
 

@@ -56,18 +56,19 @@ def mahalanobis_sq(rig: Rig, pixels, sigma_pixel, ranges, azimuths, sigma_range,
     r = np.asarray(ranges, float)
     th = np.asarray(azimuths, float)
     C = conic(rig, r, th)  # (N, 3, 3)
-    Cm = np.einsum("nij,mj->nmi", C, m)  # (N, M, 3)
-    g = np.einsum("mi,nmi->nm", m, Cm)
+    mT = np.ascontiguousarray(m.T)  # (3, M)
+    Cm = C @ mT  # (N, 3, M)
+    g = np.sum(mT * Cm, axis=1)
     cam = rig.camera
     Kinv_m = np.stack([(uv[:, 0] - cam.cx) / cam.fx, (uv[:, 1] - cam.cy) / cam.fy, np.ones(len(uv))], -1)
     a = _plane_normal_camera(rig, th)  # (N, 3)
     g_r = -2.0 * r[:, None] * (a @ Kinv_m.T) ** 2
     h = 1e-6
-    gp = np.einsum("mi,nij,mj->nm", m, conic(rig, r, th + h), m)
-    gm = np.einsum("mi,nij,mj->nm", m, conic(rig, r, th - h), m)
+    gp = np.sum(mT * (conic(rig, r, th + h) @ mT), axis=1)
+    gm = np.sum(mT * (conic(rig, r, th - h) @ mT), axis=1)
     g_t = (gp - gm) / (2 * h)
     sp = np.asarray(sigma_pixel, float)[None, :]
-    var = (sp ** 2) * 4.0 * (Cm[..., 0] ** 2 + Cm[..., 1] ** 2) + (np.asarray(sigma_range, float)[:, None] * g_r) ** 2 \
+    var = (sp ** 2) * 4.0 * (Cm[:, 0] ** 2 + Cm[:, 1] ** 2) + (np.asarray(sigma_range, float)[:, None] * g_r) ** 2 \
         + (np.asarray(sigma_azimuth, float)[:, None] * g_t) ** 2
     with np.errstate(divide="ignore", invalid="ignore"):
         d2 = np.where(var > 0, g * g / var, np.inf)

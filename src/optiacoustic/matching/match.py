@@ -16,9 +16,9 @@ Pipeline of :func:`match` (docs/matching.md):
    the ray grazing the shadow's end); neighbouring matches must agree on a locally smooth
    surface;
 4. one global assignment (``scipy.optimize.linear_sum_assignment``) with a "no match" option
-   for every sonar feature; each match's score is the smaller of its two posterior shares
-   (among the sonar feature's candidates and among the camera feature's), so an ambiguous
-   match scores low.
+   for every sonar feature; each match's score is a calibrated probability of being right
+   given its evidence (epipolar chi-square, how many candidates competed, corner strength:
+   strong corners sit on silhouettes where depth jumps, elevation interval width, SNR).
 """
 
 from __future__ import annotations
@@ -116,7 +116,8 @@ class Matches:
     points : ndarray, shape (N, 3)
         Maximum-likelihood reconstruction, camera frame (m).
     score : ndarray, shape (N,)
-        In (0, 1]: posterior share of the match against its competitors.
+        In (0, 1): the probability that the match is correct given its evidence, from a
+        logistic model (:data:`SCORE_MODEL`) calibrated on simulated scenes.
     cost : ndarray, shape (N,)
         Total cost (epipolar chi-square + evidence terms).
     sonar_index, camera_index : ndarray of int, shape (N,)
@@ -125,6 +126,9 @@ class Matches:
     camera_features : CameraFeatures
     seabed : SeabedPlane or None
     message : str
+    features : dict of str -> ndarray (N,)
+        Per-match evidence behind the score (candidates of the sonar feature, elevation
+        interval width, ...), for diagnostics.
     """
 
     pixels: np.ndarray
@@ -139,6 +143,7 @@ class Matches:
     camera_features: CameraFeatures | None = None
     seabed: SeabedPlane | None = None
     message: str = ""
+    features: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return int(self.score.size)
@@ -153,7 +158,8 @@ class Matches:
                                                 "sonar_index", "camera_index")]
         n = int(arrays[-1].size)
         msg = self.message if n else "no match above the score threshold"
-        return Matches(*arrays, self.sonar_features, self.camera_features, self.seabed, msg)
+        feats = {key: np.asarray(v)[k] for key, v in self.features.items()}
+        return Matches(*arrays, self.sonar_features, self.camera_features, self.seabed, msg, feats)
 
     def above(self, min_score: float) -> "Matches":
         """The matches with ``score >= min_score``."""
@@ -187,6 +193,34 @@ def _camera_sees_fan(rig: Rig, r, th) -> bool:
     R, T = np.meshgrid(rr, tt, indexing="ij")
     curves = ep.sonar_to_optical_curves(rig, R.ravel(), T.ravel(), n_samples=25)
     return any(len(c) for c in curves)
+
+
+#: Logistic model of P(match correct | evidence): intercept and weights of the standardised
+#: features (epipolar chi-square, log candidates of the sonar feature, log corner strength
+#: relative to the image's median, elevation interval width in degrees, onset or peak, log
+#: SNR). Fitted by ``experiments.matching.calibrate_score`` on random scenes seeded
+#: 5000-5023 (thesis water, default sonar noise), disjoint from every scene the experiment
+#: and the tests evaluate on.
+SCORE_MODEL = dict(
+    weights=(-1.143, -0.876, -0.279, -0.439, 0.217, -0.137, 0.046),
+    mean=(0.3097, 2.6044, 0.3779, 5.9196, 0.4632, 2.8958),
+    std=(0.9129, 0.9114, 0.9869, 3.0306, 0.4986, 0.6208),
+)
+
+
+def score_features(feats: dict) -> np.ndarray:
+    """The score model's inputs ``(N, 6)`` from a :attr:`Matches.features` mapping."""
+    return np.column_stack([feats["epipolar_chi2"], np.log(np.maximum(feats["n_candidates"], 1)),
+                            np.log(np.maximum(feats["corner_relative"], 1e-6)), np.rad2deg(feats["elevation_span"]),
+                            feats["kind"], np.log(np.maximum(feats["snr"], 1e-6))])
+
+
+def calibrated_score(feats: dict, model: dict = SCORE_MODEL) -> np.ndarray:
+    """P(correct) of each match from its evidence (logistic model), shape (N,)."""
+    X = score_features(feats)
+    w = np.asarray(model["weights"], float)
+    z = w[0] + ((X - np.asarray(model["mean"])) / np.asarray(model["std"])) @ w[1:]
+    return 1.0 / (1.0 + np.exp(-z))
 
 
 def _posterior(cost, rows, cols, shape, null_cost):
@@ -242,7 +276,7 @@ def _smoothness_cost(pix, depth, k=6, radius=60.0, rel_tol=0.05):
 
 
 def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, options: MatchOptions | None = None,
-          min_score: float = 0.5) -> Matches:
+          min_score: float = 0.25) -> Matches:
     """Match sonar features to camera features of one synchronised pair.
 
     Parameters
@@ -260,7 +294,8 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     options : MatchOptions, optional
     min_score : float
         Only matches with at least this score are returned (0 returns the whole assignment,
-        for precision-recall curves).
+        for precision-recall curves). The score is a calibrated probability of being
+        correct (:data:`SCORE_MODEL`).
 
     Returns
     -------
@@ -343,6 +378,7 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
         return _empty(f"no candidates: the {rows.size} epipolar candidates all fail the reconstruction, "
                       f"elevation or seabed tests", sf, cf, seabed)
     rows, cols, cost, P = rows[keep], cols[keep], cost[keep], P[keep]
+    epi = ref.cost[keep]
 
     chosen = _assign(cost, rows, cols, len(sf), opt.null_cost)
     if opt.smoothness and chosen.size >= 3:
@@ -369,13 +405,22 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
         chosen = _assign(cost, rows, cols, len(sf), opt.null_cost)
     if chosen.size == 0:
         return _empty("no match: leaving every sonar feature unmatched costs less than any assignment", sf, cf, seabed)
-    post = _posterior(cost, rows, cols, (len(sf), len(cf)), opt.null_cost)
-    score = post[chosen]
+    n_cand_row = np.bincount(rows, minlength=len(sf))
+    n_cand_col = np.bincount(cols, minlength=len(cf))
+    span = (hi - lo)[keep] if (opt.use_acoustic and seabed) else np.full(rows.size, rig.fov_elevation)
+    med_resp = max(float(np.median(cf.response)), 1e-12)
+    feats = dict(n_candidates=n_cand_row[rows[chosen]], n_candidates_camera=n_cand_col[cols[chosen]],
+                 elevation_span=span[chosen], snr=sf.snr[rows[chosen]], kind=sf.kind[rows[chosen]],
+                 corner_response=cf.response[cols[chosen]], corner_relative=cf.response[cols[chosen]] / med_resp,
+                 epipolar_chi2=epi[chosen],
+                 share=_posterior(cost, rows, cols, (len(sf), len(cf)), opt.null_cost)[chosen])
+    score = calibrated_score(feats)
     order = np.argsort(-score, kind="stable")
     ch = chosen[order]
+    feats = {k: np.asarray(v)[order] for k, v in feats.items()}
     out = Matches(cf.pixels[cols[ch]], sf.ranges[rows[ch]], sf.azimuths[rows[ch]], P[ch], score[order], cost[ch],
                   rows[ch], cols[ch], sf, cf, seabed,
-                  f"{ch.size} matches of {len(sf)} sonar and {len(cf)} camera features")
+                  f"{ch.size} matches of {len(sf)} sonar and {len(cf)} camera features", feats)
     res = out.above(min_score)
     if not res:
         return _empty(f"nothing reliable: {ch.size} tentative matches, none with score >= {min_score}",

@@ -213,7 +213,8 @@ def _onsets(img, bg, detected, r, th, dr, da, range_resolution, options) -> Sona
     lo, hi = prof[np.arange(b.size), j - 1], prof[np.arange(b.size), j]
     with np.errstate(invalid="ignore", divide="ignore"):
         frac = np.clip(np.where(hi > lo, (half - lo) / (hi - lo), 1.0), 0.0, 1.0)
-    pos = idx[np.arange(b.size), j - 1] + frac
+    # The crossing sits half a bin before the centre of the first bin the surface fills.
+    pos = idx[np.arange(b.size), j - 1] + frac + 0.5
     rr = np.interp(pos, np.arange(r.size), r)
     s_r = np.full(b.shape, max(dr, range_resolution) / np.sqrt(12))
     s_a = np.full(b.shape, da / np.sqrt(12))
