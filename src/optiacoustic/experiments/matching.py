@@ -280,3 +280,41 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
                f"(precision >= 0.95 at recall >= 0.5) {'met' if ok_target.size else 'NOT met'}. Median 3D error "
                f"{med_auto:.2f} m (automatic) vs {med_true:.3f} m (true matches).")
     return ExperimentResult(NAME, figures, numbers, summary, tables)
+
+
+def calibrate_score(seeds=range(5000, 5024), *, ridge: float = 1.0) -> dict:
+    """Refit ``matching.match.SCORE_MODEL``: logistic regression of correctness on the match evidence.
+
+    Runs the matcher on random scenes seeded ``seeds`` (thesis water, default sonar noise),
+    labels each assigned match by the depth-map truth and fits the logistic model with a
+    ridge penalty (``scipy.optimize.minimize``). Use seeds disjoint from the evaluation's.
+
+    Returns
+    -------
+    dict
+        ``weights`` (intercept first), ``mean``, ``std`` of the standardised features, and
+        ``n`` (training matches), ``positive_rate``.
+    """
+    from scipy.optimize import minimize
+
+    from ..matching.match import score_features
+
+    X, y = [], []
+    for sd in seeds:
+        e = evaluate_pair(*simulate_pair(random_scene(int(sd)), "thesis", "default", int(sd)))
+        m = e["matches"]
+        if m:
+            X.append(score_features(m.features))
+            y.append(e["ok"].astype(float))
+    X, y = np.concatenate(X), np.concatenate(y)
+    mu, sd_ = X.mean(0), X.std(0)
+    sd_ = np.where(sd_ > 0, sd_, 1.0)
+    Z = np.column_stack([np.ones(len(X)), (X - mu) / sd_])
+
+    def nll(w):
+        z = Z @ w
+        return np.sum(np.logaddexp(0, z) - y * z) + ridge * np.sum(w[1:] ** 2)
+
+    w = minimize(nll, np.zeros(Z.shape[1]), method="BFGS").x
+    return dict(weights=tuple(np.round(w, 3)), mean=tuple(np.round(mu, 4)), std=tuple(np.round(sd_, 4)), n=len(y),
+                positive_rate=float(y.mean()))
