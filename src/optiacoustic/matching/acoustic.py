@@ -95,10 +95,10 @@ def fit_seabed(image, ranges, azimuths, fov_elevation: float, *, min_beams: int 
     sm = ndi.uniform_filter(np.asarray(image, np.float64), (3, 3), mode="nearest")
     r = np.asarray(ranges, float)
     th = np.asarray(azimuths, float)
-    pos = np.where(sm > 0, sm, np.nan)
-    with np.errstate(invalid="ignore"):
-        level = np.nanmedian(pos, axis=0)
-    above = sm > onset_fraction * np.nan_to_num(level)[None, :]
+    # The beam's typical seabed echo: its upper quartile (the lit seabed fills a good part of
+    # the beam; the median may fall on the dark ranges before and after it).
+    level = np.percentile(sm, 75, axis=0)
+    above = sm > onset_fraction * level[None, :]
     has = above.any(0)
     onset = np.argmax(above, axis=0)
     # An onset at the first bins means the seabed was already in the aperture there: no edge.
@@ -158,7 +158,7 @@ def _next_index(mask):
 
 
 def elevation_maps(image, ranges, azimuths, plane: SeabedPlane, fov_elevation: float, *,
-                   dark_fraction: float = 0.2, min_shadow_bins: int = 6, search_m: float = 1.0):
+                   dark_fraction: float = 0.2, min_shadow_bins: int = 6, search_m: float = 1.0, cells=None):
     """Elevation interval ``[low, high]`` (rad) of an echo in every cell, from the seabed and the shadows.
 
     Parameters
@@ -175,6 +175,9 @@ def elevation_maps(image, ranges, azimuths, plane: SeabedPlane, fov_elevation: f
         Shortest run of dark cells taken for a shadow.
     search_m : float
         How far beyond the cell (m) the shadow may start.
+    cells : array_like of bool, shape (n_bins, n_beams), optional
+        Compute the interval only there (the rest keeps the aperture): the elevations are
+        the costly part.
 
     Returns
     -------
@@ -217,18 +220,26 @@ def elevation_maps(image, ranges, azimuths, plane: SeabedPlane, fov_elevation: f
     first_unlit = next_unlit[np.minimum(start, n_bins - 1), cols]
     shadowed = (start - rows <= n_search) & (end - start >= min_shadow_bins) & (start < n_bins)
     runs_out = shadowed & (first_unlit <= end)
-    phi_end = seabed_elevation(plane, r[np.minimum(end, n_bins - 1)], th[None, :])
-    phi_sb = seabed_elevation(plane, r[:, None], th[None, :])
-    low = np.where(np.isfinite(phi_sb), np.maximum(phi_sb, -half), -half)
-    high = np.where(shadowed & ~runs_out & np.isfinite(phi_end), np.minimum(phi_end, half), half)
-    high = np.where(~shadowed & np.isfinite(phi_sb), low, high)
-    return low, np.maximum(high, low), shadowed
+    sel = np.ones(sm.shape, bool) if cells is None else np.asarray(cells, bool)
+    bi, ki = np.nonzero(sel)
+    e = np.minimum(end[bi, ki], n_bins - 1)
+    phi_end = seabed_elevation(plane, r[e], th[ki])
+    phi_sb = seabed_elevation(plane, r[bi], th[ki])
+    sh, ro = shadowed[bi, ki], runs_out[bi, ki]
+    lo = np.where(np.isfinite(phi_sb), np.maximum(phi_sb, -half), -half)
+    hi = np.where(sh & ~ro & np.isfinite(phi_end), np.minimum(phi_end, half), half)
+    hi = np.where(~sh & np.isfinite(phi_sb), lo, hi)
+    low[bi, ki] = lo
+    high[bi, ki] = np.maximum(hi, lo)
+    return low, high, shadowed
 
 
 def elevation_bounds(image, ranges, azimuths, bins, beams, plane: SeabedPlane, fov_elevation: float, **kwargs):
     """:func:`elevation_maps` at the cells ``(bins, beams)`` of ``N`` features: ``low, high, shadowed``, shape (N,)."""
-    low, high, sh = elevation_maps(image, ranges, azimuths, plane, fov_elevation, **kwargs)
     b, k = np.asarray(bins, int), np.asarray(beams, int)
+    cells = np.zeros(np.shape(image), bool)
+    cells[b, k] = True
+    low, high, sh = elevation_maps(image, ranges, azimuths, plane, fov_elevation, cells=cells, **kwargs)
     return low[b, k], high[b, k], sh[b, k]
 
 

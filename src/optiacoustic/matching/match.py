@@ -338,7 +338,7 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
         return _empty(f"no candidates: none of {len(cf)} camera features lies within the epipolar gate of "
                       f"any of {len(sf)} sonar features", sf, cf)
     ref = rc.refine(rig, cf.pixels[cols], sf.ranges[rows], sf.azimuths[rows], sigma_pixel=float(np.median(s_px)),
-                    sigma_range=float(np.median(s_r)), sigma_azimuth=float(np.median(s_a)), max_iter=20)
+                    sigma_range=float(np.median(s_r)), sigma_azimuth=float(np.median(s_a)), max_iter=10)
     P = ref.points
     P_s = rig.sonar_from_camera(np.where(np.isfinite(P), P, 0.0))
     _, _, phi = spherical_from_sonar(P_s)
@@ -350,7 +350,12 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     if opt.use_acoustic:
         seabed = fit_seabed(img_s, r_bins, th_beams, rig.fov_elevation)
         if seabed:
-            low_map, high_map, shadow_map = elevation_maps(img_s, r_bins, th_beams, seabed, rig.fov_elevation)
+            smooth, background = cfar_map(img_s, opt.cfar)
+            detected = smooth > opt.occupancy_factor * background
+            cells = detected.copy()
+            cells[sf.bins, sf.beams] = True
+            low_map, high_map, shadow_map = elevation_maps(img_s, r_bins, th_beams, seabed, rig.fov_elevation,
+                                                           cells=cells)
             lo, hi = low_map[sf.bins, sf.beams][rows], high_map[sf.bins, sf.beams][rows]
             shadowed = shadow_map[sf.bins, sf.beams]
             e = np.maximum(0.0, np.maximum(lo - phi, phi - hi)) / opt.elevation_sigma
@@ -367,8 +372,6 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
             cost = np.where((st == SEABED_SHADOWED) & ~shadowed[rows], np.inf, cost)
             # No closer occluder: no echo the sonar sees lies on the pixel's ray well before the point.
             alive = np.nonzero(np.isfinite(cost) & (cost < opt.null_cost))[0]
-            smooth, background = cfar_map(img_s, opt.cfar)
-            detected = smooth > opt.occupancy_factor * background
             occ = occluded(rig, cf.pixels[cols[alive]], P[alive, 2], detected, low_map, high_map, r_bins, th_beams,
                            margin=opt.occluder_margin)
             cost[alive[occ]] = np.inf
