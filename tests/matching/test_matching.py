@@ -164,3 +164,31 @@ def test_truth_identity(pairs):
     assert np.array_equal(ok, sp.in_fan & np.all(np.isfinite(P), -1))
     bad = truth.correct(rig, o.depth, px, sp.ranges + 0.1, sp.azimuths, bin_width=0.0254, beam_width=0.003)
     assert not bad.any()
+
+
+def test_two_view_consistency_identity():
+    from optiacoustic.frames import rot_z
+    from optiacoustic.matching.two_view import consistent
+
+    rng = np.random.default_rng(5)
+    P1 = rng.uniform([-2, -1, 4], [2, 1, 9], (50, 3))
+    R, t = rot_z(0.1), np.array([0.3, 0.0, -0.2])
+    P2 = P1 @ R.T + t
+    assert consistent(P1, P2, (R, t)).all()
+    assert not consistent(P1 + [0.0, 0.0, 0.5], P2, (R, t)).any()
+    with pytest.raises(ValueError, match="rotation"):
+        consistent(P1, P2, (2 * R, t))
+
+
+def test_two_view_match_keeps_a_consistent_subset(pairs):
+    from optiacoustic.experiments.matching import second_view
+
+    s, o, rig = pairs[0]
+    s2, o2, motion = second_view(random_scene(104), 104)
+    one = match(s, o.image, rig, min_score=0.0)
+    two = match(s, o.image, rig, min_score=0.0, second=(s2, o2.image), motion=motion)
+    assert 0 < len(two) < len(one)
+    assert set(map(tuple, two.pixels.tolist())) <= set(map(tuple, one.pixels.tolist()))
+    assert "second view" in two.message
+    with pytest.raises(ValueError, match="motion"):
+        match(s, o.image, rig, second=(s2, o2.image))

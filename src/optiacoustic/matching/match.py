@@ -249,34 +249,29 @@ def _assign(cost, rows, cols, n_rows, null_cost):
     return chosen[M[ri, ci][: chosen.size] < big] if chosen.size else chosen
 
 
-def _smoothness_cost(pix, depth, k=6, radius=60.0, rel_tol=0.05):
-    """Squared normalised disagreement of each match's depth with its image neighbours' median.
+def _two_view(out: Matches, second, motion, rig, noise, opt) -> Matches:
+    from .two_view import consistent, motion_arrays
 
-    Neighbours: up to ``k`` other matches within ``radius`` px. A true match on a smooth
-    surface agrees with its neighbours within ``rel_tol`` of the depth; isolated matches pay
-    nothing.
-    """
-    from scipy.spatial import cKDTree
-
-    n = len(depth)
-    out = np.zeros(n)
-    if n < 3:
-        return out
-    tree = cKDTree(pix)
-    d, idx = tree.query(pix, k=min(k + 1, n), distance_upper_bound=radius)
-    idx = idx[:, 1:]
-    has = idx < n
-    nb = np.where(has, depth[np.minimum(idx, n - 1)], np.nan)
-    enough = has.sum(1) >= 2
-    with np.errstate(invalid="ignore"):
-        med = np.nanmedian(np.where(enough[:, None], nb, np.nan), axis=1)
-        e = (depth - med) / (rel_tol * depth)
-    out[enough] = np.minimum(e[enough] ** 2, 25.0)
-    return out
+    if motion is None:
+        raise ValueError("motion: required with 'second' (P_camera2 = R_o P_camera1 + t_o)")
+    motion_arrays(motion)  # validates
+    if not (isinstance(second, (tuple, list)) and len(second) == 2):
+        raise ValueError("second: expected (sonar, camera_image) of the second view")
+    m2 = match(second[0], second[1], rig, noise=noise, options=opt, min_score=0.0)
+    ok = consistent(out.points, m2.points, motion) if m2 else np.zeros(len(out), bool)
+    if not ok.any():
+        return _empty(f"no match of {len(out)} is consistent with the second view ({len(m2)} matches there)",
+                      out.sonar_features, out.camera_features, out.seabed)
+    feats = dict(out.features, two_view=ok)
+    kept = Matches(out.pixels, out.ranges, out.azimuths, out.points, out.score, out.cost, out.sonar_index,
+                   out.camera_index, out.sonar_features, out.camera_features, out.seabed,
+                   f"{int(ok.sum())} of {len(out)} matches consistent with the second view ({len(m2)} matches there)",
+                   feats)
+    return kept.select(ok)
 
 
 def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, options: MatchOptions | None = None,
-          min_score: float = 0.25) -> Matches:
+          min_score: float = 0.25, second=None, motion=None) -> Matches:
     """Match sonar features to camera features of one synchronised pair.
 
     Parameters
@@ -296,6 +291,12 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
         Only matches with at least this score are returned (0 returns the whole assignment,
         for precision-recall curves). The score is a calibrated probability of being
         correct (:data:`SCORE_MODEL`).
+    second : (sonar, camera_image), optional
+        A second pair of the same rig after it moved by ``motion``: only matches whose
+        reconstructed point is also reconstructed from the second pair's matches are kept
+        (:func:`.two_view.consistent`); ``features["two_view"]`` says so.
+    motion : MotionResult, Pose or (R_o, t_o), optional
+        ``P_camera2 = R_o P_camera1 + t_o``; required with ``second``.
 
     Returns
     -------
@@ -424,6 +425,8 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     out = Matches(cf.pixels[cols[ch]], sf.ranges[rows[ch]], sf.azimuths[rows[ch]], P[ch], score[order], cost[ch],
                   rows[ch], cols[ch], sf, cf, seabed,
                   f"{ch.size} matches of {len(sf)} sonar and {len(cf)} camera features", feats)
+    if second is not None:
+        out = _two_view(out, second, motion, rig, noise, opt)
     res = out.above(min_score)
     if not res:
         return _empty(f"nothing reliable: {ch.size} tentative matches, none with score >= {min_score}",
