@@ -84,6 +84,10 @@ class MatchOptions:
     occupancy_factor : float
         An echo this many times its CFAR background counts as a possible occluder (lower
         than the detection factor: a weak echo still hides what is behind it).
+    corner_weight : float
+        Cost per unit of log corner strength (relative to the image's median); the ratio of
+        the score model's weights of log corner strength and epipolar chi-square, so the
+        assignment weighs them as the calibration found them to predict correctness.
     smoothness : bool
         Second assignment pass with the neighbours' depth agreement in the cost.
     use_acoustic : bool
@@ -97,6 +101,7 @@ class MatchOptions:
     seabed_clearance: float = 0.10
     occluder_margin: float = 0.5
     occupancy_factor: float = 3.0
+    corner_weight: float = 0.46
     smoothness: bool = False
     use_acoustic: bool = True
     cfar: CfarOptions = field(default_factory=CfarOptions)
@@ -377,6 +382,11 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
                            margin=opt.occluder_margin)
             cost[alive[occ]] = np.inf
 
+    if opt.corner_weight:
+        # Strong corners sit on silhouettes, where the depth jumps and a pixel's neighbour
+        # sees another surface: prefer the weaker, interior corners among competitors.
+        rel = cf.response / max(float(np.median(cf.response)), 1e-12)
+        cost = cost + opt.corner_weight * np.log(np.maximum(rel[cols], 1e-3))
     keep = np.isfinite(cost) & (cost < opt.null_cost)
     if not keep.any():
         return _empty(f"no candidates: the {rows.size} epipolar candidates all fail the reconstruction, "
