@@ -188,6 +188,10 @@ def _check_sonar(sonar):
         raise ValueError(f"sonar.image: expected shape (n_bins, n_beams) = ({r.size}, {th.size}), got {img.shape}")
     if not np.all(np.isfinite(img)):
         raise ValueError("sonar.image: contains NaN or infinite values")
+    if r.size < 3 or th.size < 3:
+        raise ValueError(f"sonar.image: expected at least 3 bins and 3 beams, got {img.shape}")
+    if np.any(np.diff(r) <= 0) or np.any(np.diff(th) <= 0):
+        raise ValueError("sonar.ranges and sonar.azimuths: must be strictly increasing")
     return img, r, th
 
 
@@ -318,7 +322,13 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     img_s, r_bins, th_beams = _check_sonar(sonar)
     spec = sonar.spec
     if rig.sonar is None:
+        if not hasattr(spec, "fov_elevation"):
+            raise ValueError("sonar.spec: has no fov_elevation and the rig carries no sonar; "
+                             "attach one with rig.with_sonar(spec)")
         rig = rig.with_sonar(spec)
+    # Measured frames may not state these: fall back to one bin and one beam spacing.
+    range_res = float(getattr(spec, "range_resolution", None) or np.median(np.diff(r_bins)))
+    beamwidth = float(getattr(spec, "beamwidth_azimuth", None) or np.median(np.diff(th_beams)))
     cam_img = np.asarray(camera_image)
     cam = rig.camera
     if cam_img.ndim != 3 or cam_img.shape[:2] != (cam.height, cam.width):
@@ -327,8 +337,8 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     if not _camera_sees_fan(rig, r_bins, th_beams):
         return _empty("the camera sees nothing of the sonar's fan: no epipolar curve enters the image")
 
-    sf = detect_sonar_features(img_s, r_bins, th_beams, range_resolution=float(spec.range_resolution),
-                               beamwidth=float(spec.beamwidth_azimuth), options=opt.cfar)
+    sf = detect_sonar_features(img_s, r_bins, th_beams, range_resolution=range_res, beamwidth=beamwidth,
+                               options=opt.cfar)
     if len(sf) == 0:
         return _empty("no sonar features: CFAR found no echo standing out of its background")
     cf = detect_camera_features(cam_img, opt.keypoints)
