@@ -29,6 +29,7 @@ Encodings (``name``: device value ``v`` <-> intensity ``I``):
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Callable
 
@@ -146,7 +147,18 @@ def decode(raw, encoding: str, **params) -> np.ndarray:
         Encoding parameters: ``reference`` (aris_db), ``gamma`` and ``reading``
         (oculus_gamma8).
     """
-    return _get(encoding).decode(raw, **params)
+    enc = _get(encoding)
+    a = np.asarray(raw)
+    if a.dtype == np.uint8 and a.size > 256:  # a 256-entry table: one gather instead of a pow per sample
+        return _lut(encoding, tuple(sorted(params.items())))[a]
+    return enc.decode(a, **params)
+
+
+@functools.lru_cache(maxsize=64)
+def _lut(encoding: str, params: tuple) -> np.ndarray:
+    table = np.asarray(_get(encoding).decode(np.arange(256, dtype=np.uint8), **dict(params)), np.float32)
+    table.setflags(write=False)
+    return table
 
 
 def encode(intensity, encoding: str, **params) -> np.ndarray:
