@@ -220,3 +220,22 @@ def test_not_a_sonar_file(tmp_path):
         open_sonar(tmp_path / "e.bin")
     with pytest.raises(FileNotFoundError):
         open_sonar(tmp_path / "missing.aris")
+
+
+def test_simulated_frame_in_device_units(aris_sample):
+    """A simulated frame emitted as ARIS bytes: quantised to 80/255 dB steps, saturating, same geometry."""
+    import optiacoustic as oa
+
+    real = open_sonar(aris_sample)[0]
+    scene = oa.scenes.get("flat_seabed")
+    spec = oa.SonarSpec(n_bins=200, elevation_samples=32, range_min=3.0, range_max=23.0, fov_elevation=np.deg2rad(14))
+    spec = spec.with_beam_table(real.azimuths)
+    sim = oa.simulate_sonar(scene, spec, oa.Pose.look_at((0, 0, 3.0), (0, 15.0, 0)))
+    ref = np.percentile(sim.image[sim.image > 0], 1)
+    dev = units.as_device_frame(sim, "aris_db", reference=ref)
+    assert dev.raw.dtype == np.uint8 and dev.spec is sim.spec
+    inside = (sim.image >= ref) & (sim.image <= ref * 1e8)  # within the device's 80 dB
+    assert inside.sum() > 100
+    db_err = 10 * np.log10(dev.image[inside] / sim.image[inside])
+    assert np.all(np.abs(db_err) <= 80 / 255 / 2 + 1e-3)
+    assert np.all(dev.raw[sim.image < ref] == 0) and np.all(dev.raw[sim.image > ref * 1e8] == 255)

@@ -35,7 +35,7 @@ from typing import Callable
 
 import numpy as np
 
-__all__ = ["ENCODINGS", "decode", "encode", "describe"]
+__all__ = ["ENCODINGS", "decode", "encode", "describe", "as_device_frame"]
 
 _ARIS_DB_PER_COUNT = 80.0 / 255.0
 
@@ -176,3 +176,19 @@ def describe(encoding: str, **params) -> str:
     e = _get(encoding)
     extra = ", ".join(f"{k}={v}" for k, v in sorted(params.items()))
     return f"{e.name}: {e.doc}" + (f" [{extra}]" if extra else "")
+
+
+def as_device_frame(frame, encoding: str, **params):
+    """A frame (simulated or measured) emitted in a device's units: a ``MeasuredSonarFrame``.
+
+    ``raw = encode(frame.image, encoding, **params)`` and ``image = decode(raw)``, so the
+    result carries the device's quantisation and saturation and can be compared with, or
+    written like, a real frame of that device.
+    """
+    from ..sonar.frame import MeasuredSonarFrame
+
+    raw = encode(frame.image, encoding, **params)
+    return MeasuredSonarFrame(raw=raw, image=decode(raw, encoding, **params), spec=frame.spec,
+                              time=float(getattr(frame, "time", float("nan"))), encoding=encoding,
+                              source=getattr(frame, "source", "simulated"), index=int(getattr(frame, "index", 0)),
+                              meta={"encoding_params": dict(params)})
