@@ -36,3 +36,29 @@ def test_cli_errors_are_one_line(tmp_path, aris_sample):
     assert r.exit_code == 2 and "selects no frame" in r.output
     r = runner.invoke(app, ["info", str(aris_sample), "--topic", "/x"])
     assert r.exit_code == 2 and "no topics" in r.output
+
+
+def test_info_and_view_on_a_bag(tmp_path):
+    import numpy as np
+
+    from optiacoustic.io.rosmsg import PROJECTED_SONAR_IMAGE, typestore
+
+    from .bagwriter import projected, write_bag
+
+    ts = typestore(2)
+    az = np.linspace(-0.4, 0.4, 32) ** 3 * 6  # uneven
+    rng = np.random.default_rng(0)
+    msgs = [("/sonar/image", PROJECTED_SONAR_IMAGE, 10.0 + k,
+             projected(ts, 2, 10.0 + k, rng.random((50, 32)).astype(np.float32), az, np.linspace(1, 6, 50)))
+            for k in range(3)]
+    msgs.append(("/chatter", "std_msgs/msg/String", 10.0, ts.types["std_msgs/msg/String"](data="hi")))
+    bag = write_bag(tmp_path / "bag", "mcap", msgs)
+    r = runner.invoke(app, ["info", str(bag)])
+    assert r.exit_code == 0, r.output
+    assert "/sonar/image" in r.output and "3 msgs" in r.output and "/chatter" in r.output
+    r = runner.invoke(app, ["view", str(bag), "--out", str(tmp_path / "v"), "--frames", "-2:", "--width", "160"])
+    assert r.exit_code == 0, r.output
+    assert sorted(p.name for p in (tmp_path / "v").iterdir()) == [
+        "contact_sheet.png", "fan_0001.png", "fan_0002.png", "polar_0001.png", "polar_0002.png"]
+    r = runner.invoke(app, ["view", str(bag), "--topic", "/chatter", "--out", str(tmp_path / "w")])
+    assert r.exit_code == 2 and "unsupported message type std_msgs/msg/String" in r.output
