@@ -151,3 +151,14 @@ def test_bag_camera_random_access(tmp_path):
         data=np.full(6, 10 * k, np.uint8))) for k in range(4)]
     cams = open_camera(write_bag(tmp_path / "r", "mcap", msgs))
     assert [int(cams[k].raw[0, 0]) for k in (3, 0, 2)] == [30, 0, 20] and cams[-1].time == 8.0
+
+
+def test_pair_frames_with_readers(tmp_path, aris_sample):
+    from optiacoustic.io import open_sonar
+
+    sonar = open_sonar(aris_sample)
+    t = sonar.times()
+    assert np.array_equal(t, [f.time for f in sonar])
+    cam_t = t[[0, 2, 4]] + 0.01
+    p = pair_frames(sonar, cam_t, max_dt=0.02)
+    assert p.sonar.tolist() == [0, 2, 4] and p.camera.tolist() == [0, 1, 2]
