@@ -18,7 +18,8 @@ Read through ``rosbags`` (pure Python, no ROS install). Message types:
     PNG/JPEG/TIFF single-channel images (decoded with OpenCV).
 
 Frames are fetched lazily: ``len`` comes from the bag's index, iteration streams
-messages, random access seeks by the message's log time.
+messages, random access seeks by the message's log time (the first random access makes one
+pass over the topic to list the log times; 8 bytes per message are kept).
 """
 
 from __future__ import annotations
