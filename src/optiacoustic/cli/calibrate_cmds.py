@@ -28,6 +28,7 @@ def calibrate_cmd(
     """Calibrate the rig from matched grid corners: R, t, their uncertainty and the weak directions."""
     import yaml
 
+    from .._atomic import write_json, write_text
     from ..geometry.calibrate import extrinsics, load_view
     from ..rig import Rig
 
@@ -57,10 +58,8 @@ def calibrate_cmd(
         data = {k: v for k, v in (src or {}).items() if k in ("sonar", "camera")}
         data["R"] = np.round(res.R, 12).tolist()
         data["t"] = np.round(res.t, 12).tolist()
-        out_file.parent.mkdir(parents=True, exist_ok=True)
-        out_file.write_text(yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
+        write_text(out_file, yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
         out.print(f"wrote {out_file}")
     if json_file is not None:
-        json_file.parent.mkdir(parents=True, exist_ok=True)
-        json_file.write_text(json.dumps(d, indent=2) + "\n")
+        write_json(json_file, d)
         out.print(f"wrote {json_file}")

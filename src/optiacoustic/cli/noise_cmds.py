@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Optional
 
@@ -38,6 +37,7 @@ def noise_fit(
     from rich.markup import escape
     from rich.table import Table
 
+    from .._atomic import write_json
     from ..sonar import distributions as D
 
     if (bottom is None) == (input_file is None):
@@ -118,6 +118,5 @@ def noise_fit(
                 "table_2_2": {m: _jsonable(ref.model(m).params) for m in ("weibull", "mixture", "k")},
                 "table_2_3": {m: ref.table_2_3.get(m) for m in ("rayleigh", "weibull", "mixture", "k")},
             }
-        out_json.parent.mkdir(parents=True, exist_ok=True)
-        out_json.write_text(json.dumps(result, indent=2))
+        write_json(out_json, result)
         out.print(f"  {out_json}")

@@ -43,6 +43,7 @@ def optical_cmd(
     figures: bool = typer.Option(True, "--figures/--no-figures", help="Write the stage figures."),
 ):
     """Render the underwater camera alone: NPZ (stages, depth, body ids) and PNGs."""
+    from .._atomic import ensure_dir
     from ..camera import PinholeCamera
     from ..frames import Pose
     from ..optical import OpticalOptions, simulate_optical
@@ -55,7 +56,7 @@ def optical_cmd(
     t0 = time.perf_counter()
     frame = simulate_optical(scene, camera, pose, water=water, seed=seed, options=OpticalOptions(slices=slices))
     dt = time.perf_counter() - t0
-    out_dir.mkdir(parents=True, exist_ok=True)
+    ensure_dir(out_dir)
     written = [frame.save_npz(out_dir / "optical.npz")]
     if figures:
         written += [p for p, _ in save_stage_figures(frame, out_dir)]

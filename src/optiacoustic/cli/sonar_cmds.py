@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Optional
@@ -91,6 +90,7 @@ def sonar_cmd(
 
     from rich.progress import Progress
 
+    from .._atomic import ensure_dir, write_json
     from ..frames import Pose
     from ..sonar import SonarOptions, SonarSpec, simulate_sonar
     from ..sonar.display import save_png, to_display
@@ -103,7 +103,7 @@ def sonar_cmd(
         spec = dataclasses.replace(spec, elevation_samples=elevation_samples)
     options = SonarOptions(propagation="spreading" if spreading else "tvg", azimuth_pattern=azimuth_pattern)
     pose = Pose.look_at(e, t)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    ensure_dir(out_dir)
     with Progress(console=console, transient=True) as progress:
         task = progress.add_task("simulating", total=frames)
         for k in range(frames):
@@ -133,5 +133,5 @@ def sonar_cmd(
         "seconds_last_frame": dt,
         "body_names": list(frame.body_names),
     }
-    (out_dir / "frame.json").write_text(json.dumps(meta, indent=2))
+    write_json(out_dir / "frame.json", meta)
     out.print(f"{scene.name} with {spec.name}: {frames} frame(s), last in {dt * 1e3:.0f} ms -> {out_dir}")

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from . import ExperimentResult
+from .._atomic import ensure_dir, savefig
 
 NAME = "calibration"
 TITLE = "Rig calibration from a planar grid seen by both sensors (thesis appendix A)"
@@ -95,7 +96,7 @@ def _fig_vs(xs, results, xlabel, title, path, logx=False):
     axes[1].set_title("translation (sonar frame)")
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    savefig(fig, path, dpi=100)
     plt.close(fig)
     return path
 
@@ -129,7 +130,7 @@ def _fig_setup(rig, path, seed):
         ax.set_aspect("equal")
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    savefig(fig, path, dpi=100)
     plt.close(fig)
     return path
 
@@ -138,7 +139,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     from scipy.stats import chi2
 
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    ensure_dir(out)
     rig = _rig()
     runs = 3 if quick else 30
     views = (2, 6) if quick else VIEWS

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from . import ExperimentResult
+from .._atomic import ensure_dir, savefig
 
 NAME = "reconstruction"
 TITLE = "3D reconstruction from opti-acoustic matches vs stereo optical (Klein bottle)"
@@ -154,7 +155,7 @@ def _figure_points(path, title, est, P, rig, centre, stats):
             ax.set_title(f"{METHODS[k][0]}: RMSE {1e3 * np.sqrt(s['mse']):.1f} mm{extra}", fontsize=9)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    savefig(fig, path, dpi=100)
     plt.close(fig)
 
 
@@ -183,7 +184,7 @@ def _figure_bars(path, results):
     ax.legend(fontsize=8, ncol=3, loc="upper left")
     ax.grid(axis="y", which="both", alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    savefig(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -194,7 +195,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     from ..geometry import reconstruct as rc
 
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    ensure_dir(out)
     n_points, trials = (600, 2) if quick else (5000, 20)
     rng = np.random.default_rng(seed)
     results, figures, tables = [], [], []

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from . import ExperimentResult
+from .._atomic import ensure_dir, savefig
 
 NAME = "enhancement"
 TITLE = "Sonar-guided enhancement of degraded optical images (RBF sonar-to-optical mapping)"
@@ -302,7 +303,7 @@ def _pts(ax, p, style, **kw):
 
 def _save(fig, path) -> Path:
     fig.tight_layout()
-    fig.savefig(path, dpi=90 if fig.get_size_inches()[0] > 14 else 100)
+    savefig(fig, path, dpi=90 if fig.get_size_inches()[0] > 14 else 100)
     _plt().close(fig)
     return path
 
@@ -574,7 +575,7 @@ def _sweep_figure(out: Path, parts: dict, pixel_size: float, quick: bool, number
 
 def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    ensure_dir(out)
     figures, numbers, tables = [], {}, []
     st, grid = _part_grid(out, seed, quick, figures, numbers, tables)
     cub = _part_cuboids(out, seed, quick, figures, numbers, tables)

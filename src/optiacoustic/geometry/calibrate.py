@@ -227,11 +227,11 @@ def load_view(path) -> CalibrationView:
 
 def save_view(path, view: CalibrationView, *, header: str = "") -> None:
     """Write a view as the CSV :func:`load_view` reads (azimuth in degrees)."""
-    from pathlib import Path
+    from .._atomic import write_text
 
     rows = np.column_stack([view.pixels, view.ranges, np.rad2deg(view.azimuths)])
     comment = "".join(f"# {line}\n" for line in header.splitlines()) if header else ""
-    Path(path).write_text(comment + "u,v,range,azimuth_deg\n"
+    write_text(path, comment + "u,v,range,azimuth_deg\n"
                           + "".join(f"{u:.6f},{v:.6f},{r:.6f},{a:.6f}\n" for u, v, r, a in rows))
 
 

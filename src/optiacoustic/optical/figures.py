@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from .frame import OpticalFrame, auto_exposure, to_srgb8
+from .._atomic import ensure_dir, savefig
 
 __all__ = ["save_stage_figures", "save_pair_figure", "save_ground_truth_figure"]
 
@@ -31,7 +32,7 @@ def save_stage_figures(frame: OpticalFrame, out_dir, *, prefix: str = "optical",
     """
     plt = _plt()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    ensure_dir(out)
     e_clear = frame.exposure("clear")
     e_img = frame.exposure("image")
     panels = [
@@ -50,7 +51,7 @@ def save_stage_figures(frame: OpticalFrame, out_dir, *, prefix: str = "optical",
     fig.suptitle(title or f"{w.name} water, c = ({', '.join(f'{x:.3g}' for x in w.c)}) /m (R, G, B)")
     fig.tight_layout()
     p = out / f"{prefix}_stages.png"
-    fig.savefig(p, dpi=80)
+    savefig(fig, p, dpi=80)
     plt.close(fig)
     figs.append((p, f"Underwater image formation step by step in {w.name} water (thesis Figs. 3.7-3.8): "
                     "clear scene, attenuation (red fades first), forward scatter, and the veiling backscatter."))
@@ -69,7 +70,7 @@ def save_stage_figures(frame: OpticalFrame, out_dir, *, prefix: str = "optical",
         a.axis("off")
     fig.tight_layout()
     p = out / f"{prefix}_components.png"
-    fig.savefig(p, dpi=80)
+    savefig(fig, p, dpi=80)
     plt.close(fig)
     share = float(np.sum(frame.backscatter) / max(np.sum(frame.image), 1e-30))
     figs.append((p, f"The two scattered components on their own: the veil ({100 * share:.0f} % of the image's light) "
@@ -94,7 +95,7 @@ def save_ground_truth_figure(frame: OpticalFrame, path) -> Path:
         a.set_xlabel("u (px)")
         a.set_ylabel("v (px)")
     fig.tight_layout()
-    fig.savefig(path, dpi=80)
+    savefig(fig, path, dpi=80)
     plt.close(fig)
     return Path(path)
 
@@ -118,6 +119,6 @@ def save_pair_figure(sonar_frame, optical_frame: OpticalFrame, path, *, title: s
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=80)
+    savefig(fig, path, dpi=80)
     plt.close(fig)
     return Path(path)

@@ -24,6 +24,7 @@ import numpy as np
 import yaml
 from pydantic import ValidationError
 
+from .._atomic import write_json, write_text
 from ..frames import Pose, euler_xyz_from_rotation
 from .model import Body, Material, Scene, SceneError, Texture, View
 from .shapes import SHAPES, Mesh
@@ -236,8 +237,7 @@ def scene_to_dict(scene: Scene, base_dir: str | None = None) -> dict:
 def save_scene(scene: Scene, path) -> None:
     path = Path(path)
     data = scene_to_dict(scene, str(path.parent))
-    path.parent.mkdir(parents=True, exist_ok=True)
     if path.suffix.lower() == ".json":
-        path.write_text(json.dumps(data, indent=2) + "\n")
+        write_json(path, data)
     else:
-        path.write_text(yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100))
+        write_text(path, yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100))

@@ -82,11 +82,12 @@ def to_display(image: np.ndarray, *, mode: str = "db", dynamic_range_db: float =
 
 def save_png(path, image01: np.ndarray, *, cmap: str = "copper", mask=None) -> None:
     """Write a [0, 1] image with a matplotlib colormap as an 8-bit PNG (outside ``mask`` black)."""
-    import cv2
     from matplotlib import colormaps
+
+    from .._atomic import imwrite
 
     rgba = colormaps[cmap](np.clip(image01, 0, 1))
     rgb = (rgba[..., :3] * 255 + 0.5).astype(np.uint8)
     if mask is not None:
         rgb[~np.asarray(mask)] = 0
-    cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    imwrite(path, np.ascontiguousarray(rgb[..., ::-1]))

@@ -184,7 +184,6 @@ class SonarFrame:
     def save_npz(self, path) -> Path:
         """Write intensity, image, ranges, azimuths, pose and ground truth to an ``.npz``."""
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
         data = dict(
             intensity=self.intensity,
             image=self.image,
@@ -206,5 +205,6 @@ class SonarFrame:
             gt_shadow=gt.shadow,
             gt_range_map=gt.range_map,
         )
-        np.savez_compressed(path, **data)
-        return path
+        from .._atomic import save_npz
+
+        return save_npz(path, **data)
