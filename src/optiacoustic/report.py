@@ -70,8 +70,13 @@ def build_report(out_dir, *, only=None, quick: bool = False, seed: int = 0, prog
     the others; the function raises at the end if any failed, so ``make demo`` fails too.
     """
     out_dir = Path(out_dir)
+    known = experiments.names()
+    if only is not None:
+        unknown = [n for n in only if n not in known]
+        if unknown or not only:
+            raise ValueError(f"only: unknown experiment(s) {unknown or only}; experiments are {known}")
     ensure_dir(out_dir)
-    names = [n for n in experiments.names() if only is None or n in only]
+    names = [n for n in known if only is None or n in only]
     sections, failures = [], []
     for name in names:
         if progress:

@@ -23,8 +23,8 @@ def noise_fit(
     model: Optional[str] = typer.Option(
         None, "--model", help="Model to draw the --bottom samples from: rayleigh, weibull, k or mixture (default mixture)."
     ),
-    n: int = typer.Option(100_000, "--n", help="Number of samples drawn with --bottom."),
-    seed: int = typer.Option(0, "--seed", help="Random seed of the draw."),
+    n: int = typer.Option(100_000, "--n", min=1, help="Number of samples drawn with --bottom."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Random seed of the draw."),
     input_file: Optional[Path] = typer.Option(
         None, "--input", help="Real sonar image: .npy amplitude array or a grayscale image (PNG, ...)."
     ),

@@ -77,12 +77,12 @@ def sonar_cmd(
     eye: Optional[Vec3] = typer.Option(None, "--eye", help="Sonar position X Y Z (m); default: the scene's view."),
     target: Optional[Vec3] = typer.Option(None, "--target", help="Point the sonar looks at X Y Z (m)."),
     out_dir: Path = typer.Option(Path("out/sonar"), "--out", help="Output folder."),
-    seed: int = typer.Option(0, "--seed", help="Noise seed."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Noise seed."),
     no_noise: bool = typer.Option(False, "--no-noise", help="Image without noise and reverberation."),
-    elevation_samples: Optional[int] = typer.Option(None, "--elevation-samples", help="Rays per beam across the elevation aperture."),
+    elevation_samples: Optional[int] = typer.Option(None, "--elevation-samples", min=1, help="Rays per beam across the elevation aperture."),
     spreading: bool = typer.Option(False, "--spreading", help="Simulate spreading and absorption instead of ideal TVG."),
     azimuth_pattern: bool = typer.Option(False, "--azimuth-pattern", help="Cross-beam leakage from the azimuth beam pattern."),
-    frames: int = typer.Option(1, "--frames", help="Render this many frames (different noise seeds)."),
+    frames: int = typer.Option(1, "--frames", min=1, help="Render this many frames (different noise seeds)."),
     figures: bool = typer.Option(True, "--figures/--no-figures", help="Write the stage figures."),
 ):
     """Simulate a sonar frame: NPZ (intensity, image, ranges, azimuths, ground truth) and PNGs."""

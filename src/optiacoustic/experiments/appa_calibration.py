@@ -16,6 +16,7 @@ import numpy as np
 
 from . import ExperimentResult
 from .._atomic import ensure_dir, savefig
+from .._progress import track
 
 NAME = "calibration"
 TITLE = "Rig calibration from a planar grid seen by both sensors (thesis appendix A)"
@@ -48,7 +49,7 @@ def _trials(rig, n_views, scale, runs, seed):
 
     sig = {k: v * scale for k, v in SIGMA.items()}
     errs, stds, nees, fails = [], [], [], 0
-    for k in range(runs):
+    for k in track(range(runs), f"calibration: {n_views} views, noise x{scale:g}"):
         views, _ = C.simulate_views(rig, n_views, seed=seed + 7919 * k + 101 * n_views, **sig)
         res = C.extrinsics(rig.camera, views, sonar=rig.sonar, **sig)
         if not res:

@@ -8,6 +8,7 @@ import numpy as np
 
 from . import ExperimentResult
 from .._atomic import ensure_dir, savefig
+from .._progress import track
 
 NAME = "reconstruction"
 TITLE = "3D reconstruction from opti-acoustic matches vs stereo optical (Klein bottle)"
@@ -199,7 +200,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     n_points, trials = (600, 2) if quick else (5000, 20)
     rng = np.random.default_rng(seed)
     results, figures, tables = [], [], []
-    for fig_no, (b, d) in zip((5, 6, 7, 8), CONFIGS):
+    for fig_no, (b, d) in track(zip((5, 6, 7, 8), CONFIGS), "reconstruction: rig configurations", total=len(CONFIGS)):
         rig, stereo, P, centre, n_sampled, n_visible = _setup(b, d, n_points, rng)
         est = _estimates(rig, stereo, P, trials, rng)
         stats = {k: _stats(v, P) for k, v in est.items()}

@@ -25,6 +25,7 @@ import numpy as np
 
 from . import ExperimentResult
 from .._atomic import ensure_dir, savefig
+from .._progress import track
 
 NAME = "motion"
 TITLE = "Motion from opti-acoustic image sequences: perpendicular planes (thesis Figs. 6.2-6.6)"
@@ -123,7 +124,7 @@ def _monte_carlo(rig, s1, s2, runs, sigma_pixel, seed):
     rows = {k: [] for k in STAGES + ("monocular",)}
     nees, prec, rec, times, fails, planes = [], [], [], [], 0, []
     first = None
-    for k in range(runs):
+    for k in track(range(runs), f"motion: Monte Carlo, {sigma_pixel:.3g} px"):
         rng = np.random.default_rng(seed + 1000 * k)
         D = _matches(rig, s1, s2, rng, sigma_pixel)
         t0 = time.perf_counter()
