@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Optional
 
@@ -29,6 +28,7 @@ def calibrate_cmd(
     import yaml
 
     from .._atomic import write_json, write_text
+    from .._config import load_config
     from ..geometry.calibrate import extrinsics, load_view
     from ..rig import Rig
 
@@ -54,7 +54,7 @@ def calibrate_cmd(
         out.print(f"weakly observed: {', '.join(res.weak)} (the sonar does not measure elevation; "
                   "views with the grid spanning the elevation aperture and tilted help)")
     if out_file is not None:
-        src = yaml.safe_load(Path(rig_file).read_text()) if rig_file.suffix.lower() != ".json" else json.loads(rig_file.read_text())
+        src = load_config(rig_file, what="rig file")
         data = {k: v for k, v in (src or {}).items() if k in ("sonar", "camera")}
         data["R"] = np.round(res.R, 12).tolist()
         data["t"] = np.round(res.t, 12).tolist()

@@ -15,8 +15,8 @@ Schema (docs/scenes.md has it in full)::
 
 from __future__ import annotations
 
+import collections
 import dataclasses
-import json
 import os
 from pathlib import Path
 
@@ -149,7 +149,8 @@ def scene_from_dict(data, source: str = "<dict>", base_dir: str = ".") -> Scene:
         raise SceneError(f"{source}: field 'bodies': expected a non-empty list of bodies, got {bodies_raw!r}")
     bodies = [_body_from_dict(b, i, source, base_dir) for i, b in enumerate(bodies_raw)]
     names = [b.name for b in bodies]
-    dup = sorted({n for n in names if names.count(n) > 1})
+    counts = collections.Counter(names)  # not names.count(n) per body: that is quadratic in the bodies
+    dup = sorted(n for n, c in counts.items() if c > 1)
     if dup:
         i = names.index(dup[0], names.index(dup[0]) + 1)
         raise SceneError(f"{source}: body '{dup[0]}' (#{i}): field 'name': duplicate body name")
@@ -165,19 +166,14 @@ def scene_from_dict(data, source: str = "<dict>", base_dir: str = ".") -> Scene:
 
 def load_scene(path) -> Scene:
     """Load a scene file; mesh paths inside are relative to the file's folder."""
+    from .._config import ConfigError, load_config
+
     path = Path(path)
     source = str(path)
-    if not path.is_file():
-        raise SceneError(f"{source}: scene file not found")
     try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SceneError(f"{source}: cannot read: {exc}") from None
-    try:
-        data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as exc:
-        kind = "JSON" if path.suffix.lower() == ".json" else "YAML"
-        raise SceneError(f"{source}: not valid {kind}: {exc}") from None
+        data = load_config(path, what="scene file")
+    except ConfigError as exc:
+        raise SceneError(str(exc)) from None
     scene = scene_from_dict(data, source, str(path.parent.resolve()))
     if not scene.name:
         scene.name = path.stem
