@@ -26,10 +26,10 @@ from pydantic import ValidationError
 
 from .._atomic import write_json, write_text
 from ..frames import Pose, euler_xyz_from_rotation
-from .model import Body, Material, Scene, SceneError, Texture, View
+from .parts import Body, Material, SceneError, Texture, View
 from .shapes import SHAPES, Mesh
 
-__all__ = ["load_scene", "save_scene", "scene_from_dict", "scene_to_dict"]
+__all__ = ["read_scene_parts", "save_scene", "scene_parts_from_dict", "scene_to_dict"]
 
 _TOP_KEYS = {"bodies", "name", "description", "view"}
 _BODY_KEYS = {"name", "shape", "pose", "material"}
@@ -137,8 +137,8 @@ def _body_from_dict(raw, index: int, source: str, base_dir: str) -> Body:
     return Body(name, shape, pose, material)
 
 
-def scene_from_dict(data, source: str = "<dict>", base_dir: str = ".") -> Scene:
-    """Build a :class:`Scene` from the parsed contents of a scene file."""
+def scene_parts_from_dict(data, source: str = "<dict>", base_dir: str = ".") -> dict:
+    """The keyword arguments of ``Scene(...)`` (bodies, name, description, view) from a scene file's contents."""
     if not isinstance(data, dict):
         raise SceneError(f"{source}: expected a mapping with a 'bodies' list at the top, got {type(data).__name__}")
     extra = set(data) - _TOP_KEYS
@@ -161,11 +161,12 @@ def scene_from_dict(data, source: str = "<dict>", base_dir: str = ".") -> Scene:
         except (ValidationError, TypeError) as exc:
             msg = _fmt_validation(exc, "view")[1] if isinstance(exc, ValidationError) else str(exc)
             raise SceneError(f"{source}: field 'view': {msg}") from None
-    return Scene(bodies, name=str(data.get("name", "") or ""), description=str(data.get("description", "") or ""), view=view)
+    return dict(bodies=bodies, name=str(data.get("name", "") or ""), description=str(data.get("description", "") or ""),
+                view=view)
 
 
-def load_scene(path) -> Scene:
-    """Load a scene file; mesh paths inside are relative to the file's folder."""
+def read_scene_parts(path) -> dict:
+    """Read a scene file into ``Scene(...)``'s keyword arguments; mesh paths inside are relative to its folder."""
     from .._config import ConfigError, load_config
 
     path = Path(path)
@@ -174,10 +175,9 @@ def load_scene(path) -> Scene:
         data = load_config(path, what="scene file")
     except ConfigError as exc:
         raise SceneError(str(exc)) from None
-    scene = scene_from_dict(data, source, str(path.parent.resolve()))
-    if not scene.name:
-        scene.name = path.stem
-    return scene
+    parts = scene_parts_from_dict(data, source, str(path.parent.resolve()))
+    parts["name"] = parts["name"] or path.stem
+    return parts
 
 
 def _clean(x):
@@ -191,7 +191,7 @@ def _clean(x):
     return x
 
 
-def scene_to_dict(scene: Scene, base_dir: str | None = None) -> dict:
+def scene_to_dict(scene, base_dir: str | None = None) -> dict:
     """The scene as plain data in the file schema (mesh paths relative to ``base_dir``)."""
     bodies = []
     for b in scene:
@@ -230,7 +230,7 @@ def scene_to_dict(scene: Scene, base_dir: str | None = None) -> dict:
     return out
 
 
-def save_scene(scene: Scene, path) -> None:
+def save_scene(scene, path) -> None:
     path = Path(path)
     data = scene_to_dict(scene, str(path.parent))
     if path.suffix.lower() == ".json":
