@@ -29,11 +29,13 @@ def calibrate_cmd(
 
     from .._atomic import write_json, write_text
     from .._config import load_config
-    from ..geometry.calibrate import extrinsics, load_view
+    from ..geometry.calibrate import check_view, extrinsics, load_view
     from ..rig import Rig
 
     rig = Rig.load(rig_file)
     vs = [load_view(p) for p in views]
+    for p, v in zip(views, vs):
+        check_view(v, rig.camera, rig.sonar, name=str(p))
     initial = (rig.R, rig.t) if start_from_rig else None
     res = extrinsics(rig.camera, vs, sigma_pixel=sigma_pixel, sigma_range=sigma_range,
                      sigma_azimuth=float(np.deg2rad(sigma_azimuth_deg)), sonar=rig.sonar, initial=initial)

@@ -45,7 +45,7 @@ from ..frames import R_SONAR_FROM_CAMERA_FORWARD, orthonormalize
 from ..rig import Rig
 from . import _bundle as B
 
-__all__ = ["CalibrationView", "CalibrationResult", "extrinsics", "simulate_views", "load_view", "save_view"]
+__all__ = ["CalibrationView", "CalibrationResult", "check_view", "extrinsics", "simulate_views", "load_view", "save_view"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,7 +72,12 @@ class CalibrationView:
         r = as_array(self.ranges, "ranges", (n,))
         a = as_array(self.azimuths, "azimuths", (n,))
         if np.any(r <= 0):
-            raise ValueError("ranges: must be > 0")
+            i = int(np.argmax(r <= 0))
+            raise ValueError(f"ranges: must be > 0, got {r[i]!r} at corner {i}")
+        if np.any(np.abs(a) > np.pi / 2):
+            i = int(np.argmax(np.abs(a) > np.pi / 2))
+            raise ValueError(f"azimuths: a forward-looking sonar sees |azimuth| <= pi/2 rad, got {a[i]!r} at corner {i} "
+                             "(degrees given as radians? name the column azimuth_deg)")
         object.__setattr__(self, "pixels", px)
         object.__setattr__(self, "ranges", r)
         object.__setattr__(self, "azimuths", a)
@@ -210,14 +215,26 @@ def load_view(path) -> CalibrationView:
         if not lines:
             raise ValueError(f"{path}: empty view file")
         names = [c.strip().lower() for c in lines[0].split(",")]
-        try:
-            rows = np.array([[float(x) for x in ln.split(",")] for ln in lines[1:]], float).reshape(-1, len(names))
-        except ValueError as exc:
-            raise ValueError(f"{path}: expected a header row and rows of {len(names)} numbers ({exc})") from None
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"{path}: column {dup[0]!r} appears twice in the header")
+        rows = []
+        for k, ln in enumerate(lines[1:], 2):
+            cells = ln.split(",")
+            if len(cells) != len(names):
+                raise ValueError(f"{path}: data row {k - 1} has {len(cells)} values, the header names {len(names)} "
+                                 f"columns ({', '.join(names)})")
+            try:
+                rows.append([float(x) for x in cells])
+            except ValueError as exc:
+                raise ValueError(f"{path}: data row {k - 1}: {exc}") from None
+        rows = np.array(rows, float).reshape(-1, len(names))
         cols = {k: rows[:, i] for i, k in enumerate(names)}
     need = {"u", "v", "range"}
     if not need <= set(cols) or not ({"azimuth", "azimuth_deg"} & set(cols)):
         raise ValueError(f"{path}: expected columns u, v, range and azimuth (rad) or azimuth_deg; got {sorted(cols)}")
+    if "azimuth" in cols and "azimuth_deg" in cols:
+        raise ValueError(f"{path}: both azimuth (rad) and azimuth_deg given; keep one")
     az = cols["azimuth"] if "azimuth" in cols else np.deg2rad(cols["azimuth_deg"])
     try:
         return CalibrationView(np.stack([cols["u"], cols["v"]], -1), cols["range"], az)
@@ -241,6 +258,32 @@ def _failed(message, V=0, R0=None, t0=None):
                              np.full(6, np.nan), np.full(6, np.nan), np.full((6, 6), np.nan), (),
                              np.full((V, 4), np.nan), np.full((3, 3), np.nan) if R0 is None else R0,
                              np.full(3, np.nan) if t0 is None else t0, nan, nan, nan, nan, 0)
+
+
+def check_view(view: CalibrationView, camera: PinholeCamera, sonar=None, *, name: str = "view") -> None:
+    """Raise a ValueError naming ``name`` if a view's corners lie outside the image or the sonar's fan.
+
+    Corners outside what the sensors can see mean a mistake in the data (wrong units, wrong
+    camera, swapped columns), not noise; a half-pixel and a quarter-beam of slack allow for noise.
+    """
+    u, v = view.pixels[:, 0], view.pixels[:, 1]
+    bad = (u < -0.5) | (u > camera.width - 0.5) | (v < -0.5) | (v > camera.height - 0.5)
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        raise ValueError(f"{name}: corner {i} at pixel ({u[i]:.6g}, {v[i]:.6g}) lies outside the "
+                         f"{camera.width} x {camera.height} image")
+    if sonar is not None:
+        half = float(sonar.fov_azimuth) / 2 + 0.25 * float(getattr(sonar, "beamwidth_azimuth", 0.0))
+        bad = np.abs(view.azimuths) > half
+        if np.any(bad):
+            i = int(np.argmax(bad))
+            raise ValueError(f"{name}: corner {i} has azimuth {np.rad2deg(view.azimuths[i]):.4g} deg, outside the "
+                             f"sonar's fan of +-{np.rad2deg(sonar.fov_azimuth) / 2:.4g} deg (degrees given as radians?)")
+        bad = (view.ranges < float(sonar.range_min)) | (view.ranges > float(sonar.range_max))
+        if np.any(bad):
+            i = int(np.argmax(bad))
+            raise ValueError(f"{name}: corner {i} has range {view.ranges[i]:.6g} m, outside the sonar's "
+                             f"{sonar.range_min:g}-{sonar.range_max:g} m")
 
 
 def _views(views):
@@ -445,6 +488,8 @@ def extrinsics(
     if not isinstance(camera, PinholeCamera):
         raise ValueError(f"camera: expected a PinholeCamera, got {type(camera).__name__}")
     vs = _views(views)
+    for i, v in enumerate(vs):
+        check_view(v, camera, sonar, name=f"views[{i}]")
     sp = as_positive(sigma_pixel, "sigma_pixel")
     sr = as_positive(sigma_range, "sigma_range")
     sa = as_positive(sigma_azimuth, "sigma_azimuth")

@@ -185,7 +185,10 @@ def _clean(x):
         return [_clean(v) for v in x]
     if isinstance(x, (np.floating, float)):
         v = float(x)
-        return int(v) if v.is_integer() and abs(v) < 1e9 else round(v, 9)
+        if v.is_integer() and abs(v) < 1e9:
+            return int(v)
+        # 12 significant digits tidy 19.999999999999996 into 20 but never turn a small value into 0
+        return float(f"{v:.12g}")
     if isinstance(x, (np.integer,)):
         return int(x)
     return x
@@ -233,6 +236,10 @@ def scene_to_dict(scene, base_dir: str | None = None) -> dict:
 def save_scene(scene, path) -> None:
     path = Path(path)
     data = scene_to_dict(scene, str(path.parent))
+    try:  # what is written must load again: check before writing, not when a user next reads it
+        scene_parts_from_dict(data, str(path), str(path.parent.resolve()))
+    except SceneError as exc:
+        raise SceneError(f"cannot export the scene to {path}: the written file would not load: {exc}") from None
     if path.suffix.lower() == ".json":
         write_json(path, data)
     else:
