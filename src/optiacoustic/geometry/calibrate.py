@@ -73,10 +73,10 @@ class CalibrationView:
         a = as_array(self.azimuths, "azimuths", (n,))
         if np.any(r <= 0):
             i = int(np.argmax(r <= 0))
-            raise ValueError(f"ranges: must be > 0, got {r[i]!r} at corner {i}")
+            raise ValueError(f"ranges: must be > 0, got {float(r[i])!r} at corner {i}")
         if np.any(np.abs(a) > np.pi / 2):
             i = int(np.argmax(np.abs(a) > np.pi / 2))
-            raise ValueError(f"azimuths: a forward-looking sonar sees |azimuth| <= pi/2 rad, got {a[i]!r} at corner {i} "
+            raise ValueError(f"azimuths: a forward-looking sonar sees |azimuth| <= pi/2 rad, got {float(a[i])!r} at corner {i} "
                              "(degrees given as radians? name the column azimuth_deg)")
         object.__setattr__(self, "pixels", px)
         object.__setattr__(self, "ranges", r)

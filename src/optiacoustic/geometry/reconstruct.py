@@ -207,6 +207,9 @@ def range_solution(rig: Rig, pixels, ranges, *, clip_elevation: bool = False) ->
         crossing is behind the camera (status 2).
     """
     shape, (x, y, r) = _inputs(rig, pixels, ranges=ranges)
+    if np.any(r < 0):
+        i = int(np.argmax(r < 0))
+        raise ValueError(f"ranges: must be >= 0 m (a range is a distance), got {float(r[i])!r} at index {i}")
     z, status, amb = _range_depth(rig, x, y, r)
     return _finish(shape, x, y, z, status, amb, rig, clip_elevation, "range solution")
 
@@ -469,12 +472,20 @@ def crlb(rig: Rig, points_camera, *, sigma_pixel, sigma_range, sigma_azimuth) ->
     Returns
     -------
     ndarray, shape (..., 3, 3)
-        Lower bound on the covariance (m^2).
+        Lower bound on the covariance (m^2). NaN for points not in front of the camera
+        (``points_camera[..., 2] <= 0``): the camera cannot see them, so no bound exists;
+        ``np.isfinite(cov[..., 0, 0])`` is the mask of valid points.
     """
     su, sv, sr, sa = _sigmas(sigma_pixel, sigma_range, sigma_azimuth)
     J = measurement_jacobian(rig, points_camera)
     w = np.array([1 / su ** 2, 1 / sv ** 2, 1 / sr ** 2, 1 / sa ** 2])
-    return _inv3(np.einsum("...ki,k,...kj->...ij", J, w, J))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cov = _inv3(np.einsum("...ki,k,...kj->...ij", J, w, J))
+    behind = ~(np.asarray(points_camera, float)[..., 2] > 0)
+    if np.any(behind):
+        cov = np.array(cov, copy=True)
+        cov[behind] = np.nan
+    return cov
 
 
 def first_order_mse(rig: Rig, points_camera, *, sigma_pixel, sigma_range, sigma_azimuth,
