@@ -11,7 +11,7 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["as_array", "as_positive", "broadcast_arrays", "broadcast_points", "check_finite"]
+__all__ = ["as_array", "as_azimuths", "as_positive", "as_rng", "broadcast_arrays", "broadcast_points", "check_finite"]
 
 
 def _shape_str(shape: Sequence[int | None | str]) -> str:
@@ -117,3 +117,38 @@ def broadcast_points(x, name: str, shape: tuple) -> np.ndarray:
         return np.broadcast_to(arr, tuple(shape) + (3,)).reshape(-1, 3)
     except ValueError:
         raise ValueError(f"{name}: expected shape {tuple(shape) + (3,)}, got {arr.shape}") from None
+
+
+def as_rng(seed, name: str = "seed") -> np.random.Generator:
+    """A Generator from a seed (a non-negative integer), a Generator, or None (fresh entropy).
+
+    Floats, strings and booleans are refused rather than truncated or hashed: ``seed=1.5``
+    and ``seed=True`` are mistakes, not seeds.
+    """
+    if isinstance(seed, np.random.Generator):
+        return seed
+    if seed is None:
+        return np.random.default_rng()
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)):
+        raise ValueError(f"{name}: expected a non-negative integer, a numpy.random.Generator or None, "
+                         f"got {seed!r} ({type(seed).__name__})")
+    if seed < 0:
+        raise ValueError(f"{name}: expected a non-negative integer, got {int(seed)}")
+    return np.random.default_rng(int(seed))
+
+
+def as_azimuths(x, name: str = "azimuths", limit: float = np.pi) -> np.ndarray:
+    """Sonar azimuths (rad): finite and within ``[-limit, limit]``.
+
+    ``atan2`` gives azimuths in ``[-pi, pi]``; a value beyond ``limit`` is a mistake, most often
+    degrees passed where radians are expected (which would otherwise give empty curves or NaN
+    points without a word). Pass the fan's half-width as ``limit`` where only the fan makes sense.
+    """
+    a = as_array(x, name)
+    bad = np.abs(a) > limit
+    if np.any(bad):
+        i = tuple(int(k) for k in np.argwhere(bad)[0])
+        v = float(a[i] if i else a)
+        raise ValueError(f"{name}: azimuths are in radians within +-{limit:.4g}; got {v:g} at index {i} "
+                         f"(degrees? use np.deg2rad({v:g}) = {np.deg2rad(v):.4g} rad)")
+    return a

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array, as_positive
+from .._validate import as_array, as_positive, as_rng
 from ..camera import PinholeCamera
 from ..frames import R_SONAR_FROM_CAMERA_FORWARD, orthonormalize
 from ..rig import Rig
@@ -604,7 +604,7 @@ def simulate_views(
     corners_camera : list of ndarray (N, 3)
         The corners in the camera frame (m), the ground truth.
     """
-    rng = np.random.default_rng(seed)
+    rng = as_rng(seed)
     fov = rig.fov_elevation if rig.sonar is not None else np.deg2rad(20.0)
     fov_az = float(rig.sonar.fov_azimuth) if rig.sonar is not None else np.deg2rad(90.0)
     nx, ny = grid_shape

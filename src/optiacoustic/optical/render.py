@@ -32,7 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array
+from .._validate import as_array, as_rng
+from ._sanity import warn_if_blind
 from ..camera import PinholeCamera
 from ..frames import Pose
 from ..scene import Scene
@@ -576,6 +577,7 @@ def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=N
     hits = caster.cast(pose.t, d_world)
     depth = hits.distance
     hit = hits.body >= 0
+    warn_if_blind(hit, pose, scene)
     full = bool(hit.all())
     sel = slice(None) if full else np.flatnonzero(hit)   # scenes with a seabed hit everywhere
     dist = depth[sel].astype(np.float32)
@@ -621,7 +623,7 @@ def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=N
     if noise is None and seed is not None:
         noise = SensorNoise()
     if isinstance(noise, SensorNoise):
-        rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        rng = as_rng(seed)
         image = noise.apply(image, rng)
 
     normal = scatter(nrm) if full else np.full((H * W, 3), np.nan, np.float32)

@@ -25,6 +25,7 @@ from typing import Literal
 
 import numpy as np
 
+from .._validate import as_rng
 from ..frames import Pose
 from ..raycast import RayCaster
 from ..scene import Scene
@@ -312,7 +313,7 @@ def simulate_sonar(
     draws = None
     if noise is not False:
         # the noise variates do not depend on the echo: draw them on the other core meanwhile
-        draws = _background().submit(noise.draw, (spec.n_bins, spec.n_beams), list(bottom_types), np.random.default_rng(seed))
+        draws = _background().submit(noise.draw, (spec.n_bins, spec.n_beams), list(bottom_types), as_rng(seed))
     rays = _scan(scene, caster, spec, pose, options)
     # the seabed/target split needs only the rays: integrate it on the other core meanwhile
     parts = _background().submit(_class_parts, bottom_types, spec, rays, options)
