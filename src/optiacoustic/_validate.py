@@ -55,6 +55,9 @@ def as_array(
         With the expected and the actual shape, or the position of the first
         non-finite value.
     """
+    if np.dtype(dtype).kind in "fiu" and np.iscomplexobj(x):
+        # numpy would drop the imaginary part with only a warning
+        raise ValueError(f"{name}: expected real numbers, got complex values (take np.abs or np.real explicitly)")
     try:
         arr = np.asarray(x, dtype=dtype)
     except (TypeError, ValueError) as exc:

@@ -151,7 +151,9 @@ class CalibrationResult:
         return bool(self.success)
 
     def rig(self, camera: PinholeCamera, sonar=None) -> Rig:
-        """The calibrated :class:`Rig`."""
+        """The calibrated :class:`Rig` (a ValueError with the failure's message if the calibration failed)."""
+        if not self.success:
+            raise ValueError(f"rig: the calibration failed ({self.message}); there is no calibrated rig")
         return Rig(self.R, self.t, camera, sonar)
 
     def to_dict(self) -> dict:
