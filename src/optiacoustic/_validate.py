@@ -11,7 +11,7 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["as_array", "as_azimuths", "as_positive", "as_rng", "broadcast_arrays", "broadcast_points", "check_finite"]
+__all__ = ["as_array", "as_azimuths", "as_positive", "as_rng", "available_memory", "check_memory", "broadcast_arrays", "broadcast_points", "check_finite"]
 
 
 def _shape_str(shape: Sequence[int | None | str]) -> str:
@@ -155,3 +155,32 @@ def as_azimuths(x, name: str = "azimuths", limit: float = np.pi) -> np.ndarray:
         raise ValueError(f"{name}: azimuths are in radians within +-{limit:.4g}; got {v:g} at index {i} "
                          f"(degrees? use np.deg2rad({v:g}) = {np.deg2rad(v):.4g} rad)")
     return a
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to a new allocation (Linux ``MemAvailable``), or None if unknown."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import os
+
+        return int(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_memory(nbytes: float, what: str) -> None:
+    """Raise a ValueError before allocating ``nbytes`` (an upper estimate) that the machine does not have.
+
+    ``what`` says which request and which fields set its size, e.g.
+    ``"a 100000 x 100000 camera image (PinholeCamera.width x height)"``.
+    """
+    avail = available_memory()
+    if avail is not None and nbytes > avail:
+        raise ValueError(f"{what} needs about {nbytes / 2**30:.1f} GiB of memory; {avail / 2**30:.1f} GiB is "
+                         "available. Use a smaller size.")

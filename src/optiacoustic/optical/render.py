@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array, as_rng
+from .._validate import as_array, as_rng, check_memory
 from ._sanity import warn_if_blind
 from ..camera import PinholeCamera
 from ..frames import Pose
@@ -563,6 +563,9 @@ def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=N
     if not isinstance(options, OpticalOptions):
         raise ValueError(f"options: expected OpticalOptions, got {type(options).__name__}")
     lights = resolve_lights(lights, pose)
+    # a lower estimate of the bytes a render takes (rays, stages, depth, normals): refuse before allocating
+    check_memory(160.0 * camera.width * camera.height,
+                 f"a {camera.width} x {camera.height} camera image (PinholeCamera.width x height)")
     caster = caster_for(scene)
     names = scene.body_names()
     _check_not_inside(caster, names, pose, lights)

@@ -25,7 +25,7 @@ from typing import Literal
 
 import numpy as np
 
-from .._validate import as_rng
+from .._validate import as_rng, check_memory
 from ..frames import Pose
 from ..raycast import RayCaster
 from ..scene import Scene
@@ -308,6 +308,10 @@ def simulate_sonar(
         elif not isinstance(noise, NoiseModel):
             raise TypeError(f"noise: expected a NoiseModel, False or None, got {type(noise).__name__}")
 
+    # a lower estimate of the bytes a frame takes (rays, bins x beams images): refuse before allocating
+    check_memory(96.0 * spec.n_beams * spec.elevation_samples + 64.0 * spec.n_bins * spec.n_beams,
+                 f"a {spec.n_bins} x {spec.n_beams} sonar frame with {spec.elevation_samples} elevation samples "
+                 "(SonarSpec.n_bins x n_beams x elevation_samples)")
     caster = caster_for(scene)
     bottom_types = _bottom_types(scene)
     draws = None
