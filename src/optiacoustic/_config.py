@@ -219,7 +219,8 @@ def load_config(path, *, what: str = "file"):
     try:
         n = path.stat().st_size
         if n > MAX_BYTES:
-            raise ConfigError(f"{path}: {what} is {n / 2**20:.1f} MiB, over the limit of {MAX_BYTES // 2**20} MiB")
+            raise ConfigError(f"{path}: {what} is {n:,} bytes, over the limit of {MAX_BYTES:,} bytes "
+                              f"({MAX_BYTES / 2**20:g} MiB; optiacoustic._config.MAX_BYTES)")
         text = path.read_bytes().decode("utf-8")
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read {what}: {exc.strerror or exc}") from None
