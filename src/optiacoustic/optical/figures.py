@@ -26,20 +26,20 @@ def save_stage_figures(frame: OpticalFrame, out_dir, *, prefix: str = "optical",
     """The four stages of Figs. 3.7-3.8 as one panel, the two scattered components alone,
     and (``individual``) each stage as a full-resolution PNG.
 
-    ``clear`` is shown with its own exposure; the water stages share the final image's,
-    so that the veil is seen adding light and attenuation taking it away.
+    All four stages share one exposure (the larger of the clear and the final image's auto
+    exposures), so that attenuation is seen taking light away and the veil adding it; an
+    exposure per panel would brighten the attenuated seabed back up.
     Returns ``[(path, caption), ...]``.
     """
     plt = _plt()
     out = Path(out_dir)
     ensure_dir(out)
-    e_clear = frame.exposure("clear")
-    e_img = frame.exposure("image")
+    e = max(frame.exposure("clear"), frame.exposure("image"))  # one exposure: panels compare
     panels = [
-        ("clear", e_clear, "a) clear (no water), Fig. 3.7a"),
-        ("attenuated", e_img, "b) attenuation, Fig. 3.7b"),
-        ("forward_scatter", e_img, "c) + forward scatter, Fig. 3.8a"),
-        ("image", e_img, "d) + backscatter, Fig. 3.8b"),
+        ("clear", e, "a) clear (no water), Fig. 3.7a"),
+        ("attenuated", e, "b) attenuation, Fig. 3.7b"),
+        ("forward_scatter", e, "c) + forward scatter, Fig. 3.8a"),
+        ("image", e, "d) + backscatter, Fig. 3.8b"),
     ]
     figs = []
     fig, axes = plt.subplots(2, 2, figsize=(12, 8.4))
@@ -54,7 +54,8 @@ def save_stage_figures(frame: OpticalFrame, out_dir, *, prefix: str = "optical",
     savefig(fig, p, dpi=80)
     plt.close(fig)
     figs.append((p, f"Underwater image formation step by step in {w.name} water (thesis Figs. 3.7-3.8): "
-                    "clear scene, attenuation (red fades first), forward scatter, and the veiling backscatter."))
+                    "clear scene, attenuation (red fades first), forward scatter, and the veiling backscatter; "
+                    "one exposure for all four panels."))
     for stage, e, label in panels if individual else ():
         p = out / f"{prefix}_{stage}.png"
         frame.save_png(p, stage, e)
