@@ -148,3 +148,18 @@ def test_no_module_pair_imports_each_other():
                     and not (PKG.parent / (a.replace(".", "/") + "/__init__.py")).exists()
                     and not (PKG.parent / (b.replace(".", "/") + "/__init__.py")).exists()})
     assert not pairs, pairs
+
+
+def test_packaged_examples_work_from_any_folder(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    r = runner.invoke(app, ["calibrate", "examples/calibration/view_*.csv", "--rig", "examples/calibration/rig.yaml",
+                            "--sigma-pixel", "0.5", "--sigma-range", "0.005", "--sigma-azimuth-deg", "0.1",
+                            "--json", "cal.json"])
+    assert r.exit_code == 0, r.output
+    import json
+
+    d = json.loads((tmp_path / "cal.json").read_text())
+    # the sequence was made with the camera at (-0.25, 0.02, 0.05) m: x and y are well observed
+    assert abs(d["t"][0] + 0.25) < 0.02 and abs(d["t"][1] - 0.02) < 0.02
+    r = runner.invoke(app, ["examples"])
+    assert r.exit_code == 0 and "examples/rig_thesis.yaml" in r.output

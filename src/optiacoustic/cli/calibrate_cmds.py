@@ -9,7 +9,7 @@ import numpy as np
 import typer
 from rich.table import Table
 
-from .common import app, out, reports_errors
+from .common import app, out, reports_errors, resolve_input, resolve_inputs
 
 
 @app.command("calibrate")
@@ -32,7 +32,9 @@ def calibrate_cmd(
     from ..geometry.calibrate import check_view, extrinsics, load_view
     from ..rig import Rig
 
+    rig_file = resolve_input(rig_file)
     rig = Rig.load(rig_file)
+    views = resolve_inputs(views)
     vs = [load_view(p) for p in views]
     for p, v in zip(views, vs):
         check_view(v, rig.camera, rig.sonar, name=str(p))

@@ -154,12 +154,49 @@ def reports_errors(func):
     return wrapper
 
 
+def examples_dir() -> Path:
+    """The example files shipped inside the package (``examples/`` of the source tree)."""
+    return Path(__file__).resolve().parents[1] / "examples"
+
+
+def resolve_input(path) -> Path:
+    """An input file by path; ``examples/...`` that is not in the current folder is the packaged example.
+
+    So ``oas render ... --rig examples/rig_thesis.yaml`` works from any folder after ``pip install``.
+    """
+    p = Path(path)
+    if p.exists():
+        return p
+    parts = p.parts
+    if parts and parts[0] == "examples":
+        packaged = examples_dir().joinpath(*parts[1:])
+        if packaged.exists():
+            return packaged
+    return p
+
+
+def resolve_inputs(paths) -> list[Path]:
+    """:func:`resolve_input` for each path; an unexpanded glob (``examples/calibration/view_*.csv``) is expanded."""
+    out = []
+    for path in paths:
+        p = Path(path)
+        if not p.exists() and any(c in str(p) for c in "*?["):
+            base = examples_dir().joinpath(*p.parts[1:-1]) if p.parts[:1] == ("examples",) else p.parent
+            hits = sorted(base.glob(p.name))
+            if not hits:
+                raise ValueError(f"{path}: no file matches")
+            out.extend(hits)
+        else:
+            out.append(resolve_input(p))
+    return out
+
+
 def resolve_scene(name_or_path: str):
     """A built-in scene by name, or a scene file by path."""
     from .. import scenes
     from ..scene import Scene
 
-    p = Path(name_or_path)
+    p = resolve_input(name_or_path)
     if p.suffix.lower() in (".yaml", ".yml", ".json") or p.exists():
         return Scene.load(p)
     if name_or_path in scenes.names():

@@ -9,7 +9,7 @@ from typing import Optional
 import typer
 from rich.table import Table
 
-from .common import Vec3, app, out, reports_errors, resolve_scene, resolve_view
+from .common import Vec3, app, out, reports_errors, resolve_input, resolve_scene, resolve_view
 
 
 @app.command("waters")
@@ -88,7 +88,7 @@ def render_cmd(
 
     scene = resolve_scene(scene_name)
     e, t = resolve_view(scene, eye, target)
-    rig = Rig.load(rig_file)
+    rig = Rig.load(resolve_input(rig_file))
     t0 = time.perf_counter()
     pair = simulate_rig(scene, rig, Pose.look_at(e, t, body="sonar"), water=Water.preset(water), seed=seed,
                         sonar_noise=None if sonar_noise else False)
