@@ -55,7 +55,7 @@ def as_array(
         With the expected and the actual shape, or the position of the first
         non-finite value.
     """
-    if np.dtype(dtype).kind in "fiu" and np.iscomplexobj(x):
+    if np.iscomplexobj(x) and np.dtype(dtype).kind in "fiu":
         # numpy would drop the imaginary part with only a warning
         raise ValueError(f"{name}: expected real numbers, got complex values (take np.abs or np.real explicitly)")
     try:
@@ -75,7 +75,7 @@ def as_array(
             raise ValueError(
                 f"{name}: expected shape {_shape_str(shape)}, got {tuple(arr.shape)}"
             )
-    if finite and arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+    if finite and arr.dtype.kind == "f" and not np.isfinite(arr).all():
         bad = np.argwhere(~np.isfinite(arr))[0]
         where = tuple(int(i) for i in bad)
         raise ValueError(f"{name}: must be finite, found {arr[where] if where else arr} at index {where}")

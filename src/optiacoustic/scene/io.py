@@ -1,6 +1,6 @@
 """Reading and writing scene files (YAML or JSON), with errors that name file, body and field.
 
-Schema (docs/scenes.md has it in full)::
+Schema (docs/conventions.md, "Scene files", has it in full)::
 
     name: my_scene                     # optional
     description: ...                   # optional

@@ -96,7 +96,7 @@ class Scene:
     # ------------------------------------------------------------------ files
     @classmethod
     def load(cls, path) -> "Scene":
-        """Load a scene from a YAML or JSON file (see docs/scenes.md for the schema)."""
+        """Load a scene from a YAML or JSON file (schema: docs/conventions.md, "Scene files")."""
         return cls(**read_scene_parts(path))
 
     @classmethod
