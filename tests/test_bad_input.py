@@ -154,7 +154,7 @@ def test_calibration_csv_mistakes(tmp_path, text, words):
 
 @pytest.mark.parametrize("pixels, ranges, az_deg, words", [
     ([[300, 200], [900, 200]], [2.0, 2.0], [1.0, 1.0], "outside the 600 x 400 image"),
-    ([[300, 200], [310, -3]], [2.0, 2.0], [1.0, 1.0], "outside the 600 x 400 image"),
+    ([[300, 200], [310, -40]], [2.0, 2.0], [1.0, 1.0], "outside the 600 x 400 image"),
     ([[300, 200], [310, 200]], [2.0, 2.0], [1.0, 60.0], "outside the sonar's fan"),
     ([[300, 200], [310, 200]], [2.0, 200.0], [1.0, 1.0], "outside the sonar's"),
 ])

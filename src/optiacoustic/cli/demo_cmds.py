@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from .common import app, out, progress, reports_errors
+from .common import app, fail, out, progress, reports_errors
 
 
 @app.command("demo")
@@ -24,5 +24,9 @@ def demo(
 
     names = None if only is None else [s.strip() for s in only.split(",") if s.strip()]
     with progress("starting") as step:
-        index = build_report(out_dir, only=names, quick=quick, seed=seed, progress=lambda n: step(f"experiment {n}"))
+        try:
+            index = build_report(out_dir, only=names, quick=quick, seed=seed,
+                                 progress=lambda n: step(f"experiment {n}"))
+        except RuntimeError as exc:  # an experiment failed: the report shows its error; exit 1, not a traceback
+            fail(str(exc), code=1)
     out.print(f"report: {index}")

@@ -265,23 +265,26 @@ def _failed(message, V=0, R0=None, t0=None):
 def check_view(view: CalibrationView, camera: PinholeCamera, sonar=None, *, name: str = "view") -> None:
     """Raise a ValueError naming ``name`` if a view's corners lie outside the image or the sonar's fan.
 
-    Corners outside what the sensors can see mean a mistake in the data (wrong units, wrong
-    camera, swapped columns), not noise; a half-pixel and a quarter-beam of slack allow for noise.
+    Corners far outside what the sensors can see mean a mistake in the data (wrong units, wrong
+    camera, swapped columns), not noise: the slack (5 % of the image, 1 degree or a quarter beam
+    beyond the fan, 5 % of the range span) lets noisy corners at the edges through.
     """
     u, v = view.pixels[:, 0], view.pixels[:, 1]
-    bad = (u < -0.5) | (u > camera.width - 0.5) | (v < -0.5) | (v > camera.height - 0.5)
+    mu, mv = 0.05 * camera.width, 0.05 * camera.height
+    bad = (u < -0.5 - mu) | (u > camera.width - 0.5 + mu) | (v < -0.5 - mv) | (v > camera.height - 0.5 + mv)
     if np.any(bad):
         i = int(np.argmax(bad))
         raise ValueError(f"{name}: corner {i} at pixel ({u[i]:.6g}, {v[i]:.6g}) lies outside the "
                          f"{camera.width} x {camera.height} image")
     if sonar is not None:
-        half = float(sonar.fov_azimuth) / 2 + 0.25 * float(getattr(sonar, "beamwidth_azimuth", 0.0))
+        half = float(sonar.fov_azimuth) / 2 + max(np.deg2rad(1.0), 0.25 * float(getattr(sonar, "beamwidth_azimuth", 0.0)))
         bad = np.abs(view.azimuths) > half
         if np.any(bad):
             i = int(np.argmax(bad))
             raise ValueError(f"{name}: corner {i} has azimuth {np.rad2deg(view.azimuths[i]):.4g} deg, outside the "
                              f"sonar's fan of +-{np.rad2deg(sonar.fov_azimuth) / 2:.4g} deg (degrees given as radians?)")
-        bad = (view.ranges < float(sonar.range_min)) | (view.ranges > float(sonar.range_max))
+        slack = 0.05 * (float(sonar.range_max) - float(sonar.range_min))
+        bad = (view.ranges < float(sonar.range_min) - slack) | (view.ranges > float(sonar.range_max) + slack)
         if np.any(bad):
             i = int(np.argmax(bad))
             raise ValueError(f"{name}: corner {i} has range {view.ranges[i]:.6g} m, outside the sonar's "
