@@ -24,6 +24,10 @@ FORBIDDEN = {
     "optiacoustic.matching": ["optiacoustic.sonar", "optiacoustic.optical", "optiacoustic.raycast", "optiacoustic.fusion",
                               "optiacoustic.experiments", "optiacoustic.scene", "embreex"],
     "optiacoustic.experiments": ["optiacoustic.cli"],
+    # readers never import a simulator (DESIGN.md): frames and specs only
+    "optiacoustic.io": ["optiacoustic.sonar.formation", "optiacoustic.raycast", "optiacoustic.optical.render",
+                        "optiacoustic.geometry", "optiacoustic.fusion", "optiacoustic.experiments",
+                        "optiacoustic.cli", "embreex"],
 }
 
 
