@@ -192,3 +192,22 @@ def test_two_view_match_keeps_a_consistent_subset(pairs):
     assert "second view" in two.message
     with pytest.raises(ValueError, match="motion"):
         match(s, o.image, rig, second=(s2, o2.image))
+
+
+@pytest.mark.parametrize("name", ["oculus/one_ping_8bit.raw", "aris/sample.aris"])
+def test_measured_frames_go_through_the_protocol(name):
+    """Real recordings (the shared samples) through the frame protocol: a result, never a crash."""
+    from pathlib import Path
+
+    from optiacoustic import PinholeCamera
+    from optiacoustic.io import open_sonar
+
+    frame = open_sonar(Path(__file__).resolve().parents[1] / "data" / name)[0]
+    rig = Rig.toed_in(PinholeCamera.from_sensor(600, 400, (36, 24), 50), baseline=0.1)
+    blank = np.zeros((400, 600, 3), np.float32)
+    m = match(frame, blank, rig)
+    assert not m and "no camera features" in m.message
+    sf = m.sonar_features
+    assert sf is not None and len(sf) > 0
+    assert np.all((sf.ranges >= frame.ranges[0]) & (sf.ranges <= frame.ranges[-1]))
+    assert np.all((sf.azimuths >= frame.azimuths[0]) & (sf.azimuths <= frame.azimuths[-1]))
