@@ -7,5 +7,7 @@ schedule of a sequence with per-sensor rates (:mod:`.sequence`).
 """
 
 from .pair import RigFrame, simulate_rig
+from .trajectory import Orbit, Trajectory, WaypointTrajectory, frame_times, lawnmower, load_csv, look_rotations
 
-__all__ = ["RigFrame", "simulate_rig"]
+__all__ = ["Orbit", "RigFrame", "Trajectory", "WaypointTrajectory", "frame_times", "lawnmower", "load_csv",
+           "look_rotations", "simulate_rig"]
