@@ -1,0 +1,53 @@
+"""``oas dataset`` (simulated sequences to Zarr on Dask), ``oas export`` (Zarr to MCAP), ``oas convert``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from .common import app, console, out, reports_errors
+
+
+def _progress_bar():
+    from rich.progress import (BarColumn, MofNCompleteColumn, Progress, ProgressColumn, TextColumn,
+                               TimeElapsedColumn, TimeRemainingColumn)
+    from rich.text import Text
+
+    class Rate(ProgressColumn):
+        def render(self, task):
+            speed = task.finished_speed or task.speed
+            return Text("  -  frames/s" if speed is None else f"{speed:6.2f} frames/s")
+
+    return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), Rate(),
+                    TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(), console=console, transient=False)
+
+
+@app.command("dataset")
+@reports_errors
+def dataset_cmd(
+    config: Path = typer.Argument(..., metavar="CONFIG.yaml", help="Dataset configuration (docs/datasets.md)."),
+    out_path: Path = typer.Option(..., "--out", help="Output Zarr store (DATA.zarr); rerun to resume."),
+    workers: Optional[int] = typer.Option(None, "--workers", min=0,
+                                          help="Local Dask worker processes (default: all cores; 0: no Dask)."),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of an existing Dask scheduler."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+):
+    """Render a synchronised sonar + camera sequence with ground truth into Zarr, on Dask; resumable."""
+    from ..io.dataset import write_dataset
+
+    if quiet:
+        rep = write_dataset(config, out_path, workers=workers, scheduler=scheduler)
+    else:
+        with _progress_bar() as bar:
+            task = bar.add_task("frames", total=None)
+
+            def progress(done, total):
+                bar.update(task, completed=done, total=total)
+
+            rep = write_dataset(config, out_path, workers=workers, scheduler=scheduler, progress=progress)
+    busy = rep.render_s + rep.write_s
+    share = f", {100 * rep.write_s / busy:.0f} % of frame time writing" if busy > 0 else ""
+    out.print(f"{rep.path}: wrote {rep.written}, already done {rep.skipped} in {rep.elapsed:.1f} s{share}",
+              highlight=False)
