@@ -51,3 +51,23 @@ def dataset_cmd(
     share = f", {100 * rep.write_s / busy:.0f} % of frame time writing" if busy > 0 else ""
     out.print(f"{rep.path}: wrote {rep.written}, already done {rep.skipped} in {rep.elapsed:.1f} s{share}",
               highlight=False)
+
+
+@app.command("export")
+@reports_errors
+def export_cmd(
+    dataset: Path = typer.Argument(..., metavar="DATA.zarr", help="A dataset written by `oas dataset`."),
+    mcap: Path = typer.Option(..., "--mcap", help="Output MCAP file (ROS 2 messages)."),
+    sonar_dtype: str = typer.Option("float32", "--sonar-dtype", help="float32, uint8 or uint16 sonar data."),
+    full_scale: Optional[float] = typer.Option(None, "--full-scale",
+                                               help="Intensity of the top count for uint8/uint16 (default: 99.9th pct)."),
+    camera_encoding: str = typer.Option("32FC3", "--camera-encoding", help="32FC3 (linear) or rgb8 (sRGB)."),
+    start_time: float = typer.Option(0.0, "--start-time", help="ROS time (s) of dataset time 0."),
+    ground_truth: bool = typer.Option(True, "--ground-truth/--no-ground-truth", help="Ground-truth topics."),
+):
+    """Write a dataset as ROS 2 messages (ProjectedSonarImage, Image, CameraInfo, TF) into an MCAP file."""
+    from ..io.mcap_writer import write_mcap
+
+    p = write_mcap(dataset, mcap, sonar_dtype=sonar_dtype, full_scale=full_scale, camera_encoding=camera_encoding,
+                   start_time=start_time, ground_truth=ground_truth)
+    out.print(f"wrote {p} ({p.stat().st_size / 1e6:.1f} MB)", highlight=False)
