@@ -129,3 +129,48 @@ def test_device_counts_and_cli(dataset, tmp_path):
     assert r.exit_code == 2 and "sonar_dtype" in r.output
     r = CliRunner().invoke(app, ["export", str(tmp_path), "--mcap", str(tmp_path / "x.mcap")])
     assert r.exit_code == 2 and "not a Zarr store" in " ".join(r.output.split())
+
+
+def test_project_reader_reads_the_export_bit_exact(dataset, tmp_path):
+    """optiacoustic.io.open_sonar (i9's reader) on our MCAP: images, azimuths, ranges, stamps."""
+    from optiacoustic.io import open_sonar
+
+    for dtype in ("float32", "uint8"):
+        mcap = write_mcap(dataset, tmp_path / f"{dtype}.mcap", sonar_dtype=dtype, full_scale=0.3, start_time=100.0)
+        frames = open_sonar(mcap, topic="/sonar/image")
+        s = zarr.open_group(str(dataset), mode="r")["sonar"]
+        assert len(frames) == 4
+        for k, f in enumerate(frames):
+            want = s["image"][k] if dtype == "float32" else \
+                np.round(np.clip(s["image"][k] / 0.3, 0, 1) * 255).astype(np.uint8)
+            np.testing.assert_array_equal(f.raw, want)
+            if dtype == "float32":
+                np.testing.assert_array_equal(f.image, s["image"][k])
+            np.testing.assert_allclose(f.spec.azimuths, s["azimuths"][:], atol=1e-12)
+            np.testing.assert_array_equal(f.spec.ranges, s["ranges"][:].astype(np.float32))
+            assert abs(f.time - (100.0 + s["time"][k])) < 1e-9
+
+
+def test_convert_real_logs_into_the_layout(dataset, tmp_path):
+    from optiacoustic.io import open_dataset, open_sonar
+
+    aris = Path(__file__).resolve().parents[1] / "data" / "aris" / "sample.aris"
+    r = CliRunner().invoke(app, ["convert", str(aris), "--out", str(tmp_path / "aris.zarr")])
+    assert r.exit_code == 0, r.output
+    tree = open_dataset(tmp_path / "aris.zarr")
+    frames = open_sonar(aris)
+    s = tree["sonar"]
+    assert s["image"].dims == ("frame", "bin", "beam") and s["image"].shape[0] == len(frames)
+    for k, f in enumerate(frames):
+        np.testing.assert_array_equal(s["raw"][k].values, f.raw)
+        np.testing.assert_array_equal(s["image"][k].values, f.image)
+    np.testing.assert_allclose(s["azimuths"].values, frames[0].spec.azimuths)
+    assert bool(s["done"].all())
+    # our own export converts back to the same images
+    mcap = write_mcap(dataset, tmp_path / "x.mcap")
+    r = CliRunner().invoke(app, ["convert", str(mcap), "--topic", "/sonar/image", "--out", str(tmp_path / "back.zarr")])
+    assert r.exit_code == 0, r.output
+    back = zarr.open_group(str(tmp_path / "back.zarr"), mode="r")["sonar"]
+    np.testing.assert_array_equal(back["image"][:], zarr.open_group(str(dataset), mode="r")["sonar"]["image"][:])
+    r = CliRunner().invoke(app, ["convert", str(mcap), "--out", str(tmp_path / "back.zarr")])
+    assert r.exit_code == 2 and "already exists" in " ".join(r.output.split())

@@ -71,3 +71,19 @@ def export_cmd(
     p = write_mcap(dataset, mcap, sonar_dtype=sonar_dtype, full_scale=full_scale, camera_encoding=camera_encoding,
                    start_time=start_time, ground_truth=ground_truth)
     out.print(f"wrote {p} ({p.stat().st_size / 1e6:.1f} MB)", highlight=False)
+
+
+@app.command("convert")
+@reports_errors
+def convert_cmd(
+    log: Path = typer.Argument(..., metavar="LOG", help="ARIS, Oculus, ROS 1 .bag, ROS 2 bag folder or .mcap."),
+    out_path: Path = typer.Option(..., "--out", help="Output Zarr store (DATA.zarr); must not exist."),
+    topic: Optional[str] = typer.Option(None, "--topic", help="Sonar topic of a bag (default: its only one)."),
+    skip_damaged: bool = typer.Option(False, "--skip-damaged", help="Leave damaged frames out instead of stopping."),
+):
+    """Turn a real sonar log into the dataset layout (sonar image, raw values, time, ranges, azimuths)."""
+    from ..io.convert import convert_log
+
+    res = convert_log(log, out_path, topic=topic, errors="skip" if skip_damaged else "raise")
+    skipped = f", skipped frames {res['skipped']}" if res["skipped"] else ""
+    out.print(f"{res['path']}: {res['frames']} sonar frames{skipped}", highlight=False)
