@@ -29,6 +29,10 @@ FORBIDDEN = {
     "optiacoustic.fusion": ["optiacoustic.sonar", "optiacoustic.optical", "optiacoustic.simulation", "optiacoustic.raycast", "optiacoustic.experiments",
                             "embreex"],
     "optiacoustic.experiments": ["optiacoustic.cli"],
+    # exporting and converting read stored frames: no simulator (io.dataset, the dataset writer, sits above the
+    # rig simulation layer and may import it)
+    "optiacoustic.io.mcap_writer": ["optiacoustic.simulation", "optiacoustic.sonar.formation", "optiacoustic.optical.render"],
+    "optiacoustic.io.convert": ["optiacoustic.simulation", "optiacoustic.sonar.formation", "optiacoustic.optical.render"],
     # readers never import a simulator (DESIGN.md): frames and specs only
     "optiacoustic.io": ["optiacoustic.sonar.formation", "optiacoustic.raycast", "optiacoustic.optical.render",
                         "optiacoustic.geometry", "optiacoustic.fusion", "optiacoustic.experiments",

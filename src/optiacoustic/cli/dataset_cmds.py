@@ -37,16 +37,23 @@ def dataset_cmd(
     """Render a synchronised sonar + camera sequence with ground truth into Zarr, on Dask; resumable."""
     from ..io.dataset import write_dataset
 
-    if quiet:
-        rep = write_dataset(config, out_path, workers=workers, scheduler=scheduler)
-    else:
-        with _progress_bar() as bar:
-            task = bar.add_task("frames", total=None)
+    bar = None
+    task = None
 
-            def progress(done, total):
-                bar.update(task, completed=done, total=total)
+    def progress(done, total):
+        nonlocal bar, task
+        if bar is None:  # started only once the config and the output are accepted
+            bar = _progress_bar()
+            bar.start()
+            task = bar.add_task("frames", total=total)
+        bar.update(task, completed=done, total=total)
 
-            rep = write_dataset(config, out_path, workers=workers, scheduler=scheduler, progress=progress)
+    try:
+        rep = write_dataset(config, out_path, workers=workers, scheduler=scheduler,
+                            progress=None if quiet else progress)
+    finally:
+        if bar is not None:
+            bar.stop()
     busy = rep.render_s + rep.write_s
     share = f", {100 * rep.write_s / busy:.0f} % of frame time writing" if busy > 0 else ""
     out.print(f"{rep.path}: wrote {rep.written}, already done {rep.skipped} in {rep.elapsed:.1f} s{share}",

@@ -16,7 +16,6 @@ whatever the number of workers and the order they finish in.
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import time
 from dataclasses import dataclass
@@ -181,8 +180,6 @@ def _open_or_create(path: Path, seq, ground_truth: bool):
         diff = _config_difference({"config": meta.get("config", {}), "scene": meta.get("scene", {})}, new)
         raise DatasetError(f"{path}: was written from a different configuration ({diff or 'scene differs'}); "
                            "use a new output path or delete it")
-    if meta.get("config", {}).get("ground_truth") != ground_truth:  # pragma: no cover - in the fingerprint
-        raise DatasetError(f"{path}: ground truth setting differs")
     return root, True
 
 

@@ -244,11 +244,19 @@ class Sequence:
     """
 
     def __init__(self, config, *, base_dir=None):
+        self.config, self.base_dir = load_config(config, base_dir=base_dir)
+        source = str(config) if isinstance(config, (str, Path)) else "<config>"
+        try:
+            self._resolve()
+        except ValueError as exc:
+            msg = str(exc)
+            raise ValueError(msg if msg.startswith(source) else f"{source}: {msg}") from None
+
+    def _resolve(self):
         from .. import scenes
         from ..optical import Water
         from ..sonar import SonarSpec
 
-        self.config, self.base_dir = load_config(config, base_dir=base_dir)
         c = self.config
         # scene: a file (relative to the config) or a built-in
         p = self.base_dir / c.scene
