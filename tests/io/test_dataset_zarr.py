@@ -157,9 +157,16 @@ def test_unknown_scene_water_and_short_trajectory(tmp_path):
             Sequence({**SMALL, **change})
 
 
+def _builds():
+    from optiacoustic import raycast
+    from optiacoustic.io import dataset
+
+    return dataset.BUILDS["sequences"], len(raycast._CASTERS)
+
+
 def test_one_and_two_workers_give_identical_output(reference, tmp_path):
     """Real Dask: a one-worker cluster, then the same cluster grown to two, via --scheduler's path."""
-    from distributed import LocalCluster
+    from distributed import Client, LocalCluster
 
     cfg, ref, _ = reference
     env = {"OAS_THREADS": "1", "OMP_NUM_THREADS": "1"}
@@ -169,6 +176,10 @@ def test_one_and_two_workers_give_identical_output(reference, tmp_path):
         cluster.scale(2)
         cluster.wait_for_workers(2)
         r2 = write_dataset(cfg, tmp_path / "w2.zarr", scheduler=cluster.scheduler_address)
+        with Client(cluster) as client:
+            builds = client.run(_builds)
+    # each worker resolved the scene (and built its BVH) once, the first worker once for both outputs
+    assert sorted(builds.values()) == [(1, 1), (1, 1)], builds
     assert r1.workers == 1 and r2.workers == 2
     assert r1.frames_written == r2.frames_written == 12
     a = _arrays(ref)

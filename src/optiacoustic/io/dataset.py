@@ -196,29 +196,38 @@ def _remove_partials(path: Path) -> int:
 
 
 # --------------------------------------------------------------------------- one frame (runs on a worker)
-_WORKER_CACHE: dict = {}
+_SEQUENCES: dict = {}  # fingerprint -> Sequence, per worker process
+_STORES: dict = {}  # output path -> open Zarr group, per worker process
+BUILDS = {"sequences": 0}  # how many times this process resolved a configuration (tests read it)
 
 
 def _context(path: str, fingerprint: str, config: dict, base_dir: str):
-    """This process's Sequence and open store for a dataset, built once per (path, fingerprint).
+    """This process's Sequence (keyed by the configuration's fingerprint) and open store.
 
     The Sequence holds the scene, so the scene's ray caster (its BVH) is built on the
-    first frame a worker renders and reused for all the others.
+    first frame a worker renders and reused for every later frame, of this output or of
+    another output of the same configuration and scene.
     """
     import zarr
 
     from ..simulation.sequence import Sequence
 
-    key = (path, fingerprint)
-    ctx = _WORKER_CACHE.get(key)
-    if ctx is None:
+    seq = _SEQUENCES.get(fingerprint)
+    if seq is None:
         seq = Sequence(config, base_dir=base_dir)
         if seq.fingerprint() != fingerprint:
             raise DatasetError(f"{path}: the worker resolved a different scene or config than the client "
                                "(a relative path that differs between machines?)")
-        _WORKER_CACHE.clear()  # one dataset at a time per worker keeps memory flat
-        ctx = _WORKER_CACHE[key] = (seq, zarr.open_group(path, mode="r+"))
-    return ctx
+        if len(_SEQUENCES) >= 2:  # a worker keeps the latest two configurations: memory stays flat
+            _SEQUENCES.pop(next(iter(_SEQUENCES)))
+        _SEQUENCES[fingerprint] = seq
+        BUILDS["sequences"] += 1
+    root = _STORES.get(path)
+    if root is None:
+        if len(_STORES) >= 4:
+            _STORES.pop(next(iter(_STORES)))
+        root = _STORES[path] = zarr.open_group(path, mode="r+")
+    return seq, root
 
 
 def write_frame(path: str, fingerprint: str, config: dict, base_dir: str, sensor: str, k: int,
