@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -197,8 +198,9 @@ def _remove_partials(path: Path) -> int:
 
 # --------------------------------------------------------------------------- one frame (runs on a worker)
 _SEQUENCES: dict = {}  # fingerprint -> Sequence, per worker process
-_STORES: dict = {}  # output path -> open Zarr group, per worker process
+_STORES: dict = {}  # (output path, fingerprint) -> open Zarr group, per worker process
 BUILDS = {"sequences": 0}  # how many times this process resolved a configuration (tests read it)
+_CONTEXT_LOCK = threading.Lock()  # workers of an external cluster may run several threads
 
 
 def _context(path: str, fingerprint: str, config: dict, base_dir: str):
@@ -208,6 +210,11 @@ def _context(path: str, fingerprint: str, config: dict, base_dir: str):
     first frame a worker renders and reused for every later frame, of this output or of
     another output of the same configuration and scene.
     """
+    with _CONTEXT_LOCK:
+        return _context_locked(path, fingerprint, config, base_dir)
+
+
+def _context_locked(path: str, fingerprint: str, config: dict, base_dir: str):
     import zarr
 
     from ..simulation.sequence import Sequence
@@ -222,11 +229,11 @@ def _context(path: str, fingerprint: str, config: dict, base_dir: str):
             _SEQUENCES.pop(next(iter(_SEQUENCES)))
         _SEQUENCES[fingerprint] = seq
         BUILDS["sequences"] += 1
-    root = _STORES.get(path)
+    root = _STORES.get((path, fingerprint))
     if root is None:
         if len(_STORES) >= 4:
             _STORES.pop(next(iter(_STORES)))
-        root = _STORES[path] = zarr.open_group(path, mode="r+")
+        root = _STORES[(path, fingerprint)] = zarr.open_group(path, mode="r+")
     return seq, root
 
 
