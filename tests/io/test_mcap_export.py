@@ -168,9 +168,14 @@ def test_convert_real_logs_into_the_layout(dataset, tmp_path):
     assert bool(s["done"].all())
     # our own export converts back to the same images
     mcap = write_mcap(dataset, tmp_path / "x.mcap")
-    r = CliRunner().invoke(app, ["convert", str(mcap), "--topic", "/sonar/image", "--out", str(tmp_path / "back.zarr")])
+    r = CliRunner().invoke(app, ["convert", str(mcap), "--topic", "/sonar/image", "--camera-topic", "/camera/image",
+                                 "--out", str(tmp_path / "back.zarr")])
     assert r.exit_code == 0, r.output
-    back = zarr.open_group(str(tmp_path / "back.zarr"), mode="r")["sonar"]
-    np.testing.assert_array_equal(back["image"][:], zarr.open_group(str(dataset), mode="r")["sonar"]["image"][:])
+    back = zarr.open_group(str(tmp_path / "back.zarr"), mode="r")
+    orig = zarr.open_group(str(dataset), mode="r")
+    np.testing.assert_array_equal(back["sonar/image"][:], orig["sonar/image"][:])
+    np.testing.assert_array_equal(back["camera/image"][:], orig["camera/image"][:])
+    np.testing.assert_allclose(back["camera/K"][:], orig["camera/K"][:])
+    np.testing.assert_allclose(back["camera/time"][:], orig["camera/time"][:])
     r = CliRunner().invoke(app, ["convert", str(mcap), "--out", str(tmp_path / "back.zarr")])
     assert r.exit_code == 2 and "already exists" in " ".join(r.output.split())

@@ -86,11 +86,15 @@ def convert_cmd(
     log: Path = typer.Argument(..., metavar="LOG", help="ARIS, Oculus, ROS 1 .bag, ROS 2 bag folder or .mcap."),
     out_path: Path = typer.Option(..., "--out", help="Output Zarr store (DATA.zarr); must not exist."),
     topic: Optional[str] = typer.Option(None, "--topic", help="Sonar topic of a bag (default: its only one)."),
+    camera: Optional[Path] = typer.Option(None, "--camera", help="Camera bag or image folder (default: LOG with --camera-topic)."),
+    camera_topic: Optional[str] = typer.Option(None, "--camera-topic", help="Camera image topic of a bag."),
     skip_damaged: bool = typer.Option(False, "--skip-damaged", help="Leave damaged frames out instead of stopping."),
 ):
-    """Turn a real sonar log into the dataset layout (sonar image, raw values, time, ranges, azimuths)."""
+    """Turn a real log into the dataset layout (sonar image, raw values, time, ranges, azimuths; camera images)."""
     from ..io.convert import convert_log
 
-    res = convert_log(log, out_path, topic=topic, errors="skip" if skip_damaged else "raise")
+    res = convert_log(log, out_path, topic=topic, camera=camera, camera_topic=camera_topic,
+                      errors="skip" if skip_damaged else "raise")
     skipped = f", skipped frames {res['skipped']}" if res["skipped"] else ""
-    out.print(f"{res['path']}: {res['frames']} sonar frames{skipped}", highlight=False)
+    cams = f", {res['camera_frames']} camera frames" if res["camera_frames"] else ""
+    out.print(f"{res['path']}: {res['frames']} sonar frames{cams}{skipped}", highlight=False)
