@@ -67,6 +67,12 @@ class FrameSequence(Sequence):
                 self.skipped.append(SkippedFrame(k, str(exc)))
                 warnings.warn(f"skipped damaged frame: {exc}", stacklevel=2)
 
+    def times(self):
+        """Times (s since the epoch) of every frame; readers override this to skip decoding images."""
+        import numpy as np
+
+        return np.array([f.time for f in self], float)
+
     def info(self) -> dict:
         """What the file says about itself (device settings of the first good frame, counts)."""
         return {"path": str(self.path), "frames": len(self)}
