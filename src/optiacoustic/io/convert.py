@@ -10,7 +10,6 @@ nothing at the output path.
 
 from __future__ import annotations
 
-import dataclasses
 import shutil
 import tempfile
 from pathlib import Path
@@ -50,6 +49,7 @@ def convert_log(path, out, *, topic: str | None = None, camera=None, camera_topi
     import zarr
 
     from .. import __version__
+    from ..sonar.frame import spec_to_dict
     from .dataset import FORMAT, FORMAT_VERSION, DatasetError, _compressors, _jsonable
     from .errors import ReadError
     from .sonar import open_sonar
@@ -108,7 +108,7 @@ def convert_log(path, out, *, topic: str | None = None, camera=None, camera_topi
         root.attrs["optiacoustic"] = _jsonable({
             "format": FORMAT, "format_version": FORMAT_VERSION, "package_version": __version__, "measured": True,
             "source": str(path), "topic": topic, "encoding": first.encoding,
-            "sonar_spec": dataclasses.asdict(spec), "skipped_frames": skipped, "layout_complete": True,
+            "sonar_spec": spec_to_dict(spec), "skipped_frames": skipped, "layout_complete": True,
         })
         tmp.replace(out)
     finally:
