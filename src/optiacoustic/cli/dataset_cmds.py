@@ -68,6 +68,8 @@ def export_cmd(
     sonar_dtype: str = typer.Option("float32", "--sonar-dtype", help="float32, uint8 or uint16 sonar data."),
     full_scale: Optional[float] = typer.Option(None, "--full-scale",
                                                help="Intensity of the top count for uint8/uint16 (default: 99.9th pct)."),
+    sonar_encoding: Optional[str] = typer.Option(None, "--sonar-encoding",
+                                                 help="Device units for the sonar: oculus_gamma8 or aris_db."),
     camera_encoding: str = typer.Option("32FC3", "--camera-encoding", help="32FC3 (linear) or rgb8 (sRGB)."),
     start_time: float = typer.Option(0.0, "--start-time", help="ROS time (s) of dataset time 0."),
     ground_truth: bool = typer.Option(True, "--ground-truth/--no-ground-truth", help="Ground-truth topics."),
@@ -75,8 +77,8 @@ def export_cmd(
     """Write a dataset as ROS 2 messages (ProjectedSonarImage, Image, CameraInfo, TF) into an MCAP file."""
     from ..io.mcap_writer import write_mcap
 
-    p = write_mcap(dataset, mcap, sonar_dtype=sonar_dtype, full_scale=full_scale, camera_encoding=camera_encoding,
-                   start_time=start_time, ground_truth=ground_truth)
+    p = write_mcap(dataset, mcap, sonar_dtype=sonar_dtype, full_scale=full_scale, sonar_encoding=sonar_encoding,
+                   camera_encoding=camera_encoding, start_time=start_time, ground_truth=ground_truth)
     out.print(f"wrote {p} ({p.stat().st_size / 1e6:.1f} MB)", highlight=False)
 
 
