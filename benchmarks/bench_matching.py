@@ -16,7 +16,8 @@ def run() -> list[dict]:
     from optiacoustic.experiments.matching import _rig_for, simulate_pair
     from optiacoustic.matching import detect_camera_features, detect_sonar_features, match
     from optiacoustic.matching.gating import mahalanobis_sq
-    from optiacoustic.optical import Water, simulate_rig
+    from optiacoustic.optical import Water
+    from optiacoustic.simulation import simulate_rig
 
     scene = scenes.get("thesis_scene1")
     s, o, rig = simulate_pair(scene)
