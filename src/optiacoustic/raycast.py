@@ -117,11 +117,25 @@ class RayCaster:
             TriangleMesh(self._embree, s.vertices.astype(np.float32), s.faces.astype(np.int32))
         # per-triangle corner normals of all bodies, concatenated; geomID i is body i
         self._tri_offset = np.cumsum([0] + [s.n_faces for s in surfaces]).astype(np.int64)
-        self._corner_normals = np.concatenate([s.normals[s.faces] for s in surfaces]).astype(np.float32)
+        self._corner_normals_f32 = None  # built on the first smooth cast (36 bytes per triangle)
+        self._lock = threading.Lock()
         # commit now, single-threaded, so that concurrent casts never race on it
         self._embree.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
 
     # ------------------------------------------------------------------ internals
+    @property
+    def _corner_normals(self) -> np.ndarray:
+        """Per-triangle corner normals of all bodies, ``(n_triangles, 3, 3)`` float32 (lazy)."""
+        if self._corner_normals_f32 is None:
+            with self._lock:
+                if self._corner_normals_f32 is None:
+                    surfaces = self.scene.surfaces()
+                    out = np.empty((int(self._tri_offset[-1]), 3, 3), np.float32)
+                    for s, a, b in zip(surfaces, self._tri_offset[:-1], self._tri_offset[1:]):
+                        out[a:b] = s.normals[s.faces]
+                    self._corner_normals_f32 = out
+        return self._corner_normals_f32
+
     def _run_chunks(self, origins: np.ndarray, directions: np.ndarray, dists: np.ndarray, query: str, output: bool):
         n = len(origins)
         n_chunks = 1 if n < 20000 or self.threads == 1 else 2 * self.threads

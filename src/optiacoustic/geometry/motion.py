@@ -993,8 +993,7 @@ def _estimate_homography(d, thr_px, conf, iters, p_in, max_it, planes, rng):
     # let the maximum likelihood decide, by the truncated cost of all matches at each
     # one's optimum.
     runs = []
-    close = [t for t in trials if t[0] >= 0.4 * trials[0][0]]
-    for t in close[:4]:
+    for t in trials[:4]:
         runs.append(_start_planar(d, t, thr2, max_it))
     best = min(runs, key=lambda r: r["score"])
     sol, inl, cands, pick = best["trial"][2], best["trial"][3], best["trial"][4], best["trial"][5]
@@ -1023,6 +1022,9 @@ def _estimate_homography(d, thr_px, conf, iters, p_in, max_it, planes, rng):
     return _finish(d, "homography", R_o, t_o, pm, lo, ls, stages, sols, cands, j, supports)
 
 
+_LOOSE = 4.0  # the first relabelling pass's threshold, in units of the final one
+
+
 def _start_planar(d: _Data, trial, thr2, max_it):
     """Initial estimate of one interpretation and its planar maximum likelihood, with a score."""
     _, _, sol, inl, cands, pick, _ = trial
@@ -1033,7 +1035,10 @@ def _start_planar(d: _Data, trial, thr2, max_it):
     ls = np.where(son_inl, 0, -1)
     ls[j] = 0
     initial = _stage(d, "initial", R_o, t_o, m0[None], lo, ls, 0, np.nan)
-    planar = _ml_loop(d, "plane", R_o, t_o, m0[None], lo, ls, thr2, max_it)
+    # graduated threshold: a first pass with a loose one, so that matches the (a few
+    # degrees off) initial estimate misfits are not locked out of the likelihood
+    R_o, t_o, pm, lo, ls, _, _ = _ml_loop(d, "plane", R_o, t_o, m0[None], lo, ls, _LOOSE * thr2, max_it)
+    planar = _ml_loop(d, "plane", R_o, t_o, pm, lo, ls, thr2, max_it)
     co, cs = _chi2_all(d, "plane", planar[0], planar[1], planar[2])
     score = float(np.minimum(co.min(0), thr2).sum() + np.minimum(cs.min(0), thr2).sum())
     return dict(trial=trial, initial=initial, planar=planar, score=score)
