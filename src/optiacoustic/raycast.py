@@ -136,14 +136,16 @@ class RayCaster:
                     self._corner_normals_f32 = out
         return self._corner_normals_f32
 
-    def _run_chunks(self, origins: np.ndarray, directions: np.ndarray, dists: np.ndarray, query: str, output: bool):
+    def _run_chunks(self, origins: np.ndarray, directions: np.ndarray, dists: np.ndarray, query: str, output: bool,
+                    copy: bool = True):
         n = len(origins)
         n_chunks = 1 if n < 20000 or self.threads == 1 else 2 * self.threads
         bounds = np.linspace(0, n, n_chunks + 1).astype(int)
 
         def job(k):
             a, b = bounds[k], bounds[k + 1]
-            return self._embree.run(origins[a:b], directions[a:b], dists=dists[a:b].copy(), query=query, output=output)
+            dd = dists[a:b].copy() if copy else dists[a:b]  # Embree writes its hits' distances there
+            return self._embree.run(origins[a:b], directions[a:b], dists=dd, query=query, output=output)
 
         if n_chunks == 1:
             return [job(0)]
@@ -231,6 +233,51 @@ class RayCaster:
             np.broadcast_to(o64, (len(geom), 3)).reshape(shape + (3,)),
             d64.reshape(shape + (3,)),
         )
+
+    def cast_raw(self, origins32: np.ndarray, directions32: np.ndarray, max_distance32: np.ndarray | None = None,
+                 *, smooth: bool = True):
+        """Closest hit with no validation and no widening: the simulators' inner path.
+
+        Parameters
+        ----------
+        origins32, directions32 : ndarray (N, 3) float32, C-contiguous
+            World origins (m) and *unit* directions.
+        max_distance32 : ndarray (N,) float32, optional
+            Far limit of each ray (m); default unlimited. Overwritten.
+        smooth : bool
+            Interpolated vertex normals, else the geometric normal (unnormalised, as
+            Embree gives it).
+
+        Returns
+        -------
+        distance : ndarray (N,) float32
+            ``>= max_distance`` (or 1e30) on a miss.
+        body : ndarray (N,) int32
+            ``-1`` on a miss.
+        triangle : ndarray (N,) int32
+            Undefined on a miss.
+        normal : ndarray (N, 3) float32
+            Unit smooth normal, or the raw geometric normal; undefined on a miss.
+        """
+        n = len(origins32)
+        dists = np.full(n, _MISS_DIST, np.float32) if max_distance32 is None else max_distance32
+        outs = self._run_chunks(origins32, directions32, dists, "INTERSECT", True, copy=False)
+        cat = (lambda k: outs[0][k]) if len(outs) == 1 else (lambda k: np.concatenate([r[k] for r in outs]))
+        geom, prim, tfar = cat("geomID"), cat("primID"), cat("tfar")
+        if smooth:
+            gi = self._tri_offset[np.maximum(geom, 0)] + np.maximum(prim, 0)
+            cn = self._corner_normals[gi]  # (n, 3, 3) float32
+            u, v = cat("u")[:, None], cat("v")[:, None]
+            nrm = cn[:, 0] + u * (cn[:, 1] - cn[:, 0]) + v * (cn[:, 2] - cn[:, 0])
+            nrm /= np.sqrt(np.einsum("ij,ij->i", nrm, nrm))[:, None] + np.float32(1e-30)
+        else:
+            nrm = cat("Ng")
+        return tfar, geom, prim, nrm
+
+    def occluded_raw(self, origins32: np.ndarray, directions32: np.ndarray, max_distance32: np.ndarray) -> np.ndarray:
+        """:meth:`occluded` with no validation: float32 ``(N, 3)`` unit directions, ``(N,)`` limits."""
+        outs = self._run_chunks(origins32, directions32, max_distance32, "OCCLUDED", False, copy=False)
+        return (outs[0] if len(outs) == 1 else np.concatenate(outs)) != -1
 
     def bare_intersect(self, origins32: np.ndarray, directions32: np.ndarray) -> None:
         """Raw closest-hit query over the worker threads, with no conversion or post-processing.

@@ -366,7 +366,7 @@ def test_caller_mistakes_raise_value_error_naming_the_argument(kw, match):
 
 
 # --------------------------------------------------------------------------- dual interpretation
-def _random_plane_draw(rng, rig, n_opt=100, n_son=30, sp=1.0, sr=0.01, sa=np.deg2rad(0.3)):
+def _random_plane_draw(rng, rig, n_opt=100, n_son=30, sp=1.0, sr=0.01, sa=np.deg2rad(0.3), forward=0.2):
     """A random plane 1.5-3 m ahead, a random motion (2-6 deg, 0.2-0.35 m), noisy matches.
 
     The translation is mostly across the boresight: moving straight at the plane brings
@@ -383,7 +383,7 @@ def _random_plane_draw(rng, rig, n_opt=100, n_son=30, sp=1.0, sr=0.01, sa=np.deg
         pts = plane_points(rng, 6000, c, n, 4.0)
         ax = rng.normal(size=3)
         psi = rng.uniform(0, 2 * np.pi)  # sideways and vertical, little along the boresight
-        tv = np.array([np.cos(psi), rng.normal(0, 0.2), np.sin(psi)])
+        tv = np.array([np.cos(psi), rng.normal(0, forward), np.sin(psi)])
         R2 = B.exp_so3(ax / np.linalg.norm(ax) * np.deg2rad(rng.uniform(2, 6)))
         s2 = Pose(R2 @ s1.R, s1.t + tv * rng.uniform(0.2, 0.35) / np.linalg.norm(tv))
         c1, c2 = rig.camera_pose(s1), rig.camera_pose(s2)
