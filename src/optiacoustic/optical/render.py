@@ -449,6 +449,14 @@ def _enclosing_body(caster, point) -> int:
     return int(ids[np.argmax(counts)]) if counts.max() >= 10 else -1
 
 
+@functools.lru_cache(maxsize=1)
+def _side_pool():
+    """One worker thread for the backscatter veil, computed while the main thread shades."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    return ThreadPoolExecutor(max_workers=1, thread_name_prefix="oas-veil")
+
+
 def _direct_light(caster, p, nrm, rho_pi, lights, c, G, shadows: bool):
     """Radiance leaving lit Lambertian surface points (eq. 3.8), per pixel ``(n, 3)``.
 
@@ -590,6 +598,10 @@ def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=N
     body_all = np.where(hit, body_all, -1).astype(np.int32)
     rho_pi = surface_albedo(scene, body_all[sel], p, nrm) * np.float32(1 / np.pi)
 
+    # the backscatter veil needs only the depth map: it runs beside the shading (numpy and
+    # OpenCV release the GIL), so the second core works while this one shades
+    depth2 = depth.reshape(H, W)
+    bs_job = _side_pool().submit(backscatter, camera, pose, depth2, water, lights, options=options, G=G)
     clear_v, surf, surf_fwd = _direct_light(caster, p, nrm, rho_pi, lights, c, G, options.shadows)
     lamp_fs = surf_fwd is not surf
     Rc = dist[:, None]
@@ -605,7 +617,6 @@ def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=N
 
     clear = scatter(clear_v)
     attenuated = scatter(att)
-    depth2 = depth.reshape(H, W)
 
     # ---- forward scatter (eq. 3.9): the lamp's forward-scattered light lights the surface
     # (smooth, not blurred), and of what leaves the surface e^{-G R_c} - e^{-c R_c} arrives
@@ -619,7 +630,7 @@ def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=N
         fwd = attenuated.copy()
 
     # ---- backscatter (eqs. 3.10-3.13)
-    bs = backscatter(camera, pose, depth2, water, lights, options=options, G=G)
+    bs = bs_job.result()
     image = fwd + bs
     noise = options.noise
     if noise is None and seed is not None:
