@@ -793,11 +793,16 @@ def _relabel(co, cs, thr):
     return lo.astype(int), ls.astype(int)
 
 
-def _ml_loop(d: _Data, model, R_o, t_o, planes_m, lo, ls, thr, max_iterations):
-    """Maximum likelihood with relabelling until the labels settle; returns the new state."""
+def _ml_loop(d: _Data, model, R_o, t_o, planes_m, lo, ls, thr, max_iterations, info=None):
+    """Maximum likelihood with relabelling until the labels settle; returns the new state.
+
+    ``info`` (a dict), when given, receives ``"chi2"``: the per-match chi-squares
+    ``(co, cs)`` of :func:`_chi2_all` at the returned state, when they were computed there.
+    """
     planes_m = np.asarray(planes_m, float).reshape(-1, 3)
     it = 0
     res = None
+    co = cs = None
     for it in range(1, max_iterations + 1):
         prob, _, _, _, _ = _problem(d, lo, ls, model, R_o, planes_m)
         sol = prob.solve(_theta(t_o, planes_m if model == "plane" else np.zeros((0, 3))))
@@ -820,6 +825,9 @@ def _ml_loop(d: _Data, model, R_o, t_o, planes_m, lo, ls, thr, max_iterations):
         if changed <= max(0, int(0.005 * (lo.size + ls.size))):
             break
         lo, ls = nlo, nls
+        co = cs = None  # the state returned is that of the last fit, with the old labels
+    if info is not None and co is not None:
+        info["chi2"] = (co, cs)
     return R_o, t_o, planes_m, lo, ls, it, res
 
 
@@ -1022,7 +1030,7 @@ def _estimate_homography(d, thr_px, conf, iters, p_in, max_it, planes, rng):
     return _finish(d, "homography", R_o, t_o, pm, lo, ls, stages, sols, cands, j, supports)
 
 
-_LOOSE = 4.0  # the first relabelling pass's threshold, in units of the final one
+_LOOSE = 4.0  # the first relabelling's threshold, in units of the final one
 
 
 def _start_planar(d: _Data, trial, thr2, max_it):
@@ -1037,9 +1045,21 @@ def _start_planar(d: _Data, trial, thr2, max_it):
     initial = _stage(d, "initial", R_o, t_o, m0[None], lo, ls, 0, np.nan)
     # graduated threshold: a first pass with a loose one, so that matches the (a few
     # degrees off) initial estimate misfits are not locked out of the likelihood
-    R_o, t_o, pm, lo, ls, _, _ = _ml_loop(d, "plane", R_o, t_o, m0[None], lo, ls, _LOOSE * thr2, max_it)
-    planar = _ml_loop(d, "plane", R_o, t_o, pm, lo, ls, thr2, max_it)
-    co, cs = _chi2_all(d, "plane", planar[0], planar[1], planar[2])
+    # graduated threshold: a first maximum likelihood with a loose one, so that matches a
+    # few-degrees-off start misfits are not locked out, then the final threshold
+    info = {}
+    loose = _ml_loop(d, "plane", R_o, t_o, m0[None], lo, ls, _LOOSE * thr2, max_it, info)
+    R_o, t_o, pm, lo, ls = loose[:5]
+    same = False
+    if "chi2" in info:
+        lo2, ls2 = _relabel(*info["chi2"], thr2)
+        same = np.array_equal(lo2, lo) and (np.array_equal(ls2, ls) or (ls2 >= 0).sum() == 0)
+    if same:  # the final threshold keeps the loose pass's labels: its fit is the answer
+        planar = loose
+    else:
+        info = {}
+        planar = _ml_loop(d, "plane", R_o, t_o, pm, lo, ls, thr2, max_it, info)
+    co, cs = info["chi2"] if "chi2" in info else _chi2_all(d, "plane", planar[0], planar[1], planar[2])
     score = float(np.minimum(co.min(0), thr2).sum() + np.minimum(cs.min(0), thr2).sum())
     return dict(trial=trial, initial=initial, planar=planar, score=score)
 
