@@ -457,6 +457,16 @@ def _side_pool():
     return ThreadPoolExecutor(max_workers=1, thread_name_prefix="oas-veil")
 
 
+class _inline:
+    """A finished 'future': runs the call now (single-threaded casters)."""
+
+    def __init__(self, fn, *args, **kw):
+        self._value = fn(*args, **kw)
+
+    def result(self):
+        return self._value
+
+
 def _direct_light(caster, p, nrm, rho_pi, lights, c, G, shadows: bool):
     """Radiance leaving lit Lambertian surface points (eq. 3.8), per pixel ``(n, 3)``.
 
@@ -601,7 +611,8 @@ def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=N
     # the backscatter veil needs only the depth map: it runs beside the shading (numpy and
     # OpenCV release the GIL), so the second core works while this one shades
     depth2 = depth.reshape(H, W)
-    bs_job = _side_pool().submit(backscatter, camera, pose, depth2, water, lights, options=options, G=G)
+    bs_job = (_side_pool().submit if caster.threads > 1 else _inline)(backscatter, camera, pose, depth2, water,
+                                                                       lights, options=options, G=G)
     clear_v, surf, surf_fwd = _direct_light(caster, p, nrm, rho_pi, lights, c, G, options.shadows)
     lamp_fs = surf_fwd is not surf
     Rc = dist[:, None]
