@@ -428,8 +428,8 @@ def test_monte_carlo_random_planes_rotation_within_three_times_the_crb():
         err = rot_err(res.R_o, R_o) if res else np.inf
         ratios.append(err / _rotation_crb(rig, p1, p2, m1, m2, R_o, t_o, m, sig))
     ratios = np.array(ratios)
-    # ">= 99 % of draws": none of 60 may exceed 3x (a 1 % rate would show once in 60 draws
-    # with probability 0.45; the 5 % rate before the fix, with probability 0.95)
+    # ">= 99 % of draws": none of 60 may exceed 3x (a 1 % rate would show at least once
+    # in 60 draws with probability 0.45, a 5 % rate with probability 0.95)
     assert np.all(ratios <= 3), np.sort(ratios)[-5:]
     assert 0.3 < np.median(ratios) < 2.0  # the noise shows, and the estimate is at the bound
 
