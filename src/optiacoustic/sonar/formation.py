@@ -17,6 +17,7 @@ The fine range profile is then low-pass filtered and decimated to ``n_bins``.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import threading
 import weakref
@@ -59,6 +60,13 @@ class SonarOptions:
         the thesis's model.
     range_oversample : int
         Fine range samples per output bin before the anti-aliasing filter.
+    beam_model : {"thesis", "aperture"}
+        ``"thesis"``: the beam is a hard cut at ``fov_elevation`` in elevation and one
+        beam cell in azimuth (with the two options above). ``"aperture"``: the spec's
+        two-way beam patterns (``spec.elevation_pattern()``, ``spec.azimuth_pattern()``,
+        sidelobes included): rays span the elevation pattern to its second null and are
+        weighted by ``F^4``; each beam sums its neighbours' cells weighted by ``F^4``
+        (docs/physics.md, "Beam patterns from the aperture").
     """
 
     propagation: Literal["tvg", "spreading"] = "tvg"
@@ -66,6 +74,7 @@ class SonarOptions:
     elevation_pattern: Literal["uniform", "gaussian"] = "uniform"
     azimuth_pattern: bool = False
     range_oversample: int = 2
+    beam_model: Literal["thesis", "aperture"] = "thesis"
 
     def __post_init__(self):
         if self.propagation not in ("tvg", "spreading"):
@@ -78,6 +87,45 @@ class SonarOptions:
             raise ValueError(f"SonarOptions.range_oversample: expected an integer in [1, 16], got {self.range_oversample!r}")
         if not isinstance(self.water, Seawater):
             raise ValueError("SonarOptions.water: expected a Seawater")
+        if self.beam_model not in ("thesis", "aperture"):
+            raise ValueError(f"SonarOptions.beam_model: expected 'thesis' or 'aperture', got {self.beam_model!r}")
+
+
+#: The aperture model's rays reach at most this elevation (rad) off the boresight.
+_MAX_SCAN_ELEVATION = float(np.deg2rad(75.0))
+
+
+@functools.lru_cache(maxsize=16)
+def scan_spec(spec: SonarSpec, beam_model: str) -> SonarSpec:
+    """The spec the rays are cast with: ``spec`` itself for the thesis model; for the
+    aperture model the elevation span widened to the pattern's second null."""
+    if beam_model == "thesis":
+        return spec
+    half = min(spec.elevation_pattern().null_angle(2), _MAX_SCAN_ELEVATION)
+    return dataclasses.replace(spec, fov_elevation=2.0 * half)
+
+
+@functools.lru_cache(maxsize=16)
+def _aperture_elevation_weights(spec: SonarSpec) -> np.ndarray:
+    """Two-way elevation power ``F^4`` at the scan's elevation samples (cell averages)."""
+    sc = scan_spec(spec, "aperture")
+    w = spec.elevation_pattern().cell_average_two_way(sc.elevations, sc.elevation_step)
+    w.setflags(write=False)
+    return w
+
+
+@functools.lru_cache(maxsize=16)
+def azimuth_kernel(spec: SonarSpec) -> np.ndarray:
+    """Two-way azimuth power ``F^4`` averaged over beam cells at offsets ``-m..m`` beams.
+
+    A beam's echo is ``sum_m kernel[m] cell[j + m]`` where ``cell`` is the echo of the
+    azimuth cell of one beam spacing (what the thesis model gives).
+    """
+    pat = spec.azimuth_pattern()
+    m = int(min(spec.n_beams, max(1, np.ceil(pat.null_angle(2) / spec.beam_spacing))))
+    k = pat.cell_average_two_way(np.arange(-m, m + 1) * spec.beam_spacing, spec.beam_spacing)
+    k.setflags(write=False)
+    return k
 
 
 # --------------------------------------------------------------------------- caching
@@ -264,6 +312,7 @@ def simulate_sonar(
     noise=None,
     seed=None,
     options: SonarOptions | None = None,
+    profile=None,
 ) -> SonarFrame:
     """Simulate one frame of a forward-looking imaging sonar.
 
@@ -283,6 +332,10 @@ def simulate_sonar(
         Seed of the noise.
     options : SonarOptions, optional
         Propagation, beam patterns, decimation.
+    profile : SensorProfile, optional
+        A device profile (``sonar.fit_profile``, ``SensorProfile.load``): it sets the
+        beam patterns, range resolution, gain chain, speckle and noise of a real device
+        (``options`` and ``noise`` given here override its choices of those).
 
     Returns
     -------
@@ -299,13 +352,15 @@ def simulate_sonar(
     options = options or SonarOptions()
     if not isinstance(options, SonarOptions):
         raise TypeError(f"options: expected SonarOptions, got {type(options).__name__}")
+    if profile is not None:
+        spec, options, noise = profile.apply_to(spec, options, noise)
     if noise is not False:
-        from .noise import NoiseModel
+        from .noise import NoiseModel, ScattererNoise
 
         if noise is None:
             noise = NoiseModel()
-        elif not isinstance(noise, NoiseModel):
-            raise TypeError(f"noise: expected a NoiseModel, False or None, got {type(noise).__name__}")
+        elif not isinstance(noise, (NoiseModel, ScattererNoise)):
+            raise TypeError(f"noise: expected a NoiseModel, ScattererNoise, False or None, got {type(noise).__name__}")
 
     caster = caster_for(scene)
     bottom_types = _bottom_types(scene)
@@ -313,13 +368,21 @@ def simulate_sonar(
     if noise is not False:
         # the noise variates do not depend on the echo: draw them on the other core meanwhile
         draws = _background().submit(noise.draw, (spec.n_bins, spec.n_beams), list(bottom_types), np.random.default_rng(seed))
-    rays = _scan(scene, caster, spec, pose, options)
+    sspec = scan_spec(spec, options.beam_model)
+    weights = _aperture_elevation_weights(spec) if options.beam_model == "aperture" else None
+    rays = _scan(scene, caster, sspec, pose, options, weights)
     # the seabed/target split needs only the rays: integrate it on the other core meanwhile
     parts = _background().submit(_class_parts, bottom_types, spec, rays, options)
+    area = None
+    if getattr(noise, "needs_cell_area", False):
+        area = _background().submit(cell_area, spec, rays, bottom_types)
     intensity = _form_image(spec, rays, options)
     shares = _seabed_shares(bottom_types, *parts.result(), intensity)
     if noise is False:
         image = intensity.copy()
+    elif area is not None:
+        image = noise.apply(intensity, spec=spec, seabed_share=shares, options=options, draws=draws.result(),
+                            cell_area=area.result())
     else:
         image = noise.apply(intensity, spec=spec, seabed_share=shares, options=options, draws=draws.result())
     intensity.setflags(write=False)
@@ -327,7 +390,7 @@ def simulate_sonar(
     gt = SonarGroundTruth(
         rays.range.astype(np.float32),
         functools.partial(_truth_maps, spec, rays),
-        functools.partial(_shadow_mask, scene, caster, spec, pose, rays),
+        functools.partial(_shadow_mask, scene, caster, sspec, pose, rays),
     )
     return SonarFrame(spec=spec, pose=pose, intensity=intensity, image=image, ground_truth=gt, rays=rays,
                       body_names=tuple(scene.body_names()), seabed_share=shares)
@@ -345,7 +408,17 @@ def _form_image(spec: SonarSpec, rays: SonarRays, options: SonarOptions, select=
     fine = echo_profile(spec, rays, cells_per_bin=q, select=select, out=ws, beams=beams)
     sigma_bins = max(spec.pulse_width / spec.bin_width / 2.3548, 0.5)
     echo = _decimate(fine, spec.n_bins, q, sigma_bins)
-    if options.azimuth_pattern and spec.beamwidth_azimuth > 0:
+    if options.beam_model == "aperture":
+        from scipy.ndimage import convolve1d
+
+        if beams is not None:  # the pattern mixes neighbouring beams: work on all columns
+            full = np.zeros((spec.n_beams, spec.n_bins), np.float32)
+            full[beams] = echo
+            echo = full
+        echo = convolve1d(echo, azimuth_kernel(spec).astype(np.float32), axis=0, mode="constant")
+        if beams is not None:
+            echo = echo[beams]
+    elif options.azimuth_pattern and spec.beamwidth_azimuth > 0:
         from scipy.ndimage import gaussian_filter1d
 
         if beams is not None:  # the pattern mixes neighbouring beams: work on all columns
@@ -362,6 +435,24 @@ def _form_image(spec: SonarSpec, rays: SonarRays, options: SonarOptions, select=
     peak = float(echo.max()) if echo.size else 0.0
     echo[echo < np.float32(1e-9 * peak)] = 0.0
     return np.ascontiguousarray(echo.T)
+
+
+def cell_area(spec: SonarSpec, rays: SonarRays, bottom_types: dict) -> np.ndarray:
+    """Seabed area (m^2) that falls in each ``(bin, beam)`` cell, ``(n_bins, n_beams)``.
+
+    A ray's elevation cell of ``a + b`` rad and one beam spacing covers
+    ``r^2 cos(phi) dtheta (a + b) / cos(alpha)`` of surface; it is box-integrated over its
+    range footprint like the echo (no pulse blur, no beam pattern: the scatterers' grid).
+    Only bodies with a ``bottom_type`` count; without any, every body does.
+    """
+    ids = [i for v in bottom_types.values() for i in v]
+    sel = np.isin(rays.body, ids) if ids else rays.body >= 0
+    r = np.where(sel, rays.range, 0.0)
+    cos_a = np.maximum(rays.cos_incidence, 0.05)
+    width = rays.elevation_hi - rays.elevation_lo
+    area = np.where(sel, r * r * np.cos(rays.elevation) * spec.beam_spacing * width / cos_a, 0.0)
+    fake = dataclasses.replace(rays, energy=area)
+    return np.ascontiguousarray(echo_profile(spec, fake).T, dtype=np.float32)
 
 
 def _bottom_types(scene: Scene) -> dict:
@@ -391,7 +482,7 @@ def _class_parts(bottom_types: dict, spec: SonarSpec, rays: SonarRays, options: 
         if name == largest or not sel.any():
             continue
         beams = np.flatnonzero(np.bincount(rays.beam_index[sel], minlength=spec.n_beams))
-        if options.azimuth_pattern:
+        if options.azimuth_pattern or options.beam_model == "aperture":
             beams = np.arange(spec.n_beams)
         parts[name] = (beams, _form_image(spec, rays, options, select=sel, beams=beams))
     return parts, largest
@@ -440,8 +531,12 @@ def _background():
     return _BACKGROUND
 
 
-def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options: SonarOptions) -> SonarRays:
-    """Cast the beams' rays and compute each ray's echo energy and range footprint (sec. 2.6.1)."""
+def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options: SonarOptions,
+          weights=None) -> SonarRays:
+    """Cast the beams' rays and compute each ray's echo energy and range footprint (sec. 2.6.1).
+
+    ``weights`` (``(elevation_samples,)``) overrides the elevation pattern's weights.
+    """
     d_w, dd_w = _world_ray_grid(spec, pose.R)
     hits = caster.cast(pose.t, d_w, max_distance=spec.range_max * 1.5)
     K, J = spec.elevation_samples, spec.n_beams
@@ -463,7 +558,9 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     refl = np.array([bd.material.reflectivity for bd in scene.bodies] + [0.0])
     beam_grid, elev_grid = _index_grids(spec)
     energy = refl[hits.body] * cos_inc * (a + b)
-    if options.elevation_pattern != "uniform":
+    if weights is not None:
+        energy *= weights[elev_grid]
+    elif options.elevation_pattern != "uniform":
         energy *= _elevation_weights(spec, options.elevation_pattern)[elev_grid]
     if options.propagation == "spreading":
         energy = energy * np.where(hit, two_way_gain(np.where(hit, r, 1.0), spec.frequency, options.water), 0.0)

@@ -173,3 +173,87 @@ class NoiseDraws:
     z: np.ndarray
     x: dict
     phase: Optional[np.ndarray]
+
+
+@dataclass(frozen=True)
+class ScattererNoise:
+    """A device-like image: speckle from scatterer counts, background and gain before the device TVG.
+
+    ``image = TVG(r) | sqrt(g I) f_s + sqrt(B(r)) f_n |^2`` with ``I`` the raw echo
+    (simulate with ``SonarOptions(propagation="spreading")`` so that it carries the
+    water's losses), ``g`` the source level and receiver gain, ``B`` the receiver noise
+    and volume reverberation before the TVG (:class:`~optiacoustic.sonar.gain.DeviceGain`),
+    ``f_s`` the unit-power speckle field of the seabed's scatterer counts
+    (``sonar.speckle``: Poisson counts of mean ``density x cell area``, filtered by the
+    pulse and the two-way azimuth amplitude pattern) and ``f_n`` the background's
+    Gaussian field filtered the same way (docs/physics.md, "Speckle from scatterers").
+
+    Attributes
+    ----------
+    density : float
+        Seabed scatterers per square metre; ``inf``: fully developed (Rayleigh) speckle.
+    gain : DeviceGain
+        Source level, receiver noise, volume reverberation and the device's TVG.
+    bottom_type : str, optional
+        A Table 2.2 bottom type instead of scatterer counts: its reverberation amplitude
+        (thesis, i.i.d. per cell) takes the place of ``f_s``.
+    """
+
+    density: float = float("inf")
+    gain: "DeviceGain" = None  # type: ignore[assignment]
+    bottom_type: Optional[str] = None
+    needs_cell_area = True
+
+    def __post_init__(self):
+        from .gain import DeviceGain
+
+        if self.gain is None:
+            object.__setattr__(self, "gain", DeviceGain())
+        if not isinstance(self.gain, DeviceGain):
+            raise ValueError(f"ScattererNoise.gain: expected a DeviceGain, got {type(self.gain).__name__}")
+        if not (self.density > 0):
+            raise ValueError(f"ScattererNoise.density: must be > 0 scatterers/m^2 (or inf), got {self.density!r}")
+        if self.bottom_type is not None:
+            from .distributions import BOTTOM_TYPES
+
+            if self.bottom_type not in BOTTOM_TYPES:
+                raise ValueError(f"ScattererNoise.bottom_type: unknown {self.bottom_type!r}; expected one of {sorted(BOTTOM_TYPES)}")
+
+    def draw(self, shape: tuple, bottom_types, rng: np.random.Generator) -> np.random.Generator:
+        # the counts depend on the cell areas, known only after the scan: hand the generator on
+        return rng
+
+    def kernels(self, spec):
+        """Amplitude kernels along range (the pulse) and across beams (two-way ``F^2``)."""
+        from .speckle import beam_kernel, gaussian_pulse_kernel
+
+        return gaussian_pulse_kernel(spec.pulse_width / spec.bin_width), beam_kernel(spec.azimuth_pattern(), spec.beam_spacing)
+
+    def apply(self, intensity: np.ndarray, *, spec, seabed_share: dict, options, draws=None, rng=None,
+              cell_area=None) -> np.ndarray:
+        """The image ``(n_bins, n_beams)`` float32, linear intensity after the device's TVG."""
+        from .propagation import absorption_db_per_m
+        from .speckle import speckle_field
+
+        rng = draws if draws is not None else np.random.default_rng(rng)
+        I = np.asarray(intensity, np.float32)
+        h_r, h_b = self.kernels(spec)
+        if cell_area is None or not np.isfinite(self.density):
+            mu = np.full(I.shape, np.inf)
+        else:
+            mu = np.where(cell_area > 0, self.density * cell_area, np.inf)
+        if self.bottom_type is not None:
+            from .distributions import bottom_model
+
+            x = bottom_model(self.bottom_type, "mixture").sample(I.shape, rng, dtype=np.float32)
+            ph = rng.random(I.shape, dtype=np.float32) * np.float32(2 * np.pi)
+            fs = x * np.exp(1j * ph)
+        else:
+            fs = speckle_field(mu, h_r, h_b, rng, complex_field=True)
+        fn = speckle_field(np.inf, h_r, h_b, rng, shape=I.shape, complex_field=True)
+        alpha = absorption_db_per_m(spec.frequency, options.water) if options.propagation == "spreading" else 0.0
+        g = self.gain
+        back = g.background_raw(spec.ranges, alpha)[:, None]
+        field = np.sqrt(I * 10.0 ** (g.gain_db / 10.0)) * fs + np.sqrt(back) * fn
+        out = (field.real**2 + field.imag**2) * g.tvg(spec.ranges)[:, None]
+        return out.astype(np.float32)
