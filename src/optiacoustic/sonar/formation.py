@@ -115,6 +115,31 @@ def _aperture_elevation_weights(spec: SonarSpec) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=16)
+def azimuth_mixing(spec: SonarSpec) -> np.ndarray:
+    """Beam-mixing matrix ``M[j, i]``: two-way azimuth power ``F^4`` of beam ``j`` averaged over
+    beam ``i``'s cell (for a beam table, where beams are unevenly spaced). ``(n_beams, n_beams)``."""
+    pat = spec.azimuth_pattern()
+    th = spec.azimuths
+    e = spec.beam_edges
+    n_sub = 8
+    frac = (np.arange(n_sub) + 0.5) / n_sub
+    sub = e[:-1, None] + (e[1:] - e[:-1])[:, None] * frac  # (i, n_sub)
+    M = pat.two_way(sub[None, :, :] - th[:, None, None]).mean(-1) * ((e[1:] - e[:-1]) / spec.beam_spacing)[None, :]
+    M = M.astype(np.float32)
+    M.setflags(write=False)
+    return M
+
+
+def _mix_beams(spec: SonarSpec, echo: np.ndarray) -> np.ndarray:
+    """Apply the two-way azimuth pattern across beams to ``echo`` ``(n_beams, n_bins)``."""
+    if spec.beam_azimuths is not None:
+        return azimuth_mixing(spec) @ echo
+    from scipy.ndimage import convolve1d
+
+    return convolve1d(echo, azimuth_kernel(spec).astype(np.float32), axis=0, mode="constant")
+
+
+@functools.lru_cache(maxsize=16)
 def azimuth_kernel(spec: SonarSpec) -> np.ndarray:
     """Two-way azimuth power ``F^4`` averaged over beam cells at offsets ``-m..m`` beams.
 
@@ -347,6 +372,8 @@ def simulate_sonar(
     """
     if not isinstance(spec, SonarSpec):
         raise TypeError(f"spec: expected a SonarSpec, got {type(spec).__name__}")
+    if spec.bin_ranges is not None:  # beam tables are fine (rays follow spec.azimuths); bins must be equal
+        raise ValueError("simulate_sonar: spec has a range table (bin_ranges); the simulator needs equal bins")
     if not isinstance(pose, Pose):
         raise TypeError(f"pose: expected a Pose (e.g. Pose.look_at(eye, target)), got {type(pose).__name__}")
     options = options or SonarOptions()
@@ -409,13 +436,11 @@ def _form_image(spec: SonarSpec, rays: SonarRays, options: SonarOptions, select=
     sigma_bins = max(spec.pulse_width / spec.bin_width / 2.3548, 0.5)
     echo = _decimate(fine, spec.n_bins, q, sigma_bins)
     if options.beam_model == "aperture":
-        from scipy.ndimage import convolve1d
-
         if beams is not None:  # the pattern mixes neighbouring beams: work on all columns
             full = np.zeros((spec.n_beams, spec.n_bins), np.float32)
             full[beams] = echo
             echo = full
-        echo = convolve1d(echo, azimuth_kernel(spec).astype(np.float32), axis=0, mode="constant")
+        echo = _mix_beams(spec, echo)
         if beams is not None:
             echo = echo[beams]
     elif options.azimuth_pattern and spec.beamwidth_azimuth > 0:
@@ -450,7 +475,8 @@ def cell_area(spec: SonarSpec, rays: SonarRays, bottom_types: dict) -> np.ndarra
     r = np.where(sel, rays.range, 0.0)
     cos_a = np.maximum(rays.cos_incidence, 0.05)
     width = rays.elevation_hi - rays.elevation_lo
-    area = np.where(sel, r * r * np.cos(rays.elevation) * spec.beam_spacing * width / cos_a, 0.0)
+    dtheta = np.diff(spec.beam_edges)[rays.beam_index]
+    area = np.where(sel, r * r * np.cos(rays.elevation) * dtheta * width / cos_a, 0.0)
     fake = dataclasses.replace(rays, energy=area)
     return np.ascontiguousarray(echo_profile(spec, fake).T, dtype=np.float32)
 
