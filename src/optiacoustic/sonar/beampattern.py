@@ -26,6 +26,7 @@ two-way power ``F^4``. Parseval gives the integrals the tests check:
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -193,10 +194,12 @@ class BeamPattern:
             raise ValueError(f"{source}: expected length/wavelength/pedestal or table_angles_deg/table_db, got {d!r}") from exc
 
 
+@functools.lru_cache(maxsize=256)
 def _half_power_v(p: float) -> float:
     return brentq(lambda v: _pedestal_f(v, p) ** 2 - 0.5, 1e-6, _null_v(p, 1))
 
 
+@functools.lru_cache(maxsize=256)
 def _null_v(p: float, k: int) -> float:
     """``k``-th zero of ``F(v)`` for v > 0 (uniform: v = k; cosine: v = k + 1/2)."""
     # zeros lie in (k, k + 1/2]; bracket on a fine grid to be safe
