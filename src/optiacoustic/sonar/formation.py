@@ -376,11 +376,15 @@ def simulate_sonar(
         raise ValueError("simulate_sonar: spec has a range table (bin_ranges); the simulator needs equal bins")
     if not isinstance(pose, Pose):
         raise TypeError(f"pose: expected a Pose (e.g. Pose.look_at(eye, target)), got {type(pose).__name__}")
+    if profile is not None:
+        from .profile import SensorProfile
+
+        if not isinstance(profile, SensorProfile):
+            raise TypeError(f"profile: expected a SensorProfile, got {type(profile).__name__}")
+        spec, options, noise = profile.apply_to(spec, options, noise)
     options = options or SonarOptions()
     if not isinstance(options, SonarOptions):
         raise TypeError(f"options: expected SonarOptions, got {type(options).__name__}")
-    if profile is not None:
-        spec, options, noise = profile.apply_to(spec, options, noise)
     if noise is not False:
         from .noise import NoiseModel, ScattererNoise
 

@@ -328,19 +328,36 @@ def _fit_geometry(stats, spec, alpha):
         out = 10 ** (a_db / 10) * rk[:, None] * E + (10 ** (n_db / 10) * tvg + 10 ** (v_db / 10) * rk)[:, None]
         return 10 * np.log10(np.maximum(out, 1e-30))
 
-    def resid(x):
-        return (model(x) - data_db).ravel()
+    has_onset = bool(np.isfinite(stats.onset_r10))
 
-    has_onset = np.isfinite(stats.onset_r10)
+    def resid(x):
+        res = (model(x) - data_db).ravel()
+        if has_onset:
+            return res
+        # no onset in the window: the seabed lies in the elevation main lobe (inside its
+        # -3 dB edges) from the window's start to its end
+        h, pitch, _, lbw = x[:4]
+        half = 0.5 * np.exp(lbw)
+        dep = np.arcsin(np.clip(h / np.array([max(spec.range_min, h), spec.range_max]), 0, 1)) - pitch
+        excess = np.maximum(0.0, np.abs(dep) - half)
+        return np.append(res, 100.0 * excess * np.sqrt(res.size))
+
     bg = stats.background_level if np.isfinite(stats.background_level) else float(np.percentile(prof, 5))
     peak_i = int(np.argmax(prof.mean(1)))
     r_peak = r[peak_i]
     bw0 = spec.fov_elevation
-    lo = [0.01, np.deg2rad(-10), np.deg2rad(-45), np.log(np.deg2rad(0.5)), -200, -6, -200, -200]
+    lo = [0.05, np.deg2rad(-10), np.deg2rad(-45), np.log(np.deg2rad(0.5)), -200, -6, -200, -200]
     hi = [0.99 * spec.range_max, np.deg2rad(85), np.deg2rad(45), np.log(np.deg2rad(60)), 200, 6, 200, 200]
+    if not has_onset:  # roll cannot be seen without an onset: hold it at 0
+        lo[2], hi[2] = -1e-6, 1e-6
     best = None
     for pitch0 in np.deg2rad([8, 20, 40]):
-        h0 = float(np.clip(r_peak * np.sin(pitch0), lo[0] * 1.01, hi[0] * 0.99))
+        if has_onset:
+            h0 = r_peak * np.sin(pitch0)
+        else:
+            pitch0 = 0.3 * pitch0
+            h0 = spec.range_min * np.sin(pitch0)
+        h0 = float(np.clip(h0, lo[0] * 1.01, hi[0] * 0.99))
         pat = BeamPattern.from_beamwidth(bw0, f, c)
         E0 = flat_seabed_echo(np.array([r_peak]), np.array([0.0]), h0, pitch0, 0.0, pat)[0, 0]
         a0 = 10 * np.log10(max(prof.max(), 1e-30) / max(E0, 1e-30))
@@ -429,14 +446,15 @@ def _fit_speckle(stats, spec, height, rng):
         mu_hi = float(np.exp(np.interp(C - c_sd, cs[order], np.log(mus[order]))))
         mu_lo = float(np.exp(np.interp(C + c_sd, cs[order], np.log(mus[order]))))
         mu_sd = 0.5 * abs(mu_hi - mu_lo)
-    # mean seabed area of a grid cell in the speckle region (flat seabed)
-    r = stats.ranges[np.any(stats.region, axis=1)]
-    r = r[r > 0]
-    if r.size and np.isfinite(height) and height > 0:
-        rr = np.maximum(r, height * 1.0001)
-        area = float(np.mean(rr * spec.beam_spacing * spec.bin_width * rr / np.sqrt(rr**2 - height**2)))
-    elif r.size:
-        area = float(np.mean(r * spec.beam_spacing * spec.bin_width))
+    # typical seabed area of a grid cell in the speckle region (flat seabed; median: cells
+    # near the nadir range r ~ h have huge footprints and few echoes)
+    rows = np.repeat(stats.ranges[:, None], stats.region.shape[1], 1)[stats.region]
+    rows = rows[rows > 0]
+    if rows.size and np.isfinite(height) and height > 0:
+        rr = np.maximum(rows, 1.05 * height)
+        area = float(np.median(rr * spec.beam_spacing * spec.bin_width * rr / np.sqrt(rr**2 - height**2)))
+    elif rows.size:
+        area = float(np.median(rows * spec.beam_spacing * spec.bin_width))
     else:
         area = float("nan")
     density = mu / area if np.isfinite(mu) else np.inf
