@@ -400,14 +400,17 @@ def simulate_sonar(
         # the noise variates do not depend on the echo: draw them on the other core meanwhile
         draws = _background().submit(noise.draw, (spec.n_bins, spec.n_beams), list(bottom_types), np.random.default_rng(seed))
     sspec = scan_spec(spec, options.beam_model)
-    weights = _aperture_elevation_weights(spec) if options.beam_model == "aperture" else None
-    rays = _scan(scene, caster, sspec, pose, options, weights)
+    if options.beam_model == "aperture":
+        rays, img_rays = _scan(scene, caster, sspec, pose, options, _aperture_elevation_weights(spec),
+                               spec.elevation_pattern())
+    else:
+        rays = img_rays = _scan(scene, caster, sspec, pose, options)
     # the seabed/target split needs only the rays: integrate it on the other core meanwhile
-    parts = _background().submit(_class_parts, bottom_types, spec, rays, options)
+    parts = _background().submit(_class_parts, bottom_types, spec, img_rays, options)
     area = None
     if getattr(noise, "needs_cell_area", False):
-        area = _background().submit(cell_area, spec, rays, bottom_types)
-    intensity = _form_image(spec, rays, options)
+        area = _background().submit(cell_area, spec, img_rays, bottom_types)
+    intensity = _form_image(spec, img_rays, options)
     shares = _seabed_shares(bottom_types, *parts.result(), intensity)
     if noise is False:
         image = intensity.copy()
@@ -562,10 +565,13 @@ def _background():
 
 
 def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options: SonarOptions,
-          weights=None) -> SonarRays:
+          weights=None, pattern=None):
     """Cast the beams' rays and compute each ray's echo energy and range footprint (sec. 2.6.1).
 
     ``weights`` (``(elevation_samples,)``) overrides the elevation pattern's weights.
+    With ``pattern`` (the aperture model's elevation pattern) returns ``(rays, image_rays)``:
+    ``image_rays`` splits every ray whose footprint is long in range into sub-cells
+    (:func:`_subdivide`), so that the echo's density follows the surface within it.
     """
     d_w, dd_w = _world_ray_grid(spec, pose.R)
     hits = caster.cast(pose.t, d_w, max_distance=spec.range_max * 1.5)
@@ -605,7 +611,7 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     elev = spec.elevations[elev_grid]
     energy = np.where(hit, energy, 0.0)
     shape = (K, J)
-    return SonarRays(
+    rays = SonarRays(
         range=r.reshape(shape),
         energy=energy.reshape(shape),
         body=hits.body.reshape(shape),
@@ -617,6 +623,60 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
         elevation_lo=(elev - a).reshape(shape),
         elevation_hi=(elev + b).reshape(shape),
         elevation_step=step,
+    )
+    if pattern is None:
+        return rays
+    return rays, _subdivide(spec, rays, nd, ndd, a, b, refl[hits.body], pattern, options)
+
+
+#: At most this many sub-cells per ray in the aperture model's image rays.
+_MAX_SUBCELLS = 16
+
+
+def _subdivide(spec: SonarSpec, rays: SonarRays, nd, ndd, a, b, refl, pattern, options) -> SonarRays:
+    """Split each hit ray's elevation cell into sub-cells no longer than about 2 range bins.
+
+    On the ray's tangent plane the direction at elevation offset ``t`` is exactly
+    ``d cos t + d' sin t``, so ``n . d(t) = nd cos t + ndd sin t``, the range is
+    ``r(t) = r nd / (n . d(t))`` and the Lambert factor ``|n . d(t)|``. Each sub-cell gets
+    its own two-way pattern weight, Lambert factor and propagation; its footprint runs
+    between the ranges of its two ends. Returns flat (1-D) ``SonarRays`` for image formation.
+    """
+    hit = rays.body.reshape(-1) >= 0
+    lo, hi = rays.footprint_lo.reshape(-1), rays.footprint_hi.reshape(-1)
+    length = np.where(hit, (hi - lo) / spec.bin_width, 0.0)
+    n_sub = np.where(hit, np.clip(np.ceil(length / 2.0), 1, _MAX_SUBCELLS), 0).astype(np.int64)
+    idx = np.repeat(np.arange(n_sub.size), n_sub)
+    first = np.cumsum(n_sub) - n_sub
+    k = np.arange(idx.size) - first[idx]
+    S = n_sub[idx]
+    width = (a + b)[idx]
+    delta = width / S
+    t = -a[idx] + (k + 0.5) * delta
+    ndi, nddi = nd[idx], ndd[idx]
+    sgn = np.where(ndi < 0, -1.0, 1.0)
+
+    def proj(tt):  # n . d(t), kept on the side of nd and away from grazing
+        v = (ndi * np.cos(tt) + nddi * np.sin(tt)) * sgn
+        return np.maximum(v, _MIN_COS_FOOTPRINT)
+
+    r0 = rays.range.reshape(-1)[idx]
+    base = r0 * np.abs(ndi)
+    c_mid = proj(t)
+    r_mid = base / c_mid
+    r_a = base / proj(t - 0.5 * delta)
+    r_b = base / proj(t + 0.5 * delta)
+    flo, fhi = np.minimum(r_a, r_b), np.maximum(r_a, r_b)
+    pad = np.maximum(0.0, 1e-4 * spec.bin_width - (fhi - flo)) * 0.5
+    elev = rays.elevation.reshape(-1)[idx] + t
+    energy = refl[idx] * c_mid * delta * pattern.two_way(elev)
+    if options.propagation == "spreading":
+        energy = energy * two_way_gain(r_mid, spec.frequency, options.water)
+    return SonarRays(
+        range=r_mid, energy=energy, body=rays.body.reshape(-1)[idx], cos_incidence=c_mid,
+        footprint_lo=flo - pad, footprint_hi=fhi + pad, beam_index=rays.beam_index.reshape(-1)[idx],
+        elevation=elev, elevation_lo=elev - 0.5 * delta, elevation_hi=elev + 0.5 * delta,
+        elevation_step=rays.elevation_step,
     )
 
 
