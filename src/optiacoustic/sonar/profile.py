@@ -426,8 +426,10 @@ def _fit_speckle(stats, spec, height, rng):
     def measured_contrast(mu, seed=0):
         f = speckle_field(mu, h_r, h_b, np.random.default_rng(seed), shape=shape)
         m = uniform_filter(f.astype(float), (w_r * 3, w_b), mode="nearest")
-        z = (f / m)[w_r * 2: -w_r * 2, w_b // 2 + 1: -(w_b // 2 + 1)]
-        return float(z.std() / z.mean())
+        with np.errstate(invalid="ignore", divide="ignore"):
+            z = (f / m)[w_r * 2: -w_r * 2, w_b // 2 + 1: -(w_b // 2 + 1)]
+        z = z[np.isfinite(z)]
+        return float(z.std() / z.mean()) if z.size > 100 else float("nan")
 
     c_inf = measured_contrast(np.inf)
     C = stats.contrast
@@ -436,6 +438,8 @@ def _fit_speckle(stats, spec, height, rng):
     else:
         mus = np.geomspace(0.01, 1e4, 25)
         cs = np.array([measured_contrast(m, i) for i, m in enumerate(mus)])  # decreasing in mu
+        keep = np.isfinite(cs)
+        mus, cs = mus[keep], cs[keep]
         order = np.argsort(cs)
         mu = float(np.exp(np.interp(C, cs[order], np.log(mus[order]))))
         # blocks of beams: spread of the contrast -> spread of mu

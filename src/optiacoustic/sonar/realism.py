@@ -166,8 +166,13 @@ def frame_statistics(images, ranges, azimuths, *, region=None, smooth_bins: int 
     else:
         contrast = np.nan
     nu = 2.0 / (contrast**2 - 1.0) if np.isfinite(contrast) and contrast > 1 else np.inf
-    cr = np.nanmean(ar, axis=0)
-    cb = np.nanmean(ab, axis=0)
+    with np.errstate(invalid="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # no speckle cells: NaN autocorrelations
+            cr = np.nanmean(ar, axis=0)
+            cb = np.nanmean(ab, axis=0)
     return FrameStatistics(
         ranges=r, group_azimuths=np.array([az[g].mean() for g in groups]), group_profiles=prof,
         profile=prof.mean(1), onset_r10=r10, onset_r90=r90, onset_width=width, background_level=bg,
