@@ -15,6 +15,7 @@ power, reverberation and speckle only redistribute it (docs/physics.md).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Optional
 
@@ -219,41 +220,65 @@ class ScattererNoise:
             if self.bottom_type not in BOTTOM_TYPES:
                 raise ValueError(f"ScattererNoise.bottom_type: unknown {self.bottom_type!r}; expected one of {sorted(BOTTOM_TYPES)}")
 
-    def draw(self, shape: tuple, bottom_types, rng: np.random.Generator) -> np.random.Generator:
-        # the counts depend on the cell areas, known only after the scan: hand the generator on
-        return rng
+    def draw(self, shape: tuple, bottom_types, rng: np.random.Generator):
+        """The complex normals (drawn while the scene is scanned) and the generator for the
+        counts, which depend on the cell areas known only after the scan."""
+        return rng.standard_normal(tuple(shape) + (2,), dtype=np.float32), rng
 
     def kernels(self, spec):
         """Amplitude kernels along range (the pulse) and across beams (two-way ``F^2``)."""
-        from .speckle import beam_kernel, gaussian_pulse_kernel
-
-        return gaussian_pulse_kernel(spec.pulse_width / spec.bin_width), beam_kernel(spec.azimuth_pattern(), spec.beam_spacing)
+        return _kernels(spec)
 
     def apply(self, intensity: np.ndarray, *, spec, seabed_share: dict, options, draws=None, rng=None,
               cell_area=None) -> np.ndarray:
-        """The image ``(n_bins, n_beams)`` float32, linear intensity after the device's TVG."""
-        from .propagation import absorption_db_per_m
-        from .speckle import speckle_field
+        """The image ``(n_bins, n_beams)`` float32, linear intensity after the device's TVG.
 
-        rng = draws if draws is not None else np.random.default_rng(rng)
+        One complex white field carries both parts, ``w = sqrt(g I n / mu + B) z`` (``n``
+        the Poisson counts of mean ``mu``, ``z ~ CN(0, 1)``): given the counts the two
+        are independent circular Gaussians, so their sum is one with the summed power.
+        It is filtered by the pulse and beam kernels and normalised by ``S2 = sum h^2``,
+        so a uniform region has mean ``g I + B`` and the moments of :mod:`.speckle`.
+        """
+        from .propagation import absorption_db_per_m
+        from .speckle import filter_complex
+
         I = np.asarray(intensity, np.float32)
+        z, rng = draws if draws is not None else self.draw(I.shape, (), np.random.default_rng(rng))
         h_r, h_b = self.kernels(spec)
-        if cell_area is None or not np.isfinite(self.density):
-            mu = np.full(I.shape, np.inf)
-        else:
-            mu = np.where(cell_area > 0, self.density * cell_area, np.inf)
+        g = self.gain
+        alpha = absorption_db_per_m(spec.frequency, options.water) if options.propagation == "spreading" else 0.0
+        back = g.background_raw(spec.ranges, alpha).astype(np.float32)[:, None]
+        echo = I * np.float32(10.0 ** (g.gain_db / 10.0))
         if self.bottom_type is not None:
             from .distributions import bottom_model
 
             x = bottom_model(self.bottom_type, "mixture").sample(I.shape, rng, dtype=np.float32)
-            ph = rng.random(I.shape, dtype=np.float32) * np.float32(2 * np.pi)
-            fs = x * np.exp(1j * ph)
+            power = echo * x * x + back  # Table 2.2 reverberation: i.i.d. amplitudes, as the thesis
+            h_r, h_b = np.ones(1), np.ones(1)
+        elif cell_area is None or not np.isfinite(self.density):
+            power = echo + back
         else:
-            fs = speckle_field(mu, h_r, h_b, rng, complex_field=True)
-        fn = speckle_field(np.inf, h_r, h_b, rng, shape=I.shape, complex_field=True)
-        alpha = absorption_db_per_m(spec.frequency, options.water) if options.propagation == "spreading" else 0.0
-        g = self.gain
-        back = g.background_raw(spec.ranges, alpha)[:, None]
-        field = np.sqrt(I * 10.0 ** (g.gain_db / 10.0)) * fs + np.sqrt(back) * fn
-        out = (field.real**2 + field.imag**2) * g.tvg(spec.ranges)[:, None]
-        return out.astype(np.float32)
+            mu = self.density * np.asarray(cell_area, np.float64)
+            seabed = mu > 0
+            n = rng.poisson(np.where(seabed, mu, 0.0)).astype(np.float32)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                ratio = np.where(seabed, n / np.where(seabed, mu, 1.0), 1.0).astype(np.float32)
+            power = echo * ratio + back
+        z = z * np.sqrt(power * np.float32(0.5))[..., None]
+        f = filter_complex(z, h_r, h_b)
+        s2 = float((np.asarray(h_r) ** 2).sum() * (np.asarray(h_b) ** 2).sum())
+        out = f[..., 0] * f[..., 0]
+        out += f[..., 1] * f[..., 1]
+        out *= (g.tvg(spec.ranges) / s2).astype(np.float32)[:, None]
+        return out
+
+
+@functools.lru_cache(maxsize=32)
+def _kernels(spec):
+    from .speckle import beam_kernel, gaussian_pulse_kernel
+
+    h_r = gaussian_pulse_kernel(spec.pulse_width / spec.bin_width)
+    h_b = beam_kernel(spec.azimuth_pattern(), spec.beam_spacing)
+    h_r.setflags(write=False)
+    h_b.setflags(write=False)
+    return h_r, h_b

@@ -61,6 +61,23 @@ def beam_kernel(pattern, spacing: float, max_taps: int = 64) -> np.ndarray:
     return k / np.max(k)
 
 
+def filter_complex(field: np.ndarray, h_range, h_beam) -> np.ndarray:
+    """Separable filter of a complex field stored as ``(n_bins, n_beams, 2)`` float32 (real, imag).
+
+    ``cv2.sepFilter2D`` (zero borders) on the two-channel image; ``h_range`` runs along
+    rows (axis 0), ``h_beam`` along columns (axis 1). Symmetric kernels, so correlation
+    equals convolution.
+    """
+    import cv2
+
+    kx = np.asarray(h_beam, np.float32).reshape(-1, 1)
+    ky = np.asarray(h_range, np.float32).reshape(-1, 1)
+    if kx.size == 1 and ky.size == 1:
+        return field * np.float32(kx[0, 0] * ky[0, 0])
+    src = np.ascontiguousarray(field, np.float32)
+    return cv2.sepFilter2D(src, cv2.CV_32F, kx, ky, borderType=cv2.BORDER_CONSTANT)
+
+
 def _filter(field: np.ndarray, h_range: np.ndarray, h_beam: np.ndarray) -> np.ndarray:
     from scipy.ndimage import convolve1d
 
