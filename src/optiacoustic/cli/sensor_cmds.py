@@ -39,6 +39,7 @@ def sensor_fit_cmd(
     out_path: Path = typer.Option(Path("profile.yaml"), "--out", help="Profile YAML to write."),
     report: Optional[Path] = typer.Option(None, "--report", help="Folder for real-vs-simulated figures and numbers (every frame of the log, up to --max-report)."),
     max_report: int = typer.Option(6, "--max-report", help="Compare at most this many frames in the report."),
+    use_profile: Optional[str] = typer.Option(None, "--profile", help="Skip the fit: compare the log with this profile (YAML or a shipped profile's name)."),
 ):
     """Fit a sensor profile (beam patterns, gain, TVG, noise, speckle, encoding, seabed pose) to a real log."""
     from ..io import open_sonar
@@ -50,13 +51,23 @@ def sensor_fit_cmd(
         raise ValueError(f"{log}: no sonar frames")
     idx = _parse_frames(frames, n)
     chosen = [seq[i] for i in idx]
-    profile = fit_profile(chosen, region=region, encoding=encoding, device=chosen[0].spec.name)
-    profile.save(out_path)
+    if use_profile is not None:
+        from ..sonar.profile import SensorProfile
+
+        p = Path(use_profile)
+        profile = SensorProfile.load(p) if p.suffix.lower() in (".yaml", ".yml") or p.exists() else SensorProfile.preset(use_profile)
+        idx = []
+    else:
+        profile = fit_profile(chosen, region=region, encoding=encoding, device=chosen[0].spec.name)
+        profile.save(out_path)
     pose = profile.seabed_pose
     where = "no seabed pose" if pose is None else (
         f"seabed pose: height {profile.height:.3g} m, pitch {float(__import__('numpy').rad2deg(profile.pitch)):.3g} deg, "
         f"roll {float(__import__('numpy').rad2deg(profile.roll)):.3g} deg")
-    out.print(f"{log}: profile fitted on frame(s) {idx} ({profile.encoding}); {where} -> {out_path}")
+    if use_profile is None:
+        out.print(f"{log}: profile fitted on frame(s) {idx} ({profile.encoding}); {where} -> {out_path}")
+    else:
+        out.print(f"{log}: profile {use_profile} ({profile.encoding}); {where}")
     if report is not None:
         from ..sonar.comparison import compare, write_report
 

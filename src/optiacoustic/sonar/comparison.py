@@ -152,7 +152,8 @@ def write_report(folder, comparisons: list[Comparison], profile, real_frames, *,
             a.set_xlabel(f"lag ({name})")
             a.set_title("autocorrelation of normalised intensity")
             a.legend()
-        fig.suptitle(f"{profile.device}: profile fitted on frame(s) {list(fitted_on)}")
+        how = f"profile fitted on frame(s) {list(fitted_on)}" if fitted_on else "profile given (not fitted on this log)"
+        fig.suptitle(f"{profile.device}: {how}")
         fig.tight_layout()
         paths.append(savefig(fig, folder / f"frame_{c.index:03d}.png", dpi=80))
         plt.close(fig)
