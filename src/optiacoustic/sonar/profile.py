@@ -267,7 +267,7 @@ def _k_cdf(z, nu):
     """CDF of a unit-mean K-distributed intensity of shape ``nu`` (exponential when inf)."""
     from scipy.special import gammaln, kv
 
-    z = np.maximum(np.asarray(z, float), 1e-300)
+    z = np.maximum(np.asarray(z, float), 1e-12)  # K_nu overflows at 0: the CDF there is ~0 anyway
     if not np.isfinite(nu) or nu > 200:
         return 1 - np.exp(-z)
     x = 2 * np.sqrt(nu * z)
@@ -467,7 +467,8 @@ def _fit_speckle(stats, spec, height, rng):
                 density_sd=dens_sd, mean_count=mu, cell_area=area)
 
 
-def fit_profile(frames, *, region=None, encoding: str | None = None, device: str = "") -> SensorProfile:
+def fit_profile(frames, *, region=None, encoding: str | None = None, device: str = "",
+                refine_density: bool = True) -> SensorProfile:
     """Fit a :class:`SensorProfile` to real (or simulated) frames.
 
     Parameters
@@ -480,6 +481,11 @@ def fit_profile(frames, *, region=None, encoding: str | None = None, device: str
         mean 10 dB over the background).
     encoding : str, optional
         Force the stored values' reading (:data:`gain.ENCODINGS`); default: chosen.
+    device : str, optional
+        Name written into the profile (default the spec's name).
+    refine_density : bool
+        Refine the scatterer density by simulating frames with the whole profile
+        (a few simulations; off for a quick fit).
     """
     if not isinstance(frames, (list, tuple)):
         frames = [frames]
@@ -540,9 +546,50 @@ def fit_profile(frames, *, region=None, encoding: str | None = None, device: str
     summary = stats.summary()
     summary.update(mean_count_per_cell=sp["mean_count"], cell_area_m2=sp["cell_area"])
     full_scale = 255.0 if getattr(f0, "raw", None) is not None and np.asarray(f0.raw).dtype == np.uint8 else 0.0
-    return SensorProfile(
+    prof = SensorProfile(
         spec=fitted_spec, encoding=encoding, gain=gain, density=float(sp["density"]),
         height=float(h), pitch=float(pitch),
         roll=float(roll), full_scale=full_scale, uncertainty=unc, stats=summary, notes=tuple(notes),
         device=device or spec.name,
     )
+    if refine_density and np.isfinite(prof.density) and np.isfinite(stats.contrast):
+        prof = _refine_density(prof, stats, f0)
+    return prof
+
+
+def _refine_density(prof: SensorProfile, stats, frame, iterations: int = 4) -> SensorProfile:
+    """Adjust the scatterer density until frames simulated with the whole profile (geometry,
+    patterns, gain, noise, encoding) have the measured speckle contrast.
+
+    The first estimate assumes a uniform count per cell and no background; the full model
+    has neither. Secant steps in log density on the contrast of simulated frames (2 seeds).
+    """
+    target = stats.contrast
+
+    def contrast(log_d):
+        p = dataclasses.replace(prof, density=float(np.exp(log_d)))
+        cs = []
+        for seed in (101, 102):
+            img = p.from_device(p.to_device(p.simulate(seed=seed).image))
+            cs.append(frame_statistics(img, frame.ranges, frame.azimuths).contrast)
+        return float(np.mean(cs))
+
+    x0 = np.log(prof.density)
+    c0 = contrast(x0)
+    x1 = x0 + (0.5 if c0 < target else -0.5)  # fewer scatterers, more contrast
+    c1 = contrast(x1)
+    for _ in range(iterations):
+        if not (np.isfinite(c0) and np.isfinite(c1)) or c1 == c0:
+            break
+        x2 = float(np.clip(x1 + (target - c1) * (x1 - x0) / (c1 - c0), x1 - 2.0, x1 + 2.0))
+        x0, c0, x1, c1 = x1, c1, x2, contrast(x2)
+        if abs(c1 - target) < 0.01 * target:
+            break
+    if not np.isfinite(c1) or abs(c1 - target) > abs(contrast(np.log(prof.density)) - target):
+        return prof
+    unc = dict(prof.uncertainty)
+    # the first estimate's relative uncertainty carries over to the refined density
+    rel = prof.uncertainty.get("density_per_m2", np.nan) / prof.density
+    unc["density_per_m2"] = float(rel * np.exp(x1)) if np.isfinite(rel) else np.nan
+    notes = prof.notes + (f"density refined by simulating the profile: contrast {c1:.3g} for the measured {target:.3g}",)
+    return dataclasses.replace(prof, density=float(np.exp(x1)), uncertainty=unc, notes=notes)
