@@ -16,7 +16,7 @@ _EXPORTS = {
     "open_camera": "optiacoustic.io.camera",
     "open_oculus": "optiacoustic.io.oculus",
     "open_sonar": "optiacoustic.io.sonar",
-    "pair_frames": "optiacoustic.io.camera",
+    "pair_frames": "optiacoustic.io.pairing",
     "read_camera_info": "optiacoustic.io.camera_info",
     "read_rig": "optiacoustic.io.rig",
     "typestore": "optiacoustic.io.rosmsg",

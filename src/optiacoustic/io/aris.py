@@ -188,6 +188,14 @@ class ArisReader(FrameSequence):
                                   time=t_us * 1e-6 if t_us else float("nan"), encoding="aris_db",
                                   source=str(self.path), index=i, meta=meta)
 
+    def times(self) -> np.ndarray:
+        """``FrameTime`` of every whole frame (s), from the frame headers only (NaN where zero)."""
+        out = np.full(self._n_full, np.nan)
+        for i in range(self._n_full):
+            t = int(np.frombuffer(self.file.view(self.frame_offset(i) + 4, 8, "FrameTime", i), "<u8")[0])
+            out[i] = t * 1e-6 if t else np.nan
+        return out
+
     def info(self) -> dict:
         d = super().info()
         d.update(format="ARIS (DDF_05)", beams=self.n_beams, samples_per_beam=self.n_samples,

@@ -50,20 +50,41 @@ class SonarImageLike(Protocol):
 
 
 def spec_to_dict(spec: SonarSpec) -> dict:
-    """A JSON-able dict of every field of a spec (radians, metres; tables as lists)."""
-    d = dataclasses.asdict(spec)
-    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
+    """A JSON-able dict of every field of a spec (radians, metres; tables as lists).
+
+    Field values that are objects with ``to_dict()`` (e.g. beam patterns) are stored as
+    ``{"__type__": "module.Class", "data": obj.to_dict()}`` and rebuilt with ``Class.from_dict``.
+    """
+    out = {}
+    for f in dataclasses.fields(SonarSpec):
+        v = getattr(spec, f.name)
+        if isinstance(v, tuple):
+            v = list(v)
+        elif hasattr(v, "to_dict"):
+            v = {"__type__": f"{type(v).__module__}.{type(v).__qualname__}", "data": v.to_dict()}
+        out[f.name] = v
+    return out
 
 
 def spec_from_dict(d: Mapping) -> SonarSpec:
     """Inverse of :func:`spec_to_dict` (exact: floats survive JSON unchanged)."""
+    import importlib
+
     names = {f.name for f in dataclasses.fields(SonarSpec)}
     unknown = set(d) - names
     if unknown:
         raise ValueError(f"spec: unknown fields {sorted(unknown)}")
-    kw = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items()}
+    kw = {}
+    for k, v in d.items():
+        if isinstance(v, list):
+            v = tuple(v)
+        elif isinstance(v, dict) and "__type__" in v:
+            mod, _, cls = v["__type__"].rpartition(".")
+            if not mod.startswith("optiacoustic."):
+                raise ValueError(f"spec: field {k}: refusing to build type {v['__type__']!r}")
+            v = getattr(importlib.import_module(mod), cls).from_dict(v["data"])
+        kw[k] = v
     return SonarSpec(**kw)
-
 
 
 @dataclass(frozen=True, eq=False)
