@@ -203,25 +203,10 @@ class RayCaster:
         Hits
         """
         shape, o32, d32, d64, o64, dists = self._prepare(origins, directions, max_distance)
-        outs = self._run_chunks(o32, d32, dists, "INTERSECT", True)
-        cat = (lambda k: outs[0][k]) if len(outs) == 1 else (lambda k: np.concatenate([r[k] for r in outs]))
-        geom = cat("geomID")
-        prim = cat("primID")
+        tfar, geom, prim, nrm = self.cast_raw(o32, d32, dists, smooth=smooth)
         miss = geom < 0
-        distance = cat("tfar").astype(np.float64)
+        distance = tfar.astype(np.float64)
         distance[miss] = np.inf
-        if smooth:
-            gi = self._tri_offset[np.maximum(geom, 0)] + np.maximum(prim, 0)
-            cn = self._corner_normals[gi]  # (n, 3, 3) float32
-            u, v = cat("u"), cat("v")
-            w = np.empty((len(u), 3), np.float32)  # barycentric weights of the three corners
-            w[:, 1] = u
-            w[:, 2] = v
-            w[:, 0] = 1.0 - u - v
-            nrm = np.einsum("nk,nkj->nj", w, cn)
-        else:
-            nrm = cat("Ng")
-        nrm /= np.sqrt(np.einsum("ij,ij->i", nrm, nrm))[:, None] + np.float32(1e-30)  # in float32, then widen once
         nrm = nrm.astype(np.float64)
         nrm[miss] = np.nan
         prim = np.where(miss, -1, prim).astype(np.int32)
@@ -245,8 +230,7 @@ class RayCaster:
         max_distance32 : ndarray (N,) float32, optional
             Far limit of each ray (m); default unlimited. Overwritten.
         smooth : bool
-            Interpolated vertex normals, else the geometric normal (unnormalised, as
-            Embree gives it).
+            Interpolated vertex normals, else the triangle's geometric normal.
 
         Returns
         -------
@@ -257,7 +241,8 @@ class RayCaster:
         triangle : ndarray (N,) int32
             Undefined on a miss.
         normal : ndarray (N, 3) float32
-            Unit smooth normal, or the raw geometric normal; undefined on a miss.
+            Unit normal (world); undefined on a miss. :meth:`cast` is this, validated
+            and widened to float64, bit for bit.
         """
         n = len(origins32)
         dists = np.full(n, _MISS_DIST, np.float32) if max_distance32 is None else max_distance32
@@ -267,11 +252,15 @@ class RayCaster:
         if smooth:
             gi = self._tri_offset[np.maximum(geom, 0)] + np.maximum(prim, 0)
             cn = self._corner_normals[gi]  # (n, 3, 3) float32
-            u, v = cat("u")[:, None], cat("v")[:, None]
-            nrm = cn[:, 0] + u * (cn[:, 1] - cn[:, 0]) + v * (cn[:, 2] - cn[:, 0])
-            nrm /= np.sqrt(np.einsum("ij,ij->i", nrm, nrm))[:, None] + np.float32(1e-30)
+            u, v = cat("u"), cat("v")
+            w = np.empty((len(u), 3), np.float32)  # barycentric weights of the three corners
+            w[:, 1] = u
+            w[:, 2] = v
+            w[:, 0] = 1.0 - u - v
+            nrm = np.einsum("nk,nkj->nj", w, cn)
         else:
             nrm = cat("Ng")
+        nrm /= np.sqrt(np.einsum("ij,ij->i", nrm, nrm))[:, None] + np.float32(1e-30)
         return tfar, geom, prim, nrm
 
     def occluded_raw(self, origins32: np.ndarray, directions32: np.ndarray, max_distance32: np.ndarray) -> np.ndarray:

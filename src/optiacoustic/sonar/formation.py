@@ -291,9 +291,11 @@ def _box_integrate(beam, lo, hi, energy, n_beams: int, n_cells: int, out=None) -
     else:
         out.fill(0.0)
     flat = out.reshape(-1)
-    np.add.at(flat, base, dens - dens * f)
-    base += 1
-    np.add.at(flat, base, dens * f)
+    # both deposits in one bincount: the same additions in the same order as two
+    # np.add.at calls onto zeros (bit-identical), several times faster
+    idx = np.concatenate([base, base + 1])
+    w = np.concatenate([dens - dens * f, dens * f])
+    flat[:] = np.bincount(idx, weights=w, minlength=flat.size)
     np.cumsum(out, axis=1, out=out)
     res = out[:, :n_cells]
     np.maximum(res, 0.0, out=res)  # rounding residue of exact cancellations
@@ -575,13 +577,13 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     (:func:`_subdivide`), so that the echo's density follows the surface within it.
     """
     d_w, dd_w = _world_ray_grid(spec, pose.R)
-    hits = caster.cast(pose.t, d_w, max_distance=spec.range_max * 1.5)
+    # the unvalidated float32 path: the grid's directions are unit vectors by construction
+    body, r, normal = _cast_fast(caster, pose.t, d_w, spec.range_max * 1.5, smooth=True)
     K, J = spec.elevation_samples, spec.n_beams
-    hit = hits.body >= 0
-    r = np.where(hit, hits.distance, np.inf)
+    hit = body >= 0
     with np.errstate(invalid="ignore"):
-        nd = np.einsum("ij,ij->i", hits.normal, d_w)
-        ndd = np.einsum("ij,ij->i", hits.normal, dd_w)
+        nd = np.einsum("ij,ij->i", normal, d_w)
+        ndd = np.einsum("ij,ij->i", normal, dd_w)
     cos_inc = np.where(hit, np.abs(nd), 0.0)
     # signed dr/dphi on the tangent plane; clamped near grazing incidence
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -590,11 +592,11 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     step = spec.elevation_step
     a = np.full(K * J, 0.5 * step)
     b = np.full(K * J, 0.5 * step)
-    _refine_edges(caster, spec, pose, hits.body, r, slope, a, b)
+    _refine_edges(caster, spec, pose, body, r, slope, a, b)
 
     refl = np.array([bd.material.reflectivity for bd in scene.bodies] + [0.0])
     beam_grid, elev_grid = _index_grids(spec)
-    energy = refl[hits.body] * cos_inc * (a + b)
+    energy = refl[body] * cos_inc * (a + b)
     if weights is not None:
         energy *= weights[elev_grid]
     elif options.elevation_pattern != "uniform":
@@ -615,7 +617,7 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     rays = SonarRays(
         range=r.reshape(shape),
         energy=energy.reshape(shape),
-        body=hits.body.reshape(shape),
+        body=body.reshape(shape),
         cos_incidence=cos_inc.reshape(shape),
         footprint_lo=lo.reshape(shape),
         footprint_hi=hi.reshape(shape),
@@ -627,7 +629,7 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     )
     if pattern is None:
         return rays
-    return rays, _subdivide(spec, rays, nd, ndd, a, b, refl[hits.body], pattern, options)
+    return rays, _subdivide(spec, rays, nd, ndd, a, b, refl[body], pattern, options)
 
 
 @functools.lru_cache(maxsize=16)
@@ -696,6 +698,23 @@ def _subdivide(spec: SonarSpec, rays: SonarRays, nd, ndd, a, b, refl, pattern, o
 _EDGE_SUBRAYS = 8
 
 
+def _cast_fast(caster: RayCaster, origin, d_world, max_distance: float, smooth: bool):
+    """``caster.cast`` from one origin along unit directions ``(N, 3)``, bit for bit, without
+    its validation: ``(body (N,) int32, distance (N,) float64 (inf on a miss), unit
+    normal (N, 3) float64 (NaN on a miss))``."""
+    d32 = np.asarray(d_world, np.float32)
+    o32 = np.empty_like(d32)
+    o32[...] = np.asarray(origin, np.float32)
+    dist32 = np.full(len(d32), min(np.float32(max_distance), np.float32(1e30)), np.float32)
+    tfar, body, _, nrm = caster.cast_raw(o32, d32, dist32, smooth=smooth)
+    miss = body < 0
+    r = tfar.astype(np.float64)
+    r[miss] = np.inf
+    n = nrm.astype(np.float64)
+    n[miss] = np.nan
+    return body, r, n
+
+
 def _refine_edges(caster, spec, pose, body, r, slope, a, b) -> None:
     """Locate visibility edges between consecutive elevation samples and move the cell boundary there.
 
@@ -725,16 +744,17 @@ def _refine_edges(caster, spec, pose, body, r, slope, a, b) -> None:
     th = spec.azimuths[jj][:, None]
     cp = np.cos(phi)
     d = pose.directions_to_world(np.stack(np.broadcast_arrays(cp * np.sin(th), cp * np.cos(th), np.sin(phi)), -1))
-    h = caster.cast(pose.t, d, max_distance=spec.range_max * 1.5, smooth=False)
+    h_body, h_dist, _ = _cast_fast(caster, pose.t, d.reshape(-1, 3), spec.range_max * 1.5, smooth=False)
+    h_body, h_dist = h_body.reshape(d.shape[:-1]), h_dist.reshape(d.shape[:-1])
     lower = kk * J + jj
     upper = lower + J
     bl, bu = body[lower][:, None], body[upper][:, None]
     with np.errstate(invalid="ignore"):
         pred_l = r[lower][:, None] + slope[lower][:, None] * step * frac[None, :]
         pred_u = r[upper][:, None] - slope[upper][:, None] * step * (1 - frac[None, :])
-        err_l = np.where(h.body == bl, np.abs(h.distance - pred_l), np.inf)
-        err_u = np.where(h.body == bu, np.abs(h.distance - pred_u), np.inf)
-    miss = h.body < 0
+        err_l = np.where(h_body == bl, np.abs(h_dist - pred_l), np.inf)
+        err_u = np.where(h_body == bu, np.abs(h_dist - pred_u), np.inf)
+    miss = h_body < 0
     err_l = np.where(miss & (bl < 0), 0.0, err_l)
     err_u = np.where(miss & (bu < 0), 0.0, err_u)
     like_lower = err_l < err_u
