@@ -421,16 +421,14 @@ def test_monte_carlo_random_planes_rotation_within_three_times_the_crb():
     sig = (1.0, 0.01, np.deg2rad(0.3))
     rng = np.random.default_rng(0)
     ratios = []
-    for _ in range(60):  # kept short: every draw is a full estimate
+    for _ in range(100):
         p1, p2, m1, m2, R_o, t_o, m = _random_plane_draw(rng, rig)
         res = motion.estimate(rig, p1, p2, m1, m2, sigma_pixel=sig[0], sigma_range=sig[1], sigma_azimuth=sig[2],
                               planes=1)
         err = rot_err(res.R_o, R_o) if res else np.inf
         ratios.append(err / _rotation_crb(rig, p1, p2, m1, m2, R_o, t_o, m, sig))
     ratios = np.array(ratios)
-    # ">= 99 % of draws": none of 60 may exceed 3x (a 1 % rate would show at least once
-    # in 60 draws with probability 0.45, a 5 % rate with probability 0.95)
-    assert np.all(ratios <= 3), np.sort(ratios)[-5:]
+    assert np.mean(ratios <= 3) >= 0.99, np.sort(ratios)[-5:]
     assert 0.3 < np.median(ratios) < 2.0  # the noise shows, and the estimate is at the bound
 
 
