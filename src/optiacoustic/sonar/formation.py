@@ -291,11 +291,11 @@ def _box_integrate(beam, lo, hi, energy, n_beams: int, n_cells: int, out=None) -
     else:
         out.fill(0.0)
     flat = out.reshape(-1)
-    # both deposits in one bincount: the same additions in the same order as two
-    # np.add.at calls onto zeros (bit-identical), several times faster
-    idx = np.concatenate([base, base + 1])
-    w = np.concatenate([dens - dens * f, dens * f])
-    flat[:] = np.bincount(idx, weights=w, minlength=flat.size)
+    # np.add.at into the reused workspace: np.bincount would allocate and zero a fresh
+    # array of every fine cell (measured slower: ~130 k deposits into ~1.5 M cells)
+    np.add.at(flat, base, dens - dens * f)
+    base += 1
+    np.add.at(flat, base, dens * f)
     np.cumsum(out, axis=1, out=out)
     res = out[:, :n_cells]
     np.maximum(res, 0.0, out=res)  # rounding residue of exact cancellations
