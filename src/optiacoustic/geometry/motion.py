@@ -1000,9 +1000,17 @@ def _estimate_homography(d, thr_px, conf, iters, p_in, max_it, planes, rng):
     # few matches: when other interpretations explain at least 40% as many sonar matches,
     # let the maximum likelihood decide, by the truncated cost of all matches at each
     # one's optimum.
-    runs = []
-    for t in trials[:4]:
-        runs.append(_start_planar(d, t, thr2, max_it))
+    # Both interpretations of the best-supported homography are screened by their
+    # loose-threshold fit (the support alone misleads: the true one may explain fewer sonar
+    # matches from its start); the best by that likelihood, and any within a chi-square of
+    # 10 of it, get the full fit.
+    # Interpretations of another homography (another plane) compete only with enough
+    # support, as before.
+    cand = [t for t in trials[:4] if t[6] == trials[0][6] or t[0] >= 0.4 * trials[0][0]]
+    if len(cand) > 1:
+        screens = [_start_planar(d, t, thr2, max_it, screen=True)["score"] for t in cand]
+        cand = [t for t, sc in zip(cand, screens) if sc <= min(screens) + 10.0]
+    runs = [_start_planar(d, t, thr2, max_it) for t in cand]
     best = min(runs, key=lambda r: r["score"])
     sol, inl, cands, pick = best["trial"][2], best["trial"][3], best["trial"][4], best["trial"][5]
     h_best = best["trial"][6]
@@ -1033,8 +1041,12 @@ def _estimate_homography(d, thr_px, conf, iters, p_in, max_it, planes, rng):
 _LOOSE = 4.0  # the first relabelling's threshold, in units of the final one
 
 
-def _start_planar(d: _Data, trial, thr2, max_it):
-    """Initial estimate of one interpretation and its planar maximum likelihood, with a score."""
+def _start_planar(d: _Data, trial, thr2, max_it, screen=False):
+    """Initial estimate of one interpretation and its planar maximum likelihood, with a score.
+
+    ``screen``: only the loose-threshold fit (``max_it`` relabellings), for comparing
+    interpretations cheaply.
+    """
     _, _, sol, inl, cands, pick, _ = trial
     j, _, son_inl, _ = pick
     d_o = float(cands[j])
@@ -1049,6 +1061,9 @@ def _start_planar(d: _Data, trial, thr2, max_it):
     # few-degrees-off start misfits are not locked out, then the final threshold
     info = {}
     loose = _ml_loop(d, "plane", R_o, t_o, m0[None], lo, ls, _LOOSE * thr2, max_it, info)
+    if screen:
+        co, cs = info["chi2"] if "chi2" in info else _chi2_all(d, "plane", loose[0], loose[1], loose[2])
+        return dict(score=float(np.minimum(co.min(0), thr2).sum() + np.minimum(cs.min(0), thr2).sum()))
     R_o, t_o, pm, lo, ls = loose[:5]
     same = False
     if "chi2" in info:
