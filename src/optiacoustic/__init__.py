@@ -6,7 +6,7 @@ docs/conventions.md: metres and radians, world Z up, sonar X right / Y forward /
 camera X right / Y down / Z forward, rig ``P_s = R P_o + t``.
 """
 
-from . import fusion, geometry, io, scenes
+from . import fusion, geometry, scenes
 from .camera import PinholeCamera
 from .frames import Pose
 from .optical import Light, OpticalFrame, OpticalOptions, Water, simulate_optical
@@ -33,7 +33,6 @@ __all__ = [
     "SonarSpec",
     "fusion",
     "geometry",
-    "io",
     "scenes",
     "simulate_sonar",
     "__version__",
