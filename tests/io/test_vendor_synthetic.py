@@ -197,6 +197,12 @@ def test_truncated_and_corrupt_oculus(tmp_path, oculus_sample):
     assert len(frames) == 1 and r.skipped and r.skipped[0].index == 1
     with pytest.raises(ReadError, match=r"frame 1, byte offset 182016: truncated"):
         list(open_sonar(p))
+    # garbage after a good ping (not an Oculus header) is reported, not dropped
+    p.write_bytes(data + b"\x00" * 40)
+    r = open_sonar(p)
+    assert len(r) == 2 and r[0].raw.shape == (703, 256)
+    with pytest.raises(ReadError, match=r"frame 1, byte offset 182016: not an Oculus message"):
+        list(r)
     # random flips never produce anything but a frame or a ReadError
     for _ in range(40):
         b = bytearray(data)

@@ -15,6 +15,76 @@ def _jsonable(params: dict) -> dict:
     return {k: (list(v) if isinstance(v, tuple) else v) for k, v in params.items()}
 
 
+def _is_sonar_log(path: Path) -> bool:
+    from ..io.errors import ReadError
+    from ..io.sonar import sniff
+
+    if path.suffix.lower() in (".npy", ".png", ".tif", ".tiff", ".pgm", ".jpg", ".jpeg", ".bmp"):
+        return False
+    try:
+        sniff(path)
+    except ReadError:
+        return False
+    return True
+
+
+def _fit_log(path, *, topic, frames, range_min, range_max, azimuth_min_deg, azimuth_max_deg, mask, reading,
+             detrend, dither, seed, out_json):
+    import numpy as np
+    from rich.markup import escape
+    from rich.table import Table
+
+    from ..io import open_sonar
+    from ..io.sonar import sniff
+    from ..sonar.realfit import fit_frames
+    from .view_cmds import parse_frames
+
+    opts = {"reading": reading} if sniff(path) == "oculus" else {}
+    with open_sonar(path, topic=topic, **opts) as seq:
+        idx = parse_frames(frames, len(seq)) if frames is not None else range(len(seq))
+        chosen = [seq[i] for i in idx]
+    rng_win = None if range_min is None and range_max is None else (
+        -np.inf if range_min is None else range_min, np.inf if range_max is None else range_max)
+    az_win = None if azimuth_min_deg is None and azimuth_max_deg is None else (
+        -np.inf if azimuth_min_deg is None else np.deg2rad(azimuth_min_deg),
+        np.inf if azimuth_max_deg is None else np.deg2rad(azimuth_max_deg))
+    m = None
+    if mask is not None:
+        try:
+            m = np.load(mask, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"--mask: cannot read {mask} as a .npy array ({exc})") from None
+    res = fit_frames(chosen, ranges=rng_win, azimuths=az_win, mask=m, detrend=detrend, dither=dither, seed=seed)
+    region = (f"ranges {rng_win[0]:g}-{rng_win[1]:g} m" if rng_win else "all ranges") + ", " + (
+        f"azimuths {np.rad2deg(az_win[0]):g} to {np.rad2deg(az_win[1]):g} deg" if az_win else "all beams") + (
+        f", mask {mask}" if mask is not None else "")
+    out.print(escape(f"{res.n_samples} amplitudes from {res.n_frames} frame(s) of {path} ({region})"), highlight=False)
+    out.print(escape(f"linearised: {res.linearisation}; dithered: {res.dithered}; range-detrended: {res.detrended}"),
+              highlight=False)
+    table = Table(title="Goodness of fit", title_justify="left")
+    for col in ("model", "KS D", "p-value", "log-likelihood", "AIC", "fitted", "flags"):
+        table.add_column(col, overflow="fold")
+    for f in res.fits:
+        table.add_row(f.model + (" *" if f.model == res.best else ""), f"{f.ks_statistic:.4f}", f"{f.p_value:.3g}",
+                      f"{f.log_likelihood:.1f}", f"{f.aic:.1f}", f.dist.describe(), "; ".join(res.flags[f.model]) or "-")
+    out.print(table)
+    for note in res.notes:
+        out.print(escape(f"note: {note}"), highlight=False)
+    out.print("* lowest AIC. KS p-values with parameters fitted to the same samples are optimistic (Lilliefors).",
+              highlight=False)
+    if out_json is not None:
+        write_json(out_json, {
+            "source": {"input": str(path), "topic": topic, "frames": list(idx), "region": region,
+                       "linearisation": res.linearisation, "dithered": res.dithered, "detrended": res.detrended,
+                       "n": res.n_samples, "reading": reading if opts else None},
+            "fits": [{"model": f.model, "params": _jsonable(f.dist.params), "n_params": f.dist.n_params,
+                      "log_likelihood": f.log_likelihood, "aic": f.aic, "ks_statistic": f.ks_statistic,
+                      "p_value": f.p_value, "flags": res.flags[f.model]} for f in res.fits],
+            "best_aic": res.best, "weibull_beta": res.weibull_beta, "sub_rayleigh": res.sub_rayleigh,
+            "notes": res.notes})
+        out.print(f"  {out_json}")
+
+
 @app.command("noise-fit")
 @reports_errors
 def noise_fit(
@@ -24,8 +94,8 @@ def noise_fit(
     model: Optional[str] = typer.Option(
         None, "--model", help="Model to draw the --bottom samples from: rayleigh, weibull, k or mixture (default mixture)."
     ),
-    n: int = typer.Option(100_000, "--n", help="Number of samples drawn with --bottom."),
-    seed: int = typer.Option(0, "--seed", help="Random seed of the draw."),
+    n: int = typer.Option(100_000, "--n", min=1, help="Number of samples drawn with --bottom."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Random seed of the draw."),
     input_file: Optional[Path] = typer.Option(
         None, "--input", help="Real sonar data: a sonar log (.aris, Oculus pings, bag, .mcap; polar, linearised "
         "from the device encoding), or a .npy amplitude array / grayscale image."
@@ -49,6 +119,7 @@ def noise_fit(
     from rich.markup import escape
     from rich.table import Table
 
+    from .._atomic import write_json
     from ..sonar import distributions as D
 
     if (bottom is None) == (input_file is None):
@@ -144,72 +215,3 @@ def noise_fit(
         write_json(out_json, result)
         out.print(f"  {out_json}")
 
-
-def _is_sonar_log(path: Path) -> bool:
-    from ..io.errors import ReadError
-    from ..io.sonar import sniff
-
-    if path.suffix.lower() in (".npy", ".png", ".tif", ".tiff", ".pgm", ".jpg", ".jpeg", ".bmp"):
-        return False
-    try:
-        sniff(path)
-    except ReadError:
-        return False
-    return True
-
-
-def _fit_log(path, *, topic, frames, range_min, range_max, azimuth_min_deg, azimuth_max_deg, mask, reading,
-             detrend, dither, seed, out_json):
-    import numpy as np
-    from rich.markup import escape
-    from rich.table import Table
-
-    from ..io import open_sonar
-    from ..io.sonar import sniff
-    from ..sonar.realfit import fit_frames
-    from .view_cmds import parse_frames
-
-    opts = {"reading": reading} if sniff(path) == "oculus" else {}
-    with open_sonar(path, topic=topic, **opts) as seq:
-        idx = parse_frames(frames, len(seq)) if frames is not None else range(len(seq))
-        chosen = [seq[i] for i in idx]
-    rng_win = None if range_min is None and range_max is None else (
-        -np.inf if range_min is None else range_min, np.inf if range_max is None else range_max)
-    az_win = None if azimuth_min_deg is None and azimuth_max_deg is None else (
-        -np.inf if azimuth_min_deg is None else np.deg2rad(azimuth_min_deg),
-        np.inf if azimuth_max_deg is None else np.deg2rad(azimuth_max_deg))
-    m = None
-    if mask is not None:
-        try:
-            m = np.load(mask, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise ValueError(f"--mask: cannot read {mask} as a .npy array ({exc})") from None
-    res = fit_frames(chosen, ranges=rng_win, azimuths=az_win, mask=m, detrend=detrend, dither=dither, seed=seed)
-    region = (f"ranges {rng_win[0]:g}-{rng_win[1]:g} m" if rng_win else "all ranges") + ", " + (
-        f"azimuths {np.rad2deg(az_win[0]):g} to {np.rad2deg(az_win[1]):g} deg" if az_win else "all beams") + (
-        f", mask {mask}" if mask is not None else "")
-    out.print(escape(f"{res.n_samples} amplitudes from {res.n_frames} frame(s) of {path} ({region})"), highlight=False)
-    out.print(escape(f"linearised: {res.linearisation}; dithered: {res.dithered}; range-detrended: {res.detrended}"),
-              highlight=False)
-    table = Table(title="Goodness of fit", title_justify="left")
-    for col in ("model", "KS D", "p-value", "log-likelihood", "AIC", "fitted", "flags"):
-        table.add_column(col, overflow="fold")
-    for f in res.fits:
-        table.add_row(f.model + (" *" if f.model == res.best else ""), f"{f.ks_statistic:.4f}", f"{f.p_value:.3g}",
-                      f"{f.log_likelihood:.1f}", f"{f.aic:.1f}", f.dist.describe(), "; ".join(res.flags[f.model]) or "-")
-    out.print(table)
-    for note in res.notes:
-        out.print(escape(f"note: {note}"), highlight=False)
-    out.print("* lowest AIC. KS p-values with parameters fitted to the same samples are optimistic (Lilliefors).",
-              highlight=False)
-    if out_json is not None:
-        write_json(out_json, {
-            "source": {"input": str(path), "topic": topic, "frames": list(idx), "region": region,
-                       "linearisation": res.linearisation, "dithered": res.dithered, "detrended": res.detrended,
-                       "n": res.n_samples, "reading": reading if opts else None},
-            "fits": [{"model": f.model, "params": _jsonable(f.dist.params), "n_params": f.dist.n_params,
-                      "log_likelihood": f.log_likelihood, "aic": f.aic, "ks_statistic": f.ks_statistic,
-                      "p_value": f.p_value, "flags": res.flags[f.model]} for f in res.fits],
-            "best_aic": res.best, "weibull_beta": res.weibull_beta, "sub_rayleigh": res.sub_rayleigh,
-            "notes": res.notes})
-        out.print(f"  {out_json}")

@@ -30,6 +30,7 @@ type, lens and beam count (``optiacoustic/data/aris_beam_widths``).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import re
 from importlib import resources
@@ -234,7 +235,5 @@ def _spec(n_beams, telephoto, start_delay_us, period_us, c, n_samples, hf, syste
                                  "beamwidth_azimuth (mean beam spacing)"))
     # equal bins: the window as a uniform range grid (bin centres at the sample ranges)
     spec = spec.with_beam_table(az)
-    import dataclasses
-
     return dataclasses.replace(spec, n_bins=n_samples, range_min=float(ranges[0] - step / 2),
                                range_max=float(ranges[-1] + step / 2))

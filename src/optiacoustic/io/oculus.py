@@ -124,7 +124,8 @@ class OculusReader(FrameSequence):
         return pings, other, None
 
     def __len__(self):
-        return len(self._offsets) + (1 if self.index_error is not None and self.errors == "skip" else 0)
+        # a damaged tail (bad or truncated message header) counts as one more frame, which raises when read
+        return len(self._offsets) + (1 if self.index_error is not None else 0)
 
     def header(self, i: int) -> np.void:
         """The parsed ``SimplePingResult`` struct of ping ``i`` (v1 or v2 dtype)."""
@@ -193,9 +194,10 @@ class OculusReader(FrameSequence):
 
     def times(self) -> np.ndarray:
         """The ``times`` given when opening, else NaN for every ping (pings carry no wall clock)."""
+        out = np.full(len(self), np.nan)
         if self._times is not None:
-            return self._times.copy()
-        return np.full(len(self._offsets), np.nan)
+            out[:self._times.size] = self._times
+        return out
 
     def info(self) -> dict:
         d = super().info()
