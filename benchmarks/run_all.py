@@ -67,7 +67,9 @@ def main(argv=None) -> int:
     notes = HERE / "notes.md"  # hand-written sections kept across regenerations
     if notes.exists() and not args.only:
         text += notes.read_text()
-    Path(args.out).write_text(text)
+    from optiacoustic._atomic import write_text
+
+    write_text(args.out, text)
     print(f"wrote {args.out}")
     return 0
 

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._atomic import ensure_dir, write_json
 from ..frames import Pose
 from ..rig import Rig
 from ..scene import Scene
@@ -73,7 +74,7 @@ class RigFrame:
         from .figures import save_pair_figure
 
         out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
+        ensure_dir(out)
         s = self.sonar
         written = [s.save_npz(out / "sonar.npz")]
         ref = np.percentile(s.intensity[s.intensity > 0], 99.5) if np.any(s.intensity > 0) else 1.0
@@ -93,7 +94,7 @@ class RigFrame:
         meta = self.metadata()
         meta["files"] = [f.name for f in written]
         p = out / "pair.json"
-        p.write_text(json.dumps(meta, indent=2) + "\n")
+        write_json(p, meta)
         written.append(p)
         return written
 

@@ -26,6 +26,7 @@ from typing import Literal
 
 import numpy as np
 
+from .._validate import as_rng, check_memory
 from ..frames import Pose
 from ..raycast import RayCaster
 from ..scene import Scene
@@ -396,12 +397,16 @@ def simulate_sonar(
         elif not isinstance(noise, (NoiseModel, ScattererNoise)):
             raise TypeError(f"noise: expected a NoiseModel, ScattererNoise, False or None, got {type(noise).__name__}")
 
+    # a lower estimate of the bytes a frame takes (rays, bins x beams images): refuse before allocating
+    check_memory(96.0 * spec.n_beams * spec.elevation_samples + 64.0 * spec.n_bins * spec.n_beams,
+                 f"a {spec.n_bins} x {spec.n_beams} sonar frame with {spec.elevation_samples} elevation samples "
+                 "(SonarSpec.n_bins x n_beams x elevation_samples)")
     caster = caster_for(scene)
     bottom_types = _bottom_types(scene)
     draws = None
     if noise is not False:
         # the noise variates do not depend on the echo: draw them on the other core meanwhile
-        draws = _background().submit(noise.draw, (spec.n_bins, spec.n_beams), list(bottom_types), np.random.default_rng(seed))
+        draws = _background().submit(noise.draw, (spec.n_bins, spec.n_beams), list(bottom_types), as_rng(seed))
     sspec = scan_spec(spec, options.beam_model)
     if options.beam_model == "aperture":
         rays, img_rays = _scan(scene, caster, sspec, pose, options, _aperture_elevation_weights(spec),
