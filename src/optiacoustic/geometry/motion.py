@@ -1021,7 +1021,10 @@ def _estimate_homography(d, thr_px, conf, iters, p_in, max_it, planes, rng):
         best_screen = min(sc["score"] for sc in screens)
         keep = [k for k, sc in enumerate(screens) if sc["score"] <= best_screen + 10.0]
         cand, screens = [cand[k] for k in keep], [screens[k] for k in keep]
-    runs = [_start_planar(d, t, thr2, max_it, loose=sc) for t, sc in zip(cand, screens)]
+    if len(cand) == 1 and screens[0] is None:  # nothing to choose between: one plain fit
+        runs = [_start_planar(d, cand[0], thr2, max_it, graduated=False)]
+    else:
+        runs = [_start_planar(d, t, thr2, max_it, loose=sc) for t, sc in zip(cand, screens)]
     best = min(runs, key=lambda r: r["score"])
     sol, inl, cands, pick = best["trial"][2], best["trial"][3], best["trial"][4], best["trial"][5]
     h_best = best["trial"][6]
@@ -1053,13 +1056,14 @@ _LOOSE = 4.0  # the first relabelling's threshold, in units of the final one
 _LOOSE_NFEV = 15  # evaluations per solve of the loose pass
 
 
-def _start_planar(d: _Data, trial, thr2, max_it, screen=False, loose=None):
+def _start_planar(d: _Data, trial, thr2, max_it, screen=False, loose=None, graduated=True):
     """Initial estimate of one interpretation and its planar maximum likelihood, with a score.
 
     Graduated threshold: a first maximum likelihood with a loose one, so that matches a
     few-degrees-off start misfits are not locked out, then one with the final threshold.
     ``screen``: stop after the loose fit (its score and state come back, for comparing
-    interpretations); ``loose``: such a screened result, to continue from.
+    interpretations); ``loose``: such a screened result, to continue from;
+    ``graduated=False``: the final threshold from the start.
     """
     _, _, sol, inl, cands, pick, _ = trial
     j, _, son_inl, _ = pick
@@ -1069,6 +1073,12 @@ def _start_planar(d: _Data, trial, thr2, max_it, screen=False, loose=None):
     ls = np.where(son_inl, 0, -1)
     ls[j] = 0
     initial = _stage(d, "initial", R_o, t_o, m0[None], lo, ls, 0, np.nan)
+    if not graduated:
+        info = {}
+        planar = _ml_loop(d, "plane", R_o, t_o, m0[None], lo, ls, thr2, max_it, info)
+        co, cs = info["chi2"] if "chi2" in info else _chi2_all(d, "plane", planar[0], planar[1], planar[2])
+        score = float(np.minimum(co.min(0), thr2).sum() + np.minimum(cs.min(0), thr2).sum())
+        return dict(trial=trial, initial=initial, planar=planar, score=score)
     if loose is None:
         info = {}
         # (a capped number of evaluations: an interpretation that needs more is not the one)
