@@ -46,7 +46,8 @@ def _recorded_rays(caster, fn):
 
 def run() -> list[dict]:
     from optiacoustic import Pose, SonarSpec, scenes, simulate_sonar
-    from optiacoustic.sonar import SonarOptions, caster_for
+    from optiacoustic.raycast import caster_for
+    from optiacoustic.sonar import SonarOptions
     from optiacoustic.sonar.gain import DeviceGain
     from optiacoustic.sonar.noise import ScattererNoise
 
