@@ -22,6 +22,10 @@ FORBIDDEN = {
     "optiacoustic.fusion": ["optiacoustic.sonar", "optiacoustic.optical", "optiacoustic.raycast", "optiacoustic.experiments",
                             "embreex"],
     "optiacoustic.experiments": ["optiacoustic.cli"],
+    # readers never import a simulator (DESIGN.md): frames and specs only
+    "optiacoustic.io": ["optiacoustic.sonar.formation", "optiacoustic.raycast", "optiacoustic.optical.render",
+                        "optiacoustic.geometry", "optiacoustic.fusion", "optiacoustic.experiments",
+                        "optiacoustic.cli", "embreex"],
 }
 
 

@@ -295,6 +295,8 @@ def simulate_sonar(
     """
     if not isinstance(spec, SonarSpec):
         raise TypeError(f"spec: expected a SonarSpec, got {type(spec).__name__}")
+    if spec.bin_ranges is not None:  # beam tables are fine (rays follow spec.azimuths); bins must be equal
+        raise ValueError("simulate_sonar: spec has a range table (bin_ranges); the simulator needs equal bins")
     if not isinstance(pose, Pose):
         raise TypeError(f"pose: expected a Pose (e.g. Pose.look_at(eye, target)), got {type(pose).__name__}")
     options = options or SonarOptions()
