@@ -73,7 +73,8 @@ def camera_curves(rig: Rig, r: float, th: float, *, n_samples: int = 241) -> dic
     Both are polylines of image pixels on the conic ``m^T C m = 0``, which is returned too.
     """
     solid = ep.sonar_to_optical_curves(rig, r, th, n_samples=n_samples)[0]
-    full = ep.sonar_to_optical_curves(rig, r, th, n_samples=n_samples, clip_elevation=False)[0]
+    # the whole arc spans 180 deg of elevation against the aperture's ~20: sample it finer
+    full = ep.sonar_to_optical_curves(rig, r, th, n_samples=4 * n_samples, clip_elevation=False)[0]
     C = ep.conic(rig, r, th)
     return {"solid": [_poly(p) for p in solid], "dashed": [_poly(p) for p in full],
             "conic": (C / np.linalg.norm(C)).tolist(), "conic_type": str(ep.conic_type(C)),
@@ -171,6 +172,7 @@ def scene3d(rig: Rig, recon: dict) -> dict:
     pts = [p for p in recon.get("points", []) if p["valid"]]
     depth = float(np.median([p["point_camera"][2] for p in pts])) if pts else 0.5 * float(spec.range_max)
     return {"frame": "sonar: X right, Y forward, Z up (m)", "fan": _fan_wireframe(spec),
+            "range_max": float(spec.range_max),
             "frustum": _frustum(rig, max(depth, 0.5)), "camera_centre": _poly(rig.t),
             "points": [{"index": i, "p": p["point_sonar"], "axes": p["axes_sonar"]}
                        for i, p in enumerate(recon.get("points", [])) if p["valid"]]}

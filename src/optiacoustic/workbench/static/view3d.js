@@ -25,15 +25,18 @@ export class View3D {
   }
 
   setData(data) {
+    const hadPoints = this.data !== null && this.data.points.length > 0;
     const first = this.data === null;
     this.data = data;
-    if (first || data.points.length) {
-      const pts = data.points.map((p) => p.p);
-      if (pts.length) {
-        const c = [0, 1, 2].map((k) => pts.reduce((s, p) => s + p[k], 0) / pts.length);
-        this.target = c;
-        if (first) this.dist = Math.max(3, Math.hypot(...c) * 1.2);
-      }
+    const pts = data.points.map((p) => p.p);
+    if (pts.length && !hadPoints) {
+      // frame the points when they first appear
+      this.target = [0, 1, 2].map((k) => pts.reduce((s, p) => s + p[k], 0) / pts.length);
+      this.dist = Math.max(2, 0.8 * Math.hypot(...this.target));
+    } else if (!pts.length && (first || hadPoints)) {
+      // frame the whole fan
+      this.target = [0, data.range_max / 2, 0];
+      this.dist = 1.4 * data.range_max;
     }
     this.draw();
   }
