@@ -22,6 +22,7 @@ FORBIDDEN = {
     "optiacoustic.fusion": ["optiacoustic.sonar", "optiacoustic.optical", "optiacoustic.raycast", "optiacoustic.experiments",
                             "embreex"],
     "optiacoustic.experiments": ["optiacoustic.cli"],
+    "optiacoustic.workbench": ["optiacoustic.cli", "optiacoustic.experiments", "optiacoustic.raycast", "embreex"],
 }
 
 

@@ -208,7 +208,7 @@ def test_calibration_mode_applies_the_new_rig(page, live_server, session, shots)
     drawn = np.concatenate(page.evaluate(CURVE_POINTS, ["camera-svg", "pending-sonar", "dashed"]))
     assert np.nanmax(ep.sampson_distance(ep.conic(session.rig, rr, tt), drawn)) < 0.01
     assert np.nanmedian(ep.sampson_distance(ep.conic(session.pair.rig, rr, tt), drawn)) > 0.5
-    page.screenshot(path=str(shots / "06_calibration.png"))
+    page.screenshot(path=str(shots / "06_calibration.png"), full_page=True)
 
 
 def test_fusion_overlay_with_opacity(page, live_server, session, shots):

@@ -232,7 +232,9 @@ async function refresh() {
   if (state.selected !== null && state.selected >= st.matches.length) state.selected = null;
   $("sonar-info").textContent = `${st.sonar.name}: ${st.sonar.fov_azimuth_deg.toFixed(0)} x ${st.sonar.fov_elevation_deg.toFixed(0)} deg, ${st.sonar.range_min}-${st.sonar.range_max} m`;
   $("camera-info").textContent = `${st.camera.width} x ${st.camera.height} px, f = ${st.camera.fx.toFixed(0)} px`;
-  $("sig-px").value = st.sigmas.pixel; $("sig-r").value = st.sigmas.range; $("sig-a").value = +st.sigmas.azimuth_deg.toFixed(4);
+  if (sourceChanged) {  // the noise fields are the user's once the pair is loaded
+    $("sig-px").value = st.sigmas.pixel; $("sig-r").value = st.sigmas.range; $("sig-a").value = +st.sigmas.azimuth_deg.toFixed(4);
+  }
   const rig = st.rig;
   $("rig-info").textContent = `rig${rig.calibrated ? " (calibrated)" : ""}: t = (${rig.t.map((x) => x.toFixed(3)).join(", ")}) m, ` +
     `rotation about sonar x, y, z = (${rig.rotation_about_sonar_xyz_deg.map((x) => x.toFixed(2)).join(", ")}) deg, baseline ${rig.baseline_m.toFixed(3)} m. ` +
@@ -404,9 +406,10 @@ function renderViews(st) {
   ul.replaceChildren();
   for (const v of st.views) {
     const li = document.createElement("li");
-    li.textContent = `view ${v.index + 1}: ${v.n} corners `;
+    li.textContent = `view ${v.index + 1}: ${v.n} corners`;
     const b = document.createElement("button");
-    b.textContent = "remove";
+    b.textContent = "\u00d7";
+    b.title = "remove this view";
     b.addEventListener("click", async () => { await guarded(() => del(`/api/calibration/views/${v.index}`)); await refresh(); });
     li.appendChild(b);
     ul.appendChild(li);
