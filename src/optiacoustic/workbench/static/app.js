@@ -200,7 +200,7 @@ function drawMarks() {
       p.marks.appendChild(c);
       const t = document.createElementNS(SVGNS, "text");
       t.setAttribute("x", x + r); t.setAttribute("y", y - r); t.setAttribute("class", "mark-label");
-      t.setAttribute("fill", COLORS[m.index % COLORS.length]); t.setAttribute("font-size", fs);
+      t.setAttribute("fill", COLORS[m.index % COLORS.length]); t.setAttribute("font-size", fs); t.setAttribute("stroke-width", 3 / s);
       t.textContent = String(m.index + 1);
       p.marks.appendChild(t);
     }
