@@ -259,3 +259,23 @@ def test_source_switch_only_to_known_names(client):
     kinds = st["sources"]["kinds"]
     for k in ("real", "dataset"):
         assert kinds[k]["available"] or "not available" in kinds[k]["message"]
+
+
+def test_suggest_matches_is_either_the_matcher_or_says_not_available(client, session):
+    from optiacoustic.workbench.sources import matcher_available
+
+    ok, msg = matcher_available()
+    st = client.get("/api/state").json()
+    assert st["matcher"] == {"available": ok, "message": msg}
+    r = client.post("/api/matches/suggest")
+    if not ok:
+        assert r.status_code == 400 and "not available" in r.json()["error"]
+        return
+    assert r.status_code == 200, r.text
+    n = r.json()["added"]
+    assert len(session.matches) == n
+    if n:
+        rec = client.get("/api/reconstruction").json()
+        assert all(p["distance_sigma"] is None or p["distance_sigma"] >= 0 for p in rec["points"])
+        client.post("/api/undo")
+        assert session.matches == []

@@ -147,7 +147,7 @@ def create_app(session: Session, *, token: Optional[str] = None,
 
     from .. import scenes
     from ..rig import Rig
-    from .sources import simulated_pair, source_kinds
+    from .sources import matcher_available, simulated_pair, source_kinds
 
     static = _load_static()
     extra_sources = dict(sources or {})
@@ -213,6 +213,8 @@ def create_app(session: Session, *, token: Optional[str] = None,
         st["sources"] = {"scenes": scenes.names(), "extra": sorted(extra_sources),
                          "kinds": {k: {"available": a, "message": m} for k, (a, m) in kinds.items()}}
         st["mappings"] = list(compute.MAPPINGS)
+        ok, msg = matcher_available()
+        st["matcher"] = {"available": ok, "message": msg}
         return st
 
     def _image(key, make):
@@ -266,6 +268,15 @@ def create_app(session: Session, *, token: Optional[str] = None,
     def clear_matches():
         S.replace_all([])
         return {"version": S.version}
+
+    @api.post("/api/matches/suggest")
+    def suggest_matches():
+        from .session import Match
+
+        with S.lock:
+            rows, msg = compute.suggest(S.pair, S.rig)
+            S.replace_all(S.matches + [Match(*row) for row in rows])
+        return {"added": len(rows), "message": msg, "version": S.version}
 
     @api.post("/api/undo")
     def undo():

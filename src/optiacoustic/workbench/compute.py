@@ -253,3 +253,18 @@ def fusion_layer(kind: str, rig: Rig, fan_small, ranges, azimuths, pixels) -> tu
             "piecewise": "piecewise planar through the rig (Delaunay triangles of the matches)"}[kind]
     sig = getattr(m, "sigma", None)
     return echo, desc + (f", sigma = {sig:.3g} m" if sig is not None else "")
+
+
+def suggest(pair, rig: Rig) -> tuple[list, str]:
+    """Matches proposed by the automatic matcher, as ``(u, v, range, azimuth)`` rows, and its message."""
+    from .sources import matcher_available
+
+    ok, msg = matcher_available()
+    if not ok:
+        raise ValueError(msg)
+    from ..matching import match
+
+    cam = pair.camera_linear if pair.camera_linear is not None else pair.camera_rgb8
+    m = match(pair.sonar_frame(), cam, rig)
+    rows = [(float(u), float(v), float(r), float(a)) for (u, v), r, a in zip(m.pixels, m.ranges, m.azimuths)]
+    return rows, m.message or f"{len(rows)} matches"

@@ -15,13 +15,14 @@ data. Sources:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from ..rig import Rig
 
 __all__ = ["Pair", "SourceUnavailable", "THESIS_RIG", "default_pair", "simulated_pair", "real_pair", "dataset_pair",
-           "source_kinds"]
+           "source_kinds", "matcher_available"]
 
 #: The thesis's rig (examples/rig_thesis.yaml): camera 0.25 m to the sonar's left, toed in to
 #: aim where the sonar aims from the scene-1 view, rolled level.
@@ -57,6 +58,8 @@ class Pair:
     description : str
     truth : dict
         Optional ground truth (simulated sources), e.g. the sonar's world pose.
+    camera_linear : ndarray, shape (H, W, 3), optional
+        The camera image as linear radiance when the source has it (for the automatic matcher).
     """
 
     name: str
@@ -67,6 +70,14 @@ class Pair:
     rig: Rig
     description: str = ""
     truth: dict = field(default_factory=dict)
+    camera_linear: np.ndarray | None = None
+
+    def sonar_frame(self):
+        """The sonar measurements through the shared frame protocol (``image``, ``ranges``, ``azimuths``, ``spec``)."""
+        from types import SimpleNamespace
+
+        return SimpleNamespace(image=self.sonar_image, ranges=self.spec.ranges, azimuths=self.spec.azimuths,
+                               spec=self.spec, time=float("nan"))
 
     def __post_init__(self):
         img = np.asarray(self.sonar_image, np.float32)
@@ -117,7 +128,7 @@ def simulated_pair(scene, rig: Rig, *, eye=None, target=None, water="thesis", se
     desc = (f"simulated: scene {scene.name}, sonar {getattr(rig.sonar, 'name', '')} at {np.round(pose.t, 3).tolist()}, "
             f"{w.name} water, seed {seed}{'' if sonar_noise else ', noise-free sonar'}")
     return Pair(scene.name, "simulated", sonar.image, rig.sonar, optical.to_srgb8("image"), rig, desc,
-                {"sonar_pose_R": pose.R.tolist(), "sonar_pose_t": pose.t.tolist()})
+                {"sonar_pose_R": pose.R.tolist(), "sonar_pose_t": pose.t.tolist()}, optical.image)
 
 
 def default_pair(seed: int = 0) -> Pair:
@@ -135,6 +146,17 @@ def _io():
     return io
 
 
+def matcher_available() -> tuple[bool, str]:
+    """Whether the automatic matcher (``optiacoustic.matching.match``) is installed, and a message."""
+    try:
+        from .. import matching
+    except ImportError:
+        matching = None
+    if matching is not None and hasattr(matching, "match"):
+        return True, "optiacoustic.matching.match: sonar and camera features paired through the rig"
+    return False, "not available: the automatic matcher (optiacoustic.matching.match) is not installed in this version"
+
+
 def source_kinds() -> dict:
     """Which sources this installation can open: ``{kind: (available, message)}``."""
     io = _io()
@@ -150,17 +172,107 @@ def source_kinds() -> dict:
     }
 
 
-def real_pair(sonar_log, camera_log, rig_file, *, index: int = 0, topic: str | None = None) -> Pair:
-    """A real sonar + camera pair through the readers of :mod:`optiacoustic.io`."""
+def _camera_srgb8(image, exposure: float | None = 1.0) -> np.ndarray:
+    """A camera image as display sRGB: 8-bit as it is; linear values through the sRGB curve.
+
+    ``exposure`` is the linear value shown white: 1 for a real camera's [0, 1] linear image,
+    ``None`` (automatic) for simulated radiance.
+    """
+    from ..optical.frame import to_srgb8
+
+    a = np.asarray(image)
+    if a.dtype == np.uint8:
+        return a
+    return to_srgb8(np.asarray(a, np.float32), exposure=exposure)
+
+
+def _rig_for(rig_file, camera):
+    """The rig of a real pair: an ``oas`` rig file, else a transform file/bag through ``io.read_rig``."""
+    from .. import io
+
+    try:
+        return Rig.load(rig_file)
+    except ValueError as first:
+        try:
+            return io.read_rig(rig_file, camera=camera)
+        except (ValueError, TypeError) as exc:
+            raise ValueError(f"{rig_file}: neither an oas rig file ({first}) nor a transform file ({exc})") from None
+
+
+def real_pair(sonar_log, camera_log, rig_file, *, index: int = 0, sonar_topic: str | None = None,
+              camera_topic: str | None = None, max_dt: float = 0.1) -> Pair:
+    """A real sonar + camera pair through the readers of :mod:`optiacoustic.io`.
+
+    The sonar and camera frames are paired by time (``io.pair_frames``, within ``max_dt``
+    seconds); ``index`` picks the pair. When the logs carry no times (an image folder), the
+    frames are paired by their order, and the description says so.
+    """
     ok, msg = source_kinds()["real"]
     if not ok:
         raise SourceUnavailable(msg)
-    raise SourceUnavailable("not available: the real-pair source is not wired up yet")
+    from .. import io
+
+    sonar = io.open_sonar(sonar_log, topic=sonar_topic)
+    camera = io.open_camera(camera_log, topic=camera_topic)
+    if len(sonar) == 0 or len(camera) == 0:
+        raise ValueError(f"no frames: {len(sonar)} sonar frames in {sonar_log}, {len(camera)} camera frames in {camera_log}")
+    pairs = io.pair_frames(sonar, camera, max_dt)
+    how = f"paired by time within {max_dt} s"
+    if len(pairs) == 0:
+        n = min(len(sonar), len(camera))
+        si, ci, how = np.arange(n), np.arange(n), "paired by order (no common times)"
+    else:
+        si, ci = pairs.sonar, pairs.camera
+    if not 0 <= index < len(si):
+        raise ValueError(f"--frame {index}: there are {len(si)} sonar-camera pairs ({how})")
+    s, c = sonar[int(si[index])], camera[int(ci[index])]
+    rig = _rig_for(rig_file, c.camera)
+    if c.camera is not None and (c.camera.width, c.camera.height) != (rig.camera.width, rig.camera.height):
+        rig = Rig(rig.R, rig.t, c.camera, rig.sonar)
+    rig = rig.with_sonar(s.spec)
+    desc = (f"real: sonar {Path(sonar_log).name} frame {int(si[index])}, camera {Path(camera_log).name} frame "
+            f"{int(ci[index])}, {how}")
+    img = np.asarray(c.image, np.float32)
+    return Pair(f"{Path(sonar_log).stem} + {Path(camera_log).stem}", "real", np.asarray(s.image, np.float32), s.spec,
+                _camera_srgb8(img), rig, desc, {}, img)
 
 
 def dataset_pair(path, *, index: int = 0) -> Pair:
-    """A frame of a dataset written by ``oas dataset``."""
+    """Sonar frame ``index`` of a dataset written by ``oas dataset``, with the camera frame nearest in time."""
     ok, msg = source_kinds()["dataset"]
     if not ok:
         raise SourceUnavailable(msg)
-    raise SourceUnavailable("not available: the dataset source is not wired up yet")
+    from .. import io
+    from ..camera import PinholeCamera
+    from ..sonar import SonarSpec
+
+    tree = io.open_dataset(path)
+    meta = tree.attrs.get("optiacoustic", {})
+    if "sonar" not in tree.children or "camera" not in tree.children:
+        raise ValueError(f"{path}: the workbench needs a dataset with both a sonar and a camera")
+    try:
+        spec_d = {k: (tuple(v) if isinstance(v, list) else v) for k, v in meta["sonar_spec"].items()}
+        spec = SonarSpec(**spec_d)
+        c = meta["camera"]
+        cam = PinholeCamera(fx=c["fx"], fy=c["fy"], cx=c["cx"], cy=c["cy"], width=c["width"], height=c["height"],
+                            dist=tuple(c.get("dist", ())))
+        rig = Rig(meta["rig"]["R_sonar_from_camera"], meta["rig"]["t_camera_in_sonar"], cam, spec)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: cannot rebuild the rig from the dataset's metadata ({exc})") from None
+    son, camd = tree["sonar"], tree["camera"]
+    n = int(son.sizes["frame"])
+    if not 0 <= index < n:
+        raise ValueError(f"--frame {index}: the dataset has {n} sonar frames")
+    if not bool(son["done"][index].values):
+        raise ValueError(f"{path}: sonar frame {index} was never rendered (an interrupted run); resume it first")
+    ts = float(son["time"][index].values)
+    tc = np.asarray(camd["time"].values, float)
+    done = np.asarray(camd["done"].values, bool)
+    if not done.any():
+        raise ValueError(f"{path}: no camera frame was rendered")
+    j = int(np.flatnonzero(done)[np.argmin(np.abs(tc[done] - ts))])
+    img = np.asarray(camd["image"][j].values, np.float32)
+    desc = (f"dataset: {Path(path).name}, sonar frame {index} (t = {ts:.3f} s), camera frame {j} "
+            f"(t = {tc[j]:.3f} s)")
+    return Pair(f"{Path(path).name} #{index}", "dataset", np.asarray(son["image"][index].values, np.float32), spec,
+                _camera_srgb8(img, exposure=None), rig, desc, {}, img)

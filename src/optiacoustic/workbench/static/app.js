@@ -240,6 +240,8 @@ async function refresh() {
     `rotation about sonar x, y, z = (${rig.rotation_about_sonar_xyz_deg.map((x) => x.toFixed(2)).join(", ")}) deg, baseline ${rig.baseline_m.toFixed(3)} m. ` +
     `Source: ${st.source.description}`;
   $("undo").disabled = !st.can_undo;
+  $("suggest").disabled = !st.matcher.available;
+  $("suggest").title = st.matcher.message;
   drawMarks();
   renderViews(st);
   await Promise.all([redrawPinned(), reconstruct()]);
@@ -326,6 +328,12 @@ async function deleteSelected() {
   await refresh();
 }
 $("undo").addEventListener("click", undo);
+$("suggest").addEventListener("click", async () => {
+  status("matching automatically ...");
+  const r = await guarded(() => post("/api/matches/suggest"));
+  if (r) status(`${r.added} suggested matches added (${r.message}); Undo removes them`);
+  await refresh();
+});
 $("delete").addEventListener("click", deleteSelected);
 $("clear").addEventListener("click", async () => { await guarded(() => post("/api/matches/clear")); state.selected = null; await refresh(); });
 document.addEventListener("keydown", (e) => {
@@ -379,6 +387,7 @@ function fillSources(st) {
   const cur = st.sources.extra.includes("startup") && st.source.kind !== "simulated" ? "startup" : st.source.name;
   sel.value = [...sel.options].some((o) => o.value === cur) ? cur : st.sources.extra[0] || "";
   const na = Object.entries(st.sources.kinds).filter(([, v]) => !v.available).map(([, v]) => v.message);
+  if (!st.matcher.available) na.push(st.matcher.message);
   $("source-note").textContent = na.length ? na.join("; ") : "";
 }
 $("source").addEventListener("change", async (e) => {
