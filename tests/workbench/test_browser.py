@@ -68,6 +68,15 @@ def test_default_pair_curve_matches_reconstruction_export_import(page, live_serv
     from optiacoustic.geometry.calibrate import load_view
 
     page.screenshot(path=str(shots / "01_default.png"))
+    # sources and the matcher that this installation lacks say so
+    st = page.request.get(live_server + "/api/state").json()
+    options = page.locator("#source option").all_inner_texts()
+    assert "simulated: thesis_scene1" in options
+    for kind, label in (("real", "real pair"), ("dataset", "dataset frame")):
+        if not st["sources"]["kinds"][kind]["available"]:
+            assert f"{label}: not available" in options
+            assert "not available" in page.inner_text("#source-note")
+    assert page.locator("#suggest").is_disabled() == (not st["matcher"]["available"])
     px, fp, r, th = truth_matches(session)
     # zoom both images onto the points: finer clicks, and zoom works
     _zoom(page, "sonar-svg", fp.mean(0), 4)

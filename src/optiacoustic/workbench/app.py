@@ -348,11 +348,12 @@ def create_app(session: Session, *, token: Optional[str] = None,
     def fusion(mapping: str = Query("rbf", pattern="^(rbf|rbf-smoothed|plane|piecewise)$")):
         with S.lock:
             key = ("fusion", mapping, S.version)
-            if key not in cache:
-                px, r, th = S.arrays()
-                echo, msg = compute.fusion_layer(mapping, S.rig, S.fan_small, r, th, px)
-                cache[key] = (png(rgba_layer(echo)), msg)
-            data, msg = cache[key]
+            hit = cache.get(key)
+            rig, fan_small, (px, r, th) = S.rig, S.fan_small, S.arrays()
+        if hit is None:  # seconds of work: outside the lock, so that curves keep coming
+            echo, msg = compute.fusion_layer(mapping, rig, fan_small, r, th, px)
+            hit = cache[key] = (png(rgba_layer(echo)), msg)
+        data, msg = hit
         resp = Response(data, media_type="image/png")
         resp.headers["x-mapping"] = msg
         return no_store(resp)

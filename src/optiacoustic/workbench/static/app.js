@@ -380,9 +380,13 @@ function fillSources(st) {
   };
   for (const n of st.sources.extra) add(n, n);
   for (const n of st.sources.scenes) add(n, "simulated: " + n);
+  const how = { real: "start with oas workbench --sonar-log LOG --camera-log LOG --rig RIG",
+                dataset: "start with oas workbench DATASET_FOLDER --frame N" };
   for (const k of ["real", "dataset"]) {
     const info = st.sources.kinds[k];
-    if (!info.available) add("", `${k === "real" ? "real pair" : "dataset frame"}: not available`, true, info.message);
+    const label = k === "real" ? "real pair" : "dataset frame";
+    if (!info.available) add("", `${label}: not available`, true, info.message);
+    else if (!(st.source.kind === k)) add("", `${label}: ${how[k]}`, true, info.message);
   }
   const cur = st.sources.extra.includes("startup") && st.source.kind !== "simulated" ? "startup" : st.source.name;
   sel.value = [...sel.options].some((o) => o.value === cur) ? cur : st.sources.extra[0] || "";
