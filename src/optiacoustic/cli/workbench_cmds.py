@@ -61,7 +61,7 @@ def workbench_cmd(
                       "token URL can use the workbench (and see your data)", highlight=False)
 
     def ready(url):
-        out.print(f"optiacoustic workbench: {url}  (Ctrl+C stops it)")
+        out.print(f"optiacoustic workbench: {url}  (Ctrl+C stops it)", soft_wrap=True, highlight=False)
 
     serve(session, host=host, port=port, allow_remote=allow_remote, open_browser=not no_browser, on_ready=ready,
           sources={"startup": make})

@@ -80,7 +80,9 @@ def serve(session, *, host: str = "127.0.0.1", port: int = 8765, allow_remote: b
     config = uvicorn.Config(app, host=host.strip("[]"), port=port, log_level=log_level, access_log=False,
                             limit_concurrency=64, timeout_keep_alive=5, h11_max_incomplete_event_size=64 * 1024)
     server = uvicorn.Server(config)
-    url = url_for(host if token else "127.0.0.1" if host in ("127.0.0.1", "localhost") else host, port, token)
+    wildcard = host.strip("[]") in ("0.0.0.0", "::")
+    url = url_for(socket.gethostname() if wildcard else host, port, token)
+    local_url = url_for("127.0.0.1", port, token) if wildcard or host == "localhost" else url
 
     def announce():
         import time
@@ -91,7 +93,7 @@ def serve(session, *, host: str = "127.0.0.1", port: int = 8765, allow_remote: b
             if on_ready is not None:
                 on_ready(url)
             if open_browser:
-                webbrowser.open(url)
+                webbrowser.open(local_url)
 
     threading.Thread(target=announce, daemon=True).start()
     server.run()
