@@ -95,24 +95,6 @@ def sonar_curves(rig: Rig, fan, u: float, v: float, *, n_samples: int = 240) -> 
     return {"solid": to_px(solid), "dashed": to_px(full)}
 
 
-def shared_view(rig: Rig, fan, margin: float = 0.15):
-    """The part of the fan the camera can see: the bounding box (fan-image pixels) of the curves
-    of the image's border pixels inside the elevation aperture, widened by ``margin``; None if empty."""
-    c = rig.camera
-    u = np.linspace(-0.5, c.width - 0.5, 7)
-    v = np.linspace(-0.5, c.height - 0.5, 5)
-    border = np.concatenate([np.stack([u, np.full_like(u, v[0])], -1), np.stack([u, np.full_like(u, v[-1])], -1),
-                             np.stack([np.full_like(v, u[0]), v], -1), np.stack([np.full_like(v, u[-1]), v], -1)])
-    runs = [p for runs in ep.optical_to_sonar_curves(rig, border, n_samples=60, coords="fan") for p in runs]
-    if not runs:
-        return None
-    pts = np.concatenate(runs)
-    uu, vv = fan.to_pixel(pts[:, 0], pts[:, 1])
-    lo, hi = np.array([uu.min(), vv.min()]), np.array([uu.max(), vv.max()])
-    pad = margin * (hi - lo) + 10
-    return [float(x) for x in (*(lo - pad), *(hi - lo + 2 * pad))]
-
-
 def reconstruct(rig: Rig, pixels, ranges, azimuths, sig: Sigmas) -> dict:
     """Maximum-likelihood points of matches with their Cramer-Rao bounds, and each match's distances.
 

@@ -178,12 +178,6 @@ class Session:
                 raise ValueError("no successful calibration to apply: run one first")
             self.set_rig(self.calibration.rig(self.pair.rig.camera, self.pair.spec))
 
-    def _shared_view(self):
-        key = (id(self.pair), id(self.rig))
-        if getattr(self, "_shared_key", None) != key:
-            self._shared_key, self._shared = key, compute.shared_view(self.rig, self.fan)
-        return self._shared
-
     # ------------------------------------------------------------------ views of the state
     def state(self) -> dict:
         with self.lock:
@@ -201,7 +195,6 @@ class Session:
                           "fov_elevation_deg": float(np.rad2deg(spec.fov_elevation)),
                           "range_min": float(spec.range_min), "range_max": float(spec.range_max)},
                 "fan": {"width": int(fan.data.shape[1]), "height": int(fan.data.shape[0]),
-                        "shared_view": self._shared_view(),
                         "extent": [float(e) for e in fan.extent], "pixel_size": float(fan.pixel_size)},
                 "rig": {"R": np.round(rig.R, 9).tolist(), "t": np.round(rig.t, 6).tolist(),
                         "baseline_m": rig.baseline, "vergence_deg": float(np.rad2deg(rig.vergence)),

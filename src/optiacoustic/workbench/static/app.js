@@ -33,8 +33,8 @@ class Panel {
     this.install();
   }
 
-  setImage(url, w, h, home = null) {
-    this.w = w; this.h = h; this.home = home;
+  setImage(url, w, h) {
+    this.w = w; this.h = h;
     this.img.setAttribute("href", withToken(url));
     this.img.setAttribute("width", w); this.img.setAttribute("height", h);
     const f = this.svg.querySelector("#fusion-img");
@@ -42,13 +42,7 @@ class Panel {
     this.reset();
   }
 
-  // double click: the home view (for the fan, the part the camera sees), then the whole image
-  reset() {
-    const h = this.home;
-    const atHome = h && Math.abs(this.view.x - h[0]) < 1e-6 && Math.abs(this.view.w - h[2]) < 1e-6;
-    this.view = h && !atHome ? { x: h[0], y: h[1], w: h[2], h: h[3] } : { x: -0.5, y: -0.5, w: this.w, h: this.h };
-    this.apply();
-  }
+  reset() { this.view = { x: -0.5, y: -0.5, w: this.w, h: this.h }; this.apply(); }
 
   apply() {
     const v = this.view;
@@ -230,8 +224,7 @@ async function refresh() {
   const sourceChanged = !state.server || state.server.source.name !== st.source.name || state.server.source.description !== st.source.description;
   state.server = st;
   if (sourceChanged) {
-    panels.sonar.setImage("/api/image/sonar.png?s=" + encodeURIComponent(st.source.description), st.fan.width, st.fan.height,
-                          st.fan.shared_view);
+    panels.sonar.setImage("/api/image/sonar.png?s=" + encodeURIComponent(st.source.description), st.fan.width, st.fan.height);
     panels.camera.setImage("/api/image/camera.png?s=" + encodeURIComponent(st.source.description), st.camera.width, st.camera.height);
     fillSources(st);
     $("fusion-img").setAttribute("visibility", "hidden");
