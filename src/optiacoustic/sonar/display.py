@@ -38,6 +38,8 @@ def fan_geometry(spec: SonarSpec, width: int):
     mask = (np.abs(th) <= half) & (r >= spec.range_min) & (r <= spec.range_max)
     col = spec.beam_index(th) - 0.5
     row = spec.bin_index(r) - 0.5
+    if spec.has_tables:  # beam/range tables: inside the table's outer edges, not the nominal window
+        mask &= (col >= -0.5) & (col <= spec.n_beams - 0.5) & (row >= -0.5) & (row <= spec.n_bins - 0.5)
     col = np.where(mask, col, -10.0).astype(np.float32)
     row = np.where(mask, row, -10.0).astype(np.float32)
     for a in (col, row, mask):

@@ -19,14 +19,13 @@ from __future__ import annotations
 
 import functools
 import threading
-import weakref
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
 from ..frames import Pose
-from ..raycast import RayCaster
+from ..raycast import RayCaster, caster_for
 from ..scene import Scene
 from .frame import SonarFrame, SonarGroundTruth, SonarRays
 from .propagation import Seawater, two_way_gain
@@ -78,20 +77,6 @@ class SonarOptions:
             raise ValueError(f"SonarOptions.range_oversample: expected an integer in [1, 16], got {self.range_oversample!r}")
         if not isinstance(self.water, Seawater):
             raise ValueError("SonarOptions.water: expected a Seawater")
-
-
-# --------------------------------------------------------------------------- caching
-_CASTERS: "weakref.WeakKeyDictionary[Scene, RayCaster]" = weakref.WeakKeyDictionary()
-
-
-def caster_for(scene: Scene) -> RayCaster:
-    """The ray caster of ``scene``, built on first use and kept while the scene lives."""
-    if not isinstance(scene, Scene):
-        raise TypeError(f"scene: expected a Scene, got {type(scene).__name__}")
-    c = _CASTERS.get(scene)
-    if c is None:
-        c = _CASTERS[scene] = RayCaster(scene)
-    return c
 
 
 @functools.lru_cache(maxsize=16)
@@ -294,6 +279,8 @@ def simulate_sonar(
     """
     if not isinstance(spec, SonarSpec):
         raise TypeError(f"spec: expected a SonarSpec, got {type(spec).__name__}")
+    if spec.bin_ranges is not None:  # beam tables are fine (rays follow spec.azimuths); bins must be equal
+        raise ValueError("simulate_sonar: spec has a range table (bin_ranges); the simulator needs equal bins")
     if not isinstance(pose, Pose):
         raise TypeError(f"pose: expected a Pose (e.g. Pose.look_at(eye, target)), got {type(pose).__name__}")
     options = options or SonarOptions()

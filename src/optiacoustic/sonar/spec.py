@@ -46,6 +46,18 @@ class SonarSpec:
         Preset name and where its numbers come from.
     unverified : tuple of str
         Fields whose values could not be checked against a datasheet.
+    beam_azimuths : tuple of float or None
+        Explicit beam-centre azimuths (rad), strictly increasing, left to right: a real
+        device's bearing table (Oculus), lens table (ARIS) or equal-sine spacing. ``None``
+        (default) means ``n_beams`` beams equally spaced over ``fov_azimuth``. With a
+        table, ``n_beams`` must equal its length and beam ``j`` spans from the midpoint to
+        its left neighbour to the midpoint to its right one (the end beams are symmetric
+        about their centres); ``fov_azimuth`` must cover those edges (use
+        :meth:`with_beam_table`, which sets both).
+    bin_ranges : tuple of float or None
+        Explicit range-bin centres (m), strictly increasing (a ROS ``ProjectedSonarImage``
+        may carry uneven ranges). ``None`` (default): ``n_bins`` equal bins over
+        ``[range_min, range_max]``. Measured data only; the simulator needs equal bins.
     """
 
     n_beams: int = 512
@@ -62,10 +74,14 @@ class SonarSpec:
     name: str = "custom"
     source: str = ""
     unverified: tuple[str, ...] = field(default=())
+    beam_azimuths: tuple[float, ...] | None = None
+    bin_ranges: tuple[float, ...] | None = None
 
     def __post_init__(self):
         def bad(fld, msg):
             raise ValueError(f"SonarSpec.{fld}: {msg}, got {getattr(self, fld)!r}")
+
+        self._check_tables()
 
         for fld in ("n_beams", "n_bins", "elevation_samples"):
             v = getattr(self, fld)
@@ -87,6 +103,71 @@ class SonarSpec:
             raise ValueError(
                 f"SonarSpec: range_max ({self.range_max}) must exceed range_min ({self.range_min})"
             )
+
+    def _check_tables(self):
+        for fld, count, lim in (("beam_azimuths", "n_beams", np.pi / 2), ("bin_ranges", "n_bins", np.inf)):
+            table = getattr(self, fld)
+            if table is None:
+                continue
+            a = np.asarray(table, float)
+            if a.ndim != 1 or a.size < 2:
+                raise ValueError(f"SonarSpec.{fld}: expected a 1-D table of >= 2 values, got shape {a.shape}")
+            if not np.all(np.isfinite(a)) or np.any(np.abs(a) >= lim):
+                raise ValueError(f"SonarSpec.{fld}: values must be finite (and |azimuth| < pi/2), "
+                                 f"got range [{a.min()}, {a.max()}]")
+            if np.any(np.diff(a) <= 0):
+                i = int(np.flatnonzero(np.diff(a) <= 0)[0])
+                raise ValueError(f"SonarSpec.{fld}: must be strictly increasing; entry {i + 1} ({a[i + 1]!r}) "
+                                 f"<= entry {i} ({a[i]!r})")
+            if a.size != getattr(self, count):
+                raise ValueError(f"SonarSpec.{fld}: {a.size} entries but {count} = {getattr(self, count)}; "
+                                 f"use SonarSpec.with_beam_table / with_range_table, which set both")
+            object.__setattr__(self, fld, tuple(float(x) for x in a))
+        tol = 1e-9
+        if self.beam_azimuths is not None:
+            e = self.beam_edges
+            if max(-e[0], e[-1]) > self.fov_azimuth / 2 + tol:
+                raise ValueError(f"SonarSpec.fov_azimuth ({self.fov_azimuth!r} rad) does not cover the beam table's "
+                                 f"edges [{e[0]!r}, {e[-1]!r}] rad; use SonarSpec.with_beam_table")
+        if self.bin_ranges is not None:
+            e = self.range_edges
+            if e[0] < self.range_min - tol or e[-1] > self.range_max + tol or e[0] < 0:
+                raise ValueError(f"SonarSpec: range window [{self.range_min!r}, {self.range_max!r}] m does not "
+                                 f"cover the range table's edges [{e[0]!r}, {e[-1]!r}] m; use with_range_table")
+
+    def with_beam_table(self, beam_azimuths) -> "SonarSpec":
+        """This spec with an explicit beam-azimuth table (rad), ``n_beams`` and ``fov_azimuth`` set to match.
+
+        ``fov_azimuth`` becomes twice the larger |outer beam edge|, so the fan covers the
+        whole table (for an asymmetric table the fan is that wide on both sides; cells
+        outside the table's edges are outside the image, see :meth:`contains`).
+        """
+        a = np.asarray(beam_azimuths, float)
+        if a.ndim != 1 or a.size < 2:
+            raise ValueError(f"beam_azimuths: expected a 1-D table of >= 2 azimuths (rad), got shape {a.shape}")
+        e = _edges_from_centres(a)
+        fov = float(2 * max(-e[0], e[-1]))
+        return dataclasses.replace(self, beam_azimuths=tuple(a.tolist()), n_beams=int(a.size), fov_azimuth=fov)
+
+    def with_range_table(self, bin_ranges) -> "SonarSpec":
+        """This spec with explicit range-bin centres (m); ``n_bins`` and the range window set to match."""
+        r = np.asarray(bin_ranges, float)
+        if r.ndim != 1 or r.size < 2:
+            raise ValueError(f"bin_ranges: expected a 1-D table of >= 2 ranges (m), got shape {r.shape}")
+        e = _edges_from_centres(r)
+        return dataclasses.replace(self, bin_ranges=tuple(r.tolist()), n_bins=int(r.size),
+                                   range_min=float(max(e[0], 0.0)), range_max=float(e[-1]))
+
+    @staticmethod
+    def equal_sine_azimuths(n_beams: int, fov_azimuth: float) -> np.ndarray:
+        """Beam centres (rad) equally spaced in ``sin(theta)`` across ``fov_azimuth`` (a linear array's beams)."""
+        s = np.sin(fov_azimuth / 2)
+        return np.arcsin(-s + (np.arange(n_beams) + 0.5) * (2 * s / n_beams))
+
+    @property
+    def has_tables(self) -> bool:
+        """True when beams or bins come from an explicit table rather than equal spacing."""
+        return self.beam_azimuths is not None or self.bin_ranges is not None
 
     # ------------------------------------------------------------------ presets
     @classmethod
@@ -126,13 +207,18 @@ class SonarSpec:
         fields = {f.name for f in dataclasses.fields(cls)}
         kw = {}
         for k, v in data.items():
-            if k.endswith("_deg") and k[:-4] in fields:
+            if k == "beam_azimuths_deg":
+                try:
+                    kw["beam_azimuths"] = tuple(np.deg2rad(np.asarray(v, float)).tolist())
+                except (TypeError, ValueError):
+                    raise ValueError(f"{source}: field '{k}': expected a list of numbers, got {v!r}") from None
+            elif k.endswith("_deg") and k[:-4] in fields:
                 try:
                     kw[k[:-4]] = float(np.deg2rad(float(v)))
                 except (TypeError, ValueError):
                     raise ValueError(f"{source}: field '{k}': expected a number, got {v!r}") from None
-            elif k in fields and k not in ("fov_azimuth", "fov_elevation", "beamwidth_azimuth"):
-                kw[k] = tuple(v) if k == "unverified" else v
+            elif k in fields and k not in ("fov_azimuth", "fov_elevation", "beamwidth_azimuth", "beam_azimuths"):
+                kw[k] = tuple(v) if k in ("unverified", "bin_ranges") else v
             else:
                 raise ValueError(
                     f"{source}: field '{k}': unknown; angles go in *_deg fields "
@@ -141,19 +227,26 @@ class SonarSpec:
         if "name" not in kw and base.name != "custom" and kw:
             kw["name"] = base.name + "-custom"
         try:
-            return dataclasses.replace(base, **kw)
+            table = kw.pop("beam_azimuths", None)
+            ranges = kw.pop("bin_ranges", None)
+            spec = dataclasses.replace(base, **kw)
+            spec = spec.with_beam_table(table) if table is not None else spec
+            return spec.with_range_table(ranges) if ranges is not None else spec
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{source}: {exc}") from None
 
     # ------------------------------------------------------------------ sampling grids
     @property
     def bin_width(self) -> float:
-        """Range bin width (m)."""
+        """Range bin width (m); the mean width with a range table."""
         return (self.range_max - self.range_min) / self.n_bins
 
     @property
     def beam_spacing(self) -> float:
-        """Angle between adjacent beams (rad)."""
+        """Angle between adjacent beams (rad); the mean spacing with a beam table."""
+        if self.beam_azimuths is not None:
+            e = self.beam_edges
+            return float(e[-1] - e[0]) / self.n_beams
         return self.fov_azimuth / self.n_beams
 
     @property
@@ -164,16 +257,32 @@ class SonarSpec:
     @property
     def ranges(self) -> np.ndarray:
         """Range-bin centres (m), shape ``(n_bins,)``, near to far."""
+        if self.bin_ranges is not None:
+            return np.array(self.bin_ranges)
         return self.range_min + (np.arange(self.n_bins) + 0.5) * self.bin_width
 
     @property
     def range_edges(self) -> np.ndarray:
+        """Range-bin edges (m), ``(n_bins + 1,)``; with a table, midpoints between centres."""
+        if self.bin_ranges is not None:
+            e = _edges_from_centres(np.array(self.bin_ranges))
+            e[0] = max(e[0], 0.0)
+            return e
         return self.range_min + np.arange(self.n_bins + 1) * self.bin_width
 
     @property
     def azimuths(self) -> np.ndarray:
         """Beam-centre azimuths (rad), shape ``(n_beams,)``, left (negative) to right."""
+        if self.beam_azimuths is not None:
+            return np.array(self.beam_azimuths)
         return -self.fov_azimuth / 2 + (np.arange(self.n_beams) + 0.5) * self.beam_spacing
+
+    @property
+    def beam_edges(self) -> np.ndarray:
+        """Beam edges (rad), ``(n_beams + 1,)``; with a table, midpoints between centres."""
+        if self.beam_azimuths is not None:
+            return _edges_from_centres(np.array(self.beam_azimuths))
+        return -self.fov_azimuth / 2 + np.arange(self.n_beams + 1) * (self.fov_azimuth / self.n_beams)
 
     @property
     def elevation_step(self) -> float:
@@ -198,6 +307,10 @@ class SonarSpec:
     def contains(self, ranges, azimuths, elevations=0.0) -> np.ndarray:
         """True where ``(range, azimuth, elevation)`` lies inside the fan."""
         r, th, ph = np.broadcast_arrays(np.asarray(ranges, float), np.asarray(azimuths, float), np.asarray(elevations, float))
+        if self.has_tables:
+            with np.errstate(invalid="ignore"):
+                b, j = self.bin_index(r), self.beam_index(th)
+                return (j >= 0) & (j <= self.n_beams) & (b >= 0) & (b <= self.n_bins) & (np.abs(ph) <= self.fov_elevation / 2)
         with np.errstate(invalid="ignore"):
             return (
                 (np.abs(th) <= self.fov_azimuth / 2)
@@ -207,11 +320,24 @@ class SonarSpec:
             )
 
     def bin_index(self, ranges) -> np.ndarray:
-        """Fractional bin coordinate of ranges: bin b spans ``[b, b + 1)``, centre at ``b + 0.5``."""
+        """Fractional bin coordinate of ranges: bin b spans ``[b, b + 1)``, centre at ``b + 0.5``.
+
+        With a range table the coordinate is piecewise linear through the bin centres
+        (``b + 0.5`` at centre ``b``, ``b`` at the edge between ``b - 1`` and ``b``) and
+        extends linearly beyond the outer edges (so out-of-window ranges fall outside
+        ``[0, n_bins]``).
+        """
+        if self.bin_ranges is not None:
+            return _table_index(np.asarray(ranges, float), np.array(self.bin_ranges))
         return (np.asarray(ranges, float) - self.range_min) / self.bin_width
 
     def beam_index(self, azimuths) -> np.ndarray:
-        """Fractional beam coordinate of azimuths: beam j spans ``[j, j + 1)``."""
+        """Fractional beam coordinate of azimuths: beam j spans ``[j, j + 1)``, centre ``j + 0.5``.
+
+        With a beam table: piecewise linear through the beam centres, as :meth:`bin_index`.
+        """
+        if self.beam_azimuths is not None:
+            return _table_index(np.asarray(azimuths, float), np.array(self.beam_azimuths))
         return (np.asarray(azimuths, float) + self.fov_azimuth / 2) / self.beam_spacing
 
     def summary(self) -> str:
@@ -221,8 +347,34 @@ class SonarSpec:
             f"{self.name}: {self.frequency / 1e3:g} kHz, {self.n_beams} beams, "
             f"{deg(self.fov_azimuth):.4g} x {deg(self.fov_elevation):.4g} deg, "
             f"{self.range_min:g}-{self.range_max:g} m in {self.n_bins} bins ({100 * self.bin_width:.3g} cm), "
-            f"beam width {deg(self.beamwidth_azimuth):.3g} deg{flag}"
+            f"beam width {deg(self.beamwidth_azimuth):.3g} deg"
+            + (" [beam table]" if self.beam_azimuths is not None else "")
+            + (" [range table]" if self.bin_ranges is not None else "")
+            + flag
         )
+
+
+def _edges_from_centres(c: np.ndarray) -> np.ndarray:
+    """Cell edges of increasing centres: midpoints inside, the end cells symmetric about their centres."""
+    mid = 0.5 * (c[1:] + c[:-1])
+    return np.concatenate([[2 * c[0] - mid[0]], mid, [2 * c[-1] - mid[-1]]])
+
+
+def _table_index(x: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """Fractional cell coordinate of ``x`` for cells with these centres (centre k -> k + 0.5).
+
+    Piecewise linear through ``(edge_0, 0), (centre_k, k + 0.5), (edge_n, n)`` and extended
+    linearly beyond both ends with the end cells' slopes. NaN stays NaN.
+    """
+    e = _edges_from_centres(centres)
+    n = centres.size
+    xp = np.concatenate([[e[0]], centres, [e[-1]]])
+    fp = np.concatenate([[0.0], np.arange(n) + 0.5, [float(n)]])
+    out = np.interp(x, xp, fp)
+    lo, hi = x < e[0], x > e[-1]
+    out = np.where(lo, (x - e[0]) / (centres[0] - e[0]) * 0.5, out)
+    out = np.where(hi, n + (x - e[-1]) / (e[-1] - centres[-1]) * 0.5, out)
+    return np.where(np.isnan(x), np.nan, out)
 
 
 def _p(name, source, unverified=(), **kw) -> SonarSpec:

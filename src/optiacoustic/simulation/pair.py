@@ -8,11 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
+from .._atomic import write_text
 from ..frames import Pose
+from ..optical import OpticalFrame, OpticalOptions, simulate_optical
 from ..rig import Rig
 from ..scene import Scene
-from .frame import OpticalFrame
-from .render import OpticalOptions, simulate_optical
+from ..sonar import SonarFrame, simulate_sonar
 
 __all__ = ["RigFrame", "simulate_rig"]
 
@@ -36,7 +37,7 @@ class RigFrame:
     scene_name : str
     """
 
-    sonar: object
+    sonar: SonarFrame
     optical: OpticalFrame
     rig: Rig
     scene_name: str = ""
@@ -93,7 +94,7 @@ class RigFrame:
         meta = self.metadata()
         meta["files"] = [f.name for f in written]
         p = out / "pair.json"
-        p.write_text(json.dumps(meta, indent=2) + "\n")
+        write_text(p, json.dumps(meta, indent=2) + "\n")
         written.append(p)
         return written
 
@@ -117,8 +118,6 @@ def simulate_rig(scene: Scene, rig: Rig, sonar_pose: Pose, *, water=None, lights
         Passed to :func:`~optiacoustic.simulate_sonar` (``None``: its default model).
     optical_options : OpticalOptions, optional
     """
-    from ..sonar import simulate_sonar
-
     if not isinstance(rig, Rig):
         raise ValueError(f"rig: expected a Rig, got {type(rig).__name__}")
     if rig.sonar is None:
