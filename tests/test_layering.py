@@ -28,6 +28,8 @@ FORBIDDEN = {
                               "optiacoustic.experiments", "embreex"],
     "optiacoustic.fusion": ["optiacoustic.sonar", "optiacoustic.optical", "optiacoustic.simulation", "optiacoustic.raycast", "optiacoustic.experiments",
                             "embreex"],
+    "optiacoustic.matching": ["optiacoustic.sonar", "optiacoustic.optical", "optiacoustic.raycast", "optiacoustic.fusion",
+                              "optiacoustic.experiments", "optiacoustic.scene", "embreex"],
     "optiacoustic.experiments": ["optiacoustic.cli"],
     "optiacoustic.workbench": ["optiacoustic.cli", "optiacoustic.experiments", "optiacoustic.raycast", "embreex"],
     # exporting and converting read stored frames: no simulator (io.dataset, the dataset writer, sits above the
