@@ -239,3 +239,21 @@ def test_fusion_overlay_with_opacity(page, live_server, session, shots):
     assert page.get_attribute("#fusion-img", "opacity") == "0.8"
     assert "plane" in page.inner_text("#fusion-msg")
     page.screenshot(path=str(shots / "07_fusion.png"))
+
+
+def test_suggest_matches_button(page, live_server, session, shots):
+    st = page.request.get(live_server + "/api/state").json()
+    if not st["matcher"]["available"]:
+        assert page.locator("#suggest").is_disabled()
+        pytest.skip(f"suggest matches: {st['matcher']['message']}")
+    page.click("#suggest")
+    page.wait_for_function("document.getElementById('status').textContent.includes('suggested matches added')",
+                           timeout=120000)
+    n = len(session.matches)
+    _wait_rows(page, n)
+    # every suggestion is a match the workbench can use: the ML reconstruction takes them all
+    rec = page.request.get(live_server + "/api/reconstruction").json()
+    assert rec["n"] == n
+    page.screenshot(path=str(shots / "08_suggested.png"))
+    page.click("#undo")
+    _wait_rows(page, 0)
