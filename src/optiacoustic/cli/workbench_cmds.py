@@ -53,7 +53,8 @@ def workbench_cmd(
         scene = resolve_scene(source or "thesis_scene1")
         make = lambda: src.simulated_pair(scene, rig, eye=eye, target=target, water=water, seed=seed)  # noqa: E731
     console.print("preparing the pair ...")
-    session = Session(make())
+    pair = make()
+    session = Session(pair)
     if port == 0:
         port = free_port(host)
     if not is_loopback(host):
@@ -64,4 +65,4 @@ def workbench_cmd(
         out.print(f"optiacoustic workbench: {url}  (Ctrl+C stops it)", soft_wrap=True, highlight=False)
 
     serve(session, host=host, port=port, allow_remote=allow_remote, open_browser=not no_browser, on_ready=ready,
-          sources={"startup": make})
+          sources={f"{pair.kind}: {pair.name} (as started)": make})

@@ -151,6 +151,7 @@ def create_app(session: Session, *, token: Optional[str] = None,
 
     static = _load_static()
     extra_sources = dict(sources or {})
+    current = {"key": next(iter(extra_sources), session.pair.name)}
     api = FastAPI(title="optiacoustic workbench", docs_url=None, redoc_url=None, openapi_url=None)
     S = session
     cache: dict = {}
@@ -210,7 +211,7 @@ def create_app(session: Session, *, token: Optional[str] = None,
     def state():
         st = S.state()
         kinds = source_kinds()
-        st["sources"] = {"scenes": scenes.names(), "extra": sorted(extra_sources),
+        st["sources"] = {"scenes": scenes.names(), "extra": list(extra_sources), "current": current["key"],
                          "kinds": {k: {"available": a, "message": m} for k, (a, m) in kinds.items()}}
         st["mappings"] = list(compute.MAPPINGS)
         ok, msg = matcher_available()
@@ -406,6 +407,7 @@ def create_app(session: Session, *, token: Optional[str] = None,
         else:
             raise ValueError(f"source {s.name!r}: expected one of {sorted(extra_sources) + scenes.names()}")
         S.set_pair(pair)
+        current["key"] = s.name
         cache.clear()
         return {"version": S.version}
 

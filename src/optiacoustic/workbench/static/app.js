@@ -230,7 +230,7 @@ async function refresh() {
     $("fusion-img").setAttribute("visibility", "hidden");
   }
   if (state.selected !== null && state.selected >= st.matches.length) state.selected = null;
-  $("sonar-info").textContent = `${st.sonar.name}: ${st.sonar.fov_azimuth_deg.toFixed(0)} x ${st.sonar.fov_elevation_deg.toFixed(0)} deg, ${st.sonar.range_min}-${st.sonar.range_max} m`;
+  $("sonar-info").textContent = `${st.sonar.name}: ${st.sonar.fov_azimuth_deg.toFixed(0)} x ${st.sonar.fov_elevation_deg.toFixed(0)} deg, ${(+st.sonar.range_min).toFixed(2)}-${(+st.sonar.range_max).toFixed(2)} m`;
   $("camera-info").textContent = `${st.camera.width} x ${st.camera.height} px, f = ${st.camera.fx.toFixed(0)} px`;
   if (sourceChanged) {  // the noise fields are the user's once the pair is loaded
     $("sig-px").value = st.sigmas.pixel; $("sig-r").value = st.sigmas.range; $("sig-a").value = +st.sigmas.azimuth_deg.toFixed(4);
@@ -388,7 +388,7 @@ function fillSources(st) {
     if (!info.available) add("", `${label}: not available`, true, info.message);
     else if (!(st.source.kind === k)) add("", `${label}: ${how[k]}`, true, info.message);
   }
-  const cur = st.sources.extra.includes("startup") && st.source.kind !== "simulated" ? "startup" : st.source.name;
+  const cur = st.sources.current;
   sel.value = [...sel.options].some((o) => o.value === cur) ? cur : st.sources.extra[0] || "";
   const na = Object.entries(st.sources.kinds).filter(([, v]) => !v.available).map(([, v]) => v.message);
   if (!st.matcher.available) na.push(st.matcher.message);
