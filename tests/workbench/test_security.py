@@ -44,6 +44,17 @@ def test_request_bodies_are_bounded(client):
     assert r.status_code == 413
 
 
+def test_request_bodies_without_a_length_are_bounded_too(client):
+    def chunks():
+        yield b'{"text": "'
+        for _ in range(MAX_BODY // 4096 + 4):
+            yield b"x" * 4096
+        yield b'"}'
+
+    r = client.post("/api/import/matches", content=chunks(), headers={"content-type": "application/json"})
+    assert r.status_code == 413
+
+
 def test_token_is_required_when_set(session):
     app = create_app(session, token="s3cret")
     with TestClient(app, base_url="http://127.0.0.1") as c:

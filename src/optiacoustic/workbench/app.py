@@ -93,17 +93,26 @@ class Guard:
                     return await _send_plain(send, 413, f"request body over {self.max_body} bytes")
             except ValueError:
                 return await _send_plain(send, 400, "bad content-length")
+        # read the whole body first (it is small), counting as it streams: a request without a
+        # content-length cannot slip past the bound, and the app never sees a partial body
+        body, more = [], True
         seen = 0
-        limit = self.max_body
-
-        async def bounded_receive():
-            nonlocal seen
+        while more and method not in _SAFE:
             msg = await receive()
-            if msg["type"] == "http.request":
-                seen += len(msg.get("body", b""))
-                if seen > limit:
-                    raise _TooLarge()
-            return msg
+            if msg["type"] == "http.disconnect":
+                return
+            chunk = msg.get("body", b"")
+            seen += len(chunk)
+            if seen > self.max_body:
+                return await _send_plain(send, 413, f"request body over {self.max_body} bytes")
+            body.append(chunk)
+            more = msg.get("more_body", False)
+        replay = [{"type": "http.request", "body": b"".join(body), "more_body": False}]
+
+        async def buffered_receive():
+            if replay:
+                return replay.pop()
+            return await receive()
 
         set_cookie = self.token is not None and headers.get("cookie", "").find(f"{_COOKIE}={self.token}") < 0
 
@@ -114,14 +123,7 @@ class Guard:
                     (b"set-cookie", f"{_COOKIE}={self.token}; HttpOnly; SameSite=Strict; Path=/".encode())]
             await send(msg)
 
-        try:
-            await self.app(scope, bounded_receive, send_with_cookie)
-        except _TooLarge:
-            await _send_plain(send, 413, f"request body over {self.max_body} bytes")
-
-
-class _TooLarge(Exception):
-    pass
+        await self.app(scope, buffered_receive if method not in _SAFE else receive, send_with_cookie)
 
 
 def create_app(session: Session, *, token: Optional[str] = None,
@@ -146,7 +148,6 @@ def create_app(session: Session, *, token: Optional[str] = None,
     from pydantic import BaseModel, Field, confloat
 
     from .. import scenes
-    from ..rig import Rig
     from .sources import matcher_available, simulated_pair, source_kinds
 
     static = _load_static()
