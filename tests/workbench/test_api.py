@@ -187,6 +187,14 @@ def test_scene3d_has_fan_frustum_and_points(client, session):
     assert np.allclose(e[0], session.rig.t, atol=1e-3)
     uv = pr.project(session.rig, session.rig.camera_from_sonar(e[1])).pixels
     assert np.allclose(uv, [-0.5, -0.5], atol=0.1)  # 3D points are sent to 1 mm
+    # each match's sonar arc and camera ray both pass through its (true) point
+    P = session.rig.sonar_from_camera(truth_points())
+    for m in s["matches"]:
+        arc, ray = np.asarray(m["arc"]), np.asarray(m["ray"])
+        assert np.allclose(np.linalg.norm(arc, axis=1), np.linalg.norm(P[m["index"]]), atol=1e-3)
+        d = (ray[1] - ray[0]) / np.linalg.norm(ray[1] - ray[0])
+        off = P[m["index"]] - ray[0]
+        assert np.linalg.norm(off - (off @ d) * d) < 2e-3
 
 
 def _calibration_views():

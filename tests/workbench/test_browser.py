@@ -129,7 +129,7 @@ def test_default_pair_curve_matches_reconstruction_export_import(page, live_serv
     box = page.locator("#view3d").bounding_box()
     page.mouse.move(box["x"] + 200, box["y"] + 200)
     page.mouse.down()
-    page.mouse.move(box["x"] + 260, box["y"] + 180, steps=5)
+    page.mouse.move(box["x"] + 330, box["y"] + 170, steps=8)
     page.mouse.up()
     page.locator("#view3d-panel").screenshot(path=str(shots / "04_view3d.png"))
 

@@ -293,20 +293,19 @@ def create_app(session: Session, *, token: Optional[str] = None,
     def _recon():
         with S.lock:
             key = ("recon", S.version)
+            arrays = S.arrays()
             if key not in cache:
-                px, r, th = S.arrays()
-                cache[key] = compute.reconstruct(S.rig, px, r, th, S.sigmas)
-            return cache[key], S.rig
+                cache[key] = compute.reconstruct(S.rig, *arrays, S.sigmas)
+            return cache[key], S.rig, arrays
 
     @api.get("/api/reconstruction")
     def reconstruction():
-        rec, _ = _recon()
-        return rec
+        return _recon()[0]
 
     @api.get("/api/scene3d")
     def scene3d():
-        rec, rig = _recon()
-        return compute.scene3d(rig, rec)
+        rec, rig, arrays = _recon()
+        return compute.scene3d(rig, rec, *arrays)
 
     # ------------------------------------------------------------------ calibration
     @api.post("/api/calibration/views")
@@ -380,7 +379,7 @@ def create_app(session: Session, *, token: Optional[str] = None,
 
     @api.get("/api/export/points.ply")
     def export_ply():
-        rec, _ = _recon()
+        rec = _recon()[0]
         pts = [p["point_sonar"] for p in rec["points"] if p["valid"]]
         return no_store(Response(exports.points_ply(np.array(pts, float)), media_type="application/octet-stream",
                                  headers={"content-disposition": 'attachment; filename="points.ply"'}))

@@ -166,16 +166,33 @@ def _frustum(rig: Rig, depth: float) -> list:
     return [_poly(np.asarray(line)) for line in lines]
 
 
-def scene3d(rig: Rig, recon: dict) -> dict:
-    """What the 3D view draws, in the sonar frame (m): the fan, the camera frustum, the points."""
+def _match_geometry(rig: Rig, pixels, ranges, azimuths, depth: float) -> list:
+    """Per match, what each sensor alone knows (sonar frame, m): the sonar's elevation arc
+    ``(r, theta, |phi| <= fov/2)`` and the camera's viewing ray to ``depth``; the point is where they meet."""
+    he = rig.fov_elevation / 2
+    ph = np.linspace(-he, he, 17)
+    rays = pr.pixel_rays_in_sonar(rig, np.asarray(pixels, float).reshape(-1, 2))
+    out = []
+    for k, (r, th) in enumerate(zip(ranges, azimuths)):
+        arc = sonar_from_spherical(r, th, ph)
+        ray = np.stack([rays.origin, rays.at_depth(depth)[k]])
+        out.append({"index": k, "arc": _poly(arc), "ray": _poly(ray)})
+    return out
+
+
+def scene3d(rig: Rig, recon: dict, pixels=(), ranges=(), azimuths=()) -> dict:
+    """What the 3D view draws, in the sonar frame (m): the fan, the camera frustum, the points,
+    and per match the sonar's elevation arc and the camera's ray."""
     spec = rig.sonar
     pts = [p for p in recon.get("points", []) if p["valid"]]
     depth = float(np.median([p["point_camera"][2] for p in pts])) if pts else 0.5 * float(spec.range_max)
+    far = 1.25 * max([p["point_camera"][2] for p in pts], default=depth)
     return {"frame": "sonar: X right, Y forward, Z up (m)", "fan": _fan_wireframe(spec),
             "range_max": float(spec.range_max),
             "frustum": _frustum(rig, max(depth, 0.5)), "camera_centre": _poly(rig.t),
             "points": [{"index": i, "p": p["point_sonar"], "axes": p["axes_sonar"]}
-                       for i, p in enumerate(recon.get("points", [])) if p["valid"]]}
+                       for i, p in enumerate(recon.get("points", [])) if p["valid"]],
+            "matches": _match_geometry(rig, pixels, ranges, azimuths, max(far, 0.5)) if len(ranges) else []}
 
 
 def calibrate(rig: Rig, views, sig: Sigmas) -> tuple[object, dict]:

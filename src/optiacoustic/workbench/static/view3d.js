@@ -81,6 +81,12 @@ export class View3D {
     for (const l of this.data.fan) this.line(l, "rgba(255,179,71,0.45)", 1);
     for (const l of this.data.frustum) this.line(l, "rgba(127,219,255,0.8)", 1.2);
     const colors = window.matchColors || ["#fff"];
+    // what each sensor alone knows of a match: the sonar's elevation arc, the camera's ray
+    for (const m of this.data.matches || []) {
+      const col = colors[m.index % colors.length];
+      this.line(m.arc, col, 1, [4, 3]);
+      this.line(m.ray, col, 0.7, [1, 3]);
+    }
     for (const p of this.data.points) {
       const col = colors[p.index % colors.length];
       for (const a of p.axes) this.line([[p.p[0] - a[0], p.p[1] - a[1], p.p[2] - a[2]], [p.p[0] + a[0], p.p[1] + a[1], p.p[2] + a[2]]], col, 1.5);
@@ -91,6 +97,7 @@ export class View3D {
       }
     }
     c.fillStyle = "#9aa3ad"; c.font = "11px system-ui";
-    c.fillText("sonar X red, Y green, Z blue (1 m); fan amber; camera frustum cyan; bars: 3-sigma CRLB axes", 8, H - 8);
+    c.fillText("sonar axes X red, Y green, Z blue (1 m); sonar fan amber; camera frustum cyan", 8, H - 22);
+    c.fillText("per match: sonar elevation arc (dashed), camera ray (dotted), the point and its 3-sigma CRLB axes", 8, H - 8);
   }
 }
