@@ -17,11 +17,11 @@ from optiacoustic.workbench.sources import THESIS_RIG, source_kinds
 from .conftest import REPO
 
 
-def _client(pair):
+def _client(pair, sources=None):
     from fastapi.testclient import TestClient
 
     s = Session(pair)
-    return s, TestClient(create_app(s), base_url="http://127.0.0.1")
+    return s, TestClient(create_app(s, sources=sources), base_url="http://127.0.0.1")
 
 
 def _check_curve(session, client):
@@ -113,7 +113,21 @@ def test_dataset_frame(tmp_path):
     assert pair.rig.camera.width == 72 and pair.spec.n_beams == 48
     with pytest.raises(ValueError, match="sonar frames"):
         dataset_pair(path, index=n)
-    session, client = _client(pair)
+    make = lambda k=None: dataset_pair(path, index=1 if k is None else k)  # noqa: E731
+    session, client = _client(pair, {"ds": make})
     with client:
-        assert client.get("/api/state").json()["source"]["kind"] == "dataset"
+        st = client.get("/api/state").json()
+        assert st["source"]["kind"] == "dataset" and (st["source"]["frame"], st["source"]["n_frames"]) == (1, n)
         _check_curve(session, client)
+        # grid views collected over frames: another frame keeps the views, the matches start afresh
+        from optiacoustic.geometry.calibrate import CalibrationView
+
+        session.add_view(CalibrationView(np.array([[1.0, 2], [30, 4], [5, 20], [40, 30]]), np.full(4, 3.0),
+                                         np.zeros(4)))
+        session.add(session.match_from_display((10, 10), session.fan.to_pixel(0.0, 5.0)))
+        r = client.post("/api/source", json={"name": "ds", "frame": 0})
+        assert r.status_code == 200, r.text
+        st = client.get("/api/state").json()
+        assert st["source"]["frame"] == 0 and len(st["views"]) == 1 and st["matches"] == []
+        assert np.array_equal(session.pair.sonar_image, root["sonar"]["image"][0], equal_nan=True)
+        assert client.post("/api/source", json={"name": "ds", "frame": n}).status_code == 400

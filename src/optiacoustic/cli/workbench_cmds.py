@@ -45,13 +45,13 @@ def workbench_cmd(
     if sonar_log is not None or camera_log is not None:
         if sonar_log is None or camera_log is None or rig_file is None:
             raise ValueError("a real pair needs --sonar-log, --camera-log and --rig")
-        make = lambda: src.real_pair(sonar_log, camera_log, rig_file, index=frame)  # noqa: E731
+        make = lambda k=None: src.real_pair(sonar_log, camera_log, rig_file, index=frame if k is None else k)  # noqa: E731
     elif source is not None and Path(source).is_dir():
-        make = lambda: src.dataset_pair(Path(source), index=frame)  # noqa: E731
+        make = lambda k=None: src.dataset_pair(Path(source), index=frame if k is None else k)  # noqa: E731
     else:
         rig = Rig.load(rig_file) if rig_file is not None else Rig.from_dict(src.THESIS_RIG, "thesis rig")
         scene = resolve_scene(source or "thesis_scene1")
-        make = lambda: src.simulated_pair(scene, rig, eye=eye, target=target, water=water, seed=seed)  # noqa: E731
+        make = lambda k=None: src.simulated_pair(scene, rig, eye=eye, target=target, water=water, seed=seed)  # noqa: E731
     console.print("preparing the pair ...")
     pair = make()
     session = Session(pair)

@@ -141,7 +141,8 @@ def create_app(session: Session, *, token: Optional[str] = None,
     max_body : int
         Largest request body (bytes).
     sources : dict, optional
-        ``{name: callable() -> Pair}`` the page may switch to (besides the built-in scenes).
+        ``{name: callable(frame=None) -> Pair}`` the page may switch to (besides the built-in
+        scenes); ``frame`` picks a frame of a source that has several.
     """
     from fastapi import FastAPI, HTTPException, Query, Request
     from fastapi.responses import JSONResponse, Response
@@ -177,7 +178,8 @@ def create_app(session: Session, *, token: Optional[str] = None,
         azimuth_deg: confloat(gt=0, le=45, allow_inf_nan=False)
 
     class SourceIn(BaseModel):
-        name: str = Field(max_length=100)
+        name: str = Field(max_length=200)
+        frame: Optional[int] = Field(default=None, ge=0, le=10_000_000)
 
     class CsvIn(BaseModel):
         text: str = Field(max_length=MAX_BODY)
@@ -401,12 +403,14 @@ def create_app(session: Session, *, token: Optional[str] = None,
     @api.post("/api/source")
     def set_source(s: SourceIn):
         if s.name in extra_sources:
-            pair = extra_sources[s.name]()
+            pair = extra_sources[s.name](s.frame) if s.frame is not None else extra_sources[s.name]()
+        elif s.frame is not None:
+            raise ValueError(f"source {s.name!r} has one frame")
         elif s.name in scenes.names():
             pair = simulated_pair(scenes.get(s.name), S.pair.rig)
         else:
             raise ValueError(f"source {s.name!r}: expected one of {sorted(extra_sources) + scenes.names()}")
-        S.set_pair(pair)
+        S.set_pair(pair, same_source=s.name == current["key"] and s.frame is not None)
         current["key"] = s.name
         cache.clear()
         return {"version": S.version}

@@ -55,18 +55,25 @@ class Session:
         self.set_pair(self.pair)
 
     # ------------------------------------------------------------------ source
-    def set_pair(self, pair: Pair) -> None:
+    def set_pair(self, pair: Pair, *, same_source: bool = False) -> None:
+        """Show another pair. ``same_source`` (another frame of the same log or dataset) keeps the
+        calibration views, the calibration and an applied rig, so that grid views can be
+        collected over frames; the matches always start afresh."""
         with self.lock:
+            keep = same_source and getattr(self, "fan", None) is not None
+            calibrated = keep and self.rig is not self.pair.rig
             self.pair = pair
-            self.rig = pair.rig
+            self.rig = self.rig if calibrated else pair.rig
             spec = pair.spec
             if self.sigmas is None:
                 self.sigmas = compute.Sigmas(1.0, float(getattr(spec, "range_resolution", 0) or spec.bin_width),
                                              float(getattr(spec, "beamwidth_azimuth", 0) or spec.beam_spacing) / 2)
             self.fan = fan_display(pair.sonar_image, spec, self.fan_width)
             self.fan_small = fan_display(pair.sonar_image, spec, 256)
-            self.matches, self.views, self._undo = [], [], []
-            self.calibration = self.calibration_report = None
+            self.matches, self._undo = [], []
+            if not keep:
+                self.views = []
+                self.calibration = self.calibration_report = None
             self.version += 1
 
     # ------------------------------------------------------------------ matches
@@ -187,7 +194,8 @@ class Session:
 
             return {
                 "version": self.version,
-                "source": {"name": self.pair.name, "kind": self.pair.kind, "description": self.pair.description},
+                "source": {"name": self.pair.name, "kind": self.pair.kind, "description": self.pair.description,
+                           "frame": self.pair.frame, "n_frames": self.pair.n_frames},
                 "camera": {"width": cam.width, "height": cam.height, "fx": cam.fx, "fy": cam.fy, "cx": cam.cx,
                            "cy": cam.cy},
                 "sonar": {"name": getattr(spec, "name", ""), "n_beams": spec.n_beams, "n_bins": spec.n_bins,

@@ -60,6 +60,8 @@ class Pair:
         Optional ground truth (simulated sources), e.g. the sonar's world pose.
     camera_linear : ndarray, shape (H, W, 3), optional
         The camera image as linear radiance when the source has it (for the automatic matcher).
+    frame, n_frames : int
+        Which frame of the source this is, of how many (logs and datasets have several).
     """
 
     name: str
@@ -71,6 +73,8 @@ class Pair:
     description: str = ""
     truth: dict = field(default_factory=dict)
     camera_linear: np.ndarray | None = None
+    frame: int = 0
+    n_frames: int = 1
 
     def sonar_frame(self):
         """The sonar measurements through the shared frame protocol (``image``, ``ranges``, ``azimuths``, ``spec``)."""
@@ -234,7 +238,7 @@ def real_pair(sonar_log, camera_log, rig_file, *, index: int = 0, sonar_topic: s
             f"{int(ci[index])}, {how}")
     img = np.asarray(c.image, np.float32)
     return Pair(f"{Path(sonar_log).stem} + {Path(camera_log).stem}", "real", np.asarray(s.image, np.float32), s.spec,
-                _camera_srgb8(img), rig, desc, {}, img)
+                _camera_srgb8(img), rig, desc, {}, img, index, len(si))
 
 
 def dataset_pair(path, *, index: int = 0) -> Pair:
@@ -274,5 +278,5 @@ def dataset_pair(path, *, index: int = 0) -> Pair:
     img = np.asarray(camd["image"][j].values, np.float32)
     desc = (f"dataset: {Path(path).name}, sonar frame {index} (t = {ts:.3f} s), camera frame {j} "
             f"(t = {tc[j]:.3f} s)")
-    return Pair(f"{Path(path).name} #{index}", "dataset", np.asarray(son["image"][index].values, np.float32), spec,
-                _camera_srgb8(img, exposure=None), rig, desc, {}, img)
+    return Pair(Path(path).name, "dataset", np.asarray(son["image"][index].values, np.float32), spec,
+                _camera_srgb8(img, exposure=None), rig, desc, {}, img, index, n)

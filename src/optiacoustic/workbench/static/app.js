@@ -388,12 +388,25 @@ function fillSources(st) {
     if (!info.available) add("", `${label}: not available`, true, info.message);
     else if (!(st.source.kind === k)) add("", `${label}: ${how[k]}`, true, info.message);
   }
+  $("frame-box").hidden = st.source.n_frames <= 1;
+  $("frame").max = st.source.n_frames - 1;
+  $("frame").value = st.source.frame;
+  $("frame-count").textContent = `of ${st.source.n_frames}`;
   const cur = st.sources.current;
   sel.value = [...sel.options].some((o) => o.value === cur) ? cur : st.sources.extra[0] || "";
   const na = Object.entries(st.sources.kinds).filter(([, v]) => !v.available).map(([, v]) => v.message);
   if (!st.matcher.available) na.push(st.matcher.message);
   $("source-note").textContent = na.length ? na.join("; ") : "";
 }
+$("frame").addEventListener("change", async (e) => {
+  const k = Math.round(+e.target.value);
+  status(`loading frame ${k} ...`);
+  state.selected = null; state.pending = { sonar: null, camera: null };
+  const r = await guarded(() => post("/api/source", { name: state.server.sources.current, frame: k }));
+  if (r) status(`frame ${k}: matches start afresh; calibration views and an applied rig are kept`);
+  state.server = null;
+  await refresh();
+});
 $("source").addEventListener("change", async (e) => {
   status("loading " + e.target.value + " ...");
   state.selected = null; state.pending = { sonar: null, camera: null };
