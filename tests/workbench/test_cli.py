@@ -34,3 +34,16 @@ def test_oas_workbench_serves_the_default_pair_on_loopback():
     finally:
         p.terminate()
         p.wait(20)
+
+
+def test_oas_workbench_bad_sources_fail_with_one_line():
+    from typer.testing import CliRunner
+
+    from optiacoustic.cli import app
+
+    r = CliRunner().invoke(app, ["workbench", "no_such_scene", "--no-browser"])
+    assert r.exit_code == 2 and "no_such_scene" in r.output and "Traceback" not in r.output
+    r = CliRunner().invoke(app, ["workbench", "--sonar-log", "x.aris", "--no-browser"])
+    assert r.exit_code == 2 and "--camera-log" in r.output
+    r = CliRunner().invoke(app, ["workbench", "--port", "70000", "--no-browser"])
+    assert r.exit_code == 2 and "--port" in r.output
