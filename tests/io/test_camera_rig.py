@@ -141,3 +141,24 @@ def test_pair_frames_nearest_within_tolerance():
     assert len(pair_frames(ts, tc, max_dt=0.0)) == 0
     with pytest.raises(ValueError, match="max_dt"):
         pair_frames(ts, tc, max_dt=-1)
+
+
+def test_bag_camera_random_access(tmp_path):
+    ts = typestore(2)
+    T = ts.types
+    msgs = [("/c/image", "sensor_msgs/msg/Image", 5.0 + k, T["sensor_msgs/msg/Image"](
+        header=header(ts, 2, 5.0 + k), height=2, width=3, encoding="mono8", is_bigendian=0, step=3,
+        data=np.full(6, 10 * k, np.uint8))) for k in range(4)]
+    cams = open_camera(write_bag(tmp_path / "r", "mcap", msgs))
+    assert [int(cams[k].raw[0, 0]) for k in (3, 0, 2)] == [30, 0, 20] and cams[-1].time == 8.0
+
+
+def test_pair_frames_with_readers(tmp_path, aris_sample):
+    from optiacoustic.io import open_sonar
+
+    sonar = open_sonar(aris_sample)
+    t = sonar.times()
+    assert np.array_equal(t, [f.time for f in sonar])
+    cam_t = t[[0, 2, 4]] + 0.01
+    p = pair_frames(sonar, cam_t, max_dt=0.02)
+    assert p.sonar.tolist() == [0, 2, 4] and p.camera.tolist() == [0, 1, 2]

@@ -135,3 +135,21 @@ def test_bad_message_named(tmp_path):
     with pytest.warns(UserWarning, match="skipped damaged frame"):
         frames = list(r)
     assert len(frames) == 1 and [s.index for s in r.skipped] == [1]
+
+
+@pytest.mark.parametrize("kind", ["ros1", "mcap"])
+def test_truncated_bags_raise_read_errors(tmp_path, kind):
+    ros = _ros(kind)
+    ts = typestore(ros)
+    msgs = [("/s", PROJECTED_SONAR_IMAGE, T0 + k, projected(ts, ros, T0 + k, _image(np.uint8, 0), AZ, RANGES))
+            for k in range(4)]
+    path = write_bag(tmp_path / ("b.bag" if kind == "ros1" else "b"), kind, msgs)
+    f = path if kind == "ros1" else next(path.glob("*.mcap"))
+    data = f.read_bytes()
+    for cut in np.linspace(1, len(data) - 1, 12).astype(int):
+        g = tmp_path / f"t{f.suffix}"
+        g.write_bytes(data[:cut])
+        with pytest.raises(ReadError, match=r"t\.(bag|mcap)"):
+            r = open_sonar(g)
+            list(r)
+            r[len(r) - 1]

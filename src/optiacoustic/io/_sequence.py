@@ -10,6 +10,7 @@ from __future__ import annotations
 import mmap
 import os
 import warnings
+import weakref
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -66,6 +67,12 @@ class FrameSequence(Sequence):
                 self.skipped.append(SkippedFrame(k, str(exc)))
                 warnings.warn(f"skipped damaged frame: {exc}", stacklevel=2)
 
+    def times(self):
+        """Times (s since the epoch) of every frame; readers override this to skip decoding images."""
+        import numpy as np
+
+        return np.array([f.time for f in self], float)
+
     def info(self) -> dict:
         """What the file says about itself (device settings of the first good frame, counts)."""
         return {"path": str(self.path), "frames": len(self)}
@@ -96,6 +103,8 @@ class MappedFile:
         self.size = os.path.getsize(self.path)
         self._fh = open(self.path, "rb")
         self._mm = mmap.mmap(self._fh.fileno(), 0, access=mmap.ACCESS_READ) if self.size else b""
+        # closed with the reader or, at the latest, when it is garbage-collected
+        self._finalizer = weakref.finalize(self, _close, self._mm, self._fh)
 
     def view(self, offset: int, nbytes: int, what: str, frame=None) -> memoryview:
         """``nbytes`` bytes at ``offset``; a :class:`ReadError` if the file ends first."""
@@ -105,9 +114,13 @@ class MappedFile:
         return memoryview(self._mm)[offset:offset + nbytes]
 
     def close(self):
-        if self._mm:
-            try:
-                self._mm.close()
-            except BufferError:  # a view is still alive somewhere; the OS frees it with the process
-                pass
-        self._fh.close()
+        self._finalizer()
+
+
+def _close(mm, fh):
+    if mm:
+        try:
+            mm.close()
+        except BufferError:  # a view is still alive somewhere; the OS frees it with the process
+            pass
+    fh.close()

@@ -30,6 +30,7 @@ type, lens and beam count (``optiacoustic/data/aris_beam_widths``).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import re
 from importlib import resources
@@ -188,6 +189,14 @@ class ArisReader(FrameSequence):
                                   time=t_us * 1e-6 if t_us else float("nan"), encoding="aris_db",
                                   source=str(self.path), index=i, meta=meta)
 
+    def times(self) -> np.ndarray:
+        """``FrameTime`` of every whole frame (s), from the frame headers only (NaN where zero)."""
+        out = np.full(self._n_full, np.nan)
+        for i in range(self._n_full):
+            t = int(np.frombuffer(self.file.view(self.frame_offset(i) + 4, 8, "FrameTime", i), "<u8")[0])
+            out[i] = t * 1e-6 if t else np.nan
+        return out
+
     def info(self) -> dict:
         d = super().info()
         d.update(format="ARIS (DDF_05)", beams=self.n_beams, samples_per_beam=self.n_samples,
@@ -226,7 +235,5 @@ def _spec(n_beams, telephoto, start_delay_us, period_us, c, n_samples, hf, syste
                                  "beamwidth_azimuth (mean beam spacing)"))
     # equal bins: the window as a uniform range grid (bin centres at the sample ranges)
     spec = spec.with_beam_table(az)
-    import dataclasses
-
     return dataclasses.replace(spec, n_bins=n_samples, range_min=float(ranges[0] - step / 2),
                                range_max=float(ranges[-1] + step / 2))

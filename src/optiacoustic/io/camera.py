@@ -149,22 +149,27 @@ class BagCamera(FrameSequence):
             info_topic = topic.rsplit("/", 1)[0] + "/camera_info"
             if topic.endswith("/compressed"):
                 info_topic = topic.rsplit("/", 2)[0] + "/camera_info"
-            conns = [c for c in self.reader.connections if c.topic == info_topic]
-            for c, _, raw in self.reader.messages(connections=conns):
+            conns = [c for c in self.reader.connections if c.topic == info_topic and c.msgtype.endswith("CameraInfo")]
+            for c, _, raw in (self.reader.messages(connections=conns) if conns else ()):  # () would mean "all"
                 camera = camera_from_message(self.reader.deserialize(raw, c.msgtype), f"{self.path}:{info_topic}")
                 break
         self.camera = camera
-        self._frames = None
+        self._count = sum(int(c.msgcount) for c in self.connections)
+        self._stamps = None
 
     def __len__(self):
-        return sum(int(c.msgcount) for c in self.connections)
+        return self._count
 
     def _read(self, i):
-        if self._frames is None or i not in self._frames:
-            for k, f in enumerate(self):
-                if k == i:
-                    return f
-        return self._frames[i]
+        from .rosbag import BagSonarReader
+
+        conn, raw = BagSonarReader._raw_message(self, i)  # the same log-time seek as the sonar reader
+        return self._decode(self.reader.deserialize(raw, conn.msgtype), i)
+
+    def _stamp_index(self):
+        from .rosbag import BagSonarReader
+
+        return BagSonarReader._stamp_index(self)
 
     def __iter__(self):
         for i, (c, _, raw) in enumerate(self.reader.messages(connections=self.connections)):

@@ -99,9 +99,9 @@ class OculusReader(FrameSequence):
             raise ReadError(self.path, "no Oculus SimplePingResult (msgId 0x23) message in the file")
         if not self._offsets:
             raise self.index_error
-        self.times = None if times is None else np.asarray(times, float)
-        if self.times is not None and self.times.shape != (len(self._offsets),):
-            raise ValueError(f"times: expected {len(self._offsets)} values (one per ping), got {self.times.shape}")
+        self._times = None if times is None else np.asarray(times, float)
+        if self._times is not None and self._times.shape != (len(self._offsets),):
+            raise ValueError(f"times: expected {len(self._offsets)} values (one per ping), got {self._times.shape}")
 
     def _scan(self):
         """Offsets of the ping messages: read 16 bytes per message, jump by ``payloadSize``."""
@@ -124,7 +124,8 @@ class OculusReader(FrameSequence):
         return pings, other, None
 
     def __len__(self):
-        return len(self._offsets) + (1 if self.index_error is not None and self.errors == "skip" else 0)
+        # a damaged tail (bad or truncated message header) counts as one more frame, which raises when read
+        return len(self._offsets) + (1 if self.index_error is not None else 0)
 
     def header(self, i: int) -> np.void:
         """The parsed ``SimplePingResult`` struct of ping ``i`` (v1 or v2 dtype)."""
@@ -187,9 +188,16 @@ class OculusReader(FrameSequence):
                     encoding_params=params, byte_offset=pos)
         if gains is not None:
             meta["gains"] = gains.tolist()
-        t = float(self.times[i]) if self.times is not None else float("nan")
+        t = float(self._times[i]) if self._times is not None else float("nan")
         return MeasuredSonarFrame(raw=raw, image=image, spec=spec, time=t, encoding=encoding, source=str(self.path),
                                   index=i, meta=meta)
+
+    def times(self) -> np.ndarray:
+        """The ``times`` given when opening, else NaN for every ping (pings carry no wall clock)."""
+        out = np.full(len(self), np.nan)
+        if self._times is not None:
+            out[:self._times.size] = self._times
+        return out
 
     def info(self) -> dict:
         d = super().info()

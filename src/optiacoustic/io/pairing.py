@@ -28,6 +28,8 @@ def _times(x, name) -> np.ndarray:
     """Times (s) of a sequence of frames (their ``.time``; a lazy reader decodes each) or of numbers."""
     if isinstance(x, np.ndarray):
         arr = x
+    elif hasattr(x, "times") and callable(x.times):  # a reader: times without decoding images where it can
+        arr = x.times()
     else:
         items = x if isinstance(x, (list, tuple)) else list(x)
         numeric = all(isinstance(v, (int, float, np.number)) for v in items)

@@ -166,7 +166,7 @@ def _rig_bag(p, camera, sonar_frame, camera_frame, sonar_axes, camera_axes, topi
         tf, parent_is_sonar = pick[0]
         if camera is None:
             infos = [c for c in reader.connections if c.msgtype.endswith("CameraInfo")]
-            for c, _, raw in reader.messages(connections=infos):
+            for c, _, raw in (reader.messages(connections=infos) if infos else ()):
                 camera = camera_from_message(reader.deserialize(raw, c.msgtype), f"{p}:{c.topic}")
                 break
         if camera is None:

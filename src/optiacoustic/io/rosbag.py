@@ -18,7 +18,8 @@ Read through ``rosbags`` (pure Python, no ROS install). Message types:
     PNG/JPEG/TIFF single-channel images (decoded with OpenCV).
 
 Frames are fetched lazily: ``len`` comes from the bag's index, iteration streams
-messages, random access seeks by the message's log time.
+messages, random access seeks by the message's log time (the first random access makes one
+pass over the topic to list the log times; 8 bytes per message are kept).
 """
 
 from __future__ import annotations
@@ -141,17 +142,26 @@ class BagSonarReader(FrameSequence):
     # -------------------------------------------------------------- access
     def _stamp_index(self):
         if self._stamps is None:
-            self._stamps = np.fromiter((t for _, t, _ in self.reader.messages(connections=self.connections)),
-                                       np.int64, count=self._count)
+            try:
+                self._stamps = np.fromiter((t for _, t, _ in self.reader.messages(connections=self.connections)),
+                                           np.int64, count=self._count)
+            except Exception as exc:  # a damaged bag fails in rosbags' own code: name the file and topic
+                raise ReadError(self.path, f"cannot index the topic's messages: {type(exc).__name__}: {exc}",
+                                topic=self.topic) from None
         return self._stamps
 
     def _raw_message(self, i):
         stamps = self._stamp_index()
         t = int(stamps[i])
         k = i - int(np.searchsorted(stamps, t, side="left"))  # several messages may share a log time
-        for j, (conn, _, raw) in enumerate(self.reader.messages(connections=self.connections, start=t, stop=t + 1)):
-            if j == k:
-                return conn, raw
+        try:
+            for j, (conn, _, raw) in enumerate(self.reader.messages(connections=self.connections, start=t,
+                                                                    stop=t + 1)):
+                if j == k:
+                    return conn, raw
+        except Exception as exc:
+            raise ReadError(self.path, f"cannot read message: {type(exc).__name__}: {exc}", topic=self.topic,
+                            frame=i) from None
         raise ReadError(self.path, "message not found at its indexed log time", topic=self.topic, frame=i)
 
     def _read(self, i):

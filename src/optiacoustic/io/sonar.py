@@ -36,6 +36,8 @@ def sniff(path) -> str:
     if head[:16] == b"SQLite format 3\x00":
         return "rosbag2"
     suffix = p.suffix.lower()
+    if suffix == ".aris":  # the ARIS reader names the bad signature itself
+        return "aris"
     known = {".aris": "aris", ".bag": "ros1", ".mcap": "mcap", ".db3": "rosbag2"}
     if suffix in known:
         raise ReadError(p, f"named {suffix} but its first bytes {head[:8]!r} are not a {known[suffix]} file "

@@ -12,7 +12,7 @@ from .distributions import (
     goodness_of_fit,
 )
 from .formation import SonarOptions, caster_for, simulate_sonar
-from .frame import FanImage, SonarFrame, SonarGroundTruth, SonarRays
+from .frame import FanImage, MeasuredSonarFrame, SonarFrame, SonarGroundTruth, SonarImageLike, SonarRays
 from .noise import NoiseModel
 from .propagation import Seawater, absorption_db_per_m, two_way_gain
 from .spec import PRESETS, SonarSpec
@@ -21,6 +21,7 @@ __all__ = [
     "BOTTOM_TYPES",
     "FanImage",
     "KDistribution",
+    "MeasuredSonarFrame",
     "NoiseModel",
     "Rayleigh",
     "RayleighMixture",
@@ -32,6 +33,7 @@ __all__ = [
     "Seawater",
     "SonarFrame",
     "SonarGroundTruth",
+    "SonarImageLike",
     "SonarOptions",
     "SonarRays",
     "SonarSpec",

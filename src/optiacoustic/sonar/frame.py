@@ -50,20 +50,176 @@ class SonarImageLike(Protocol):
 
 
 def spec_to_dict(spec: SonarSpec) -> dict:
-    """A JSON-able dict of every field of a spec (radians, metres; tables as lists)."""
-    d = dataclasses.asdict(spec)
-    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in d.items()}
+    """A JSON-able dict of every field of a spec (radians, metres; tables as lists).
+
+    Field values that are objects with ``to_dict()`` (e.g. beam patterns) are stored as
+    ``{"__type__": "module.Class", "data": obj.to_dict()}`` and rebuilt with ``Class.from_dict``.
+    """
+    out = {}
+    for f in dataclasses.fields(SonarSpec):
+        v = getattr(spec, f.name)
+        if isinstance(v, tuple):
+            v = list(v)
+        elif hasattr(v, "to_dict"):
+            v = {"__type__": f"{type(v).__module__}.{type(v).__qualname__}", "data": v.to_dict()}
+        out[f.name] = v
+    return out
 
 
 def spec_from_dict(d: Mapping) -> SonarSpec:
     """Inverse of :func:`spec_to_dict` (exact: floats survive JSON unchanged)."""
+    import importlib
+
     names = {f.name for f in dataclasses.fields(SonarSpec)}
     unknown = set(d) - names
     if unknown:
         raise ValueError(f"spec: unknown fields {sorted(unknown)}")
-    kw = {k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items()}
+    kw = {}
+    for k, v in d.items():
+        if isinstance(v, list):
+            v = tuple(v)
+        elif isinstance(v, dict) and "__type__" in v:
+            mod, _, cls = v["__type__"].rpartition(".")
+            if not mod.startswith("optiacoustic."):
+                raise ValueError(f"spec: field {k}: refusing to build type {v['__type__']!r}")
+            v = getattr(importlib.import_module(mod), cls).from_dict(v["data"])
+        kw[k] = v
     return SonarSpec(**kw)
 
+
+@dataclass(frozen=True, eq=False)
+class MeasuredSonarFrame:
+    """One sonar frame read from a real log (or emitted in a device's units).
+
+    Shares :class:`SonarImageLike` with :class:`SonarFrame`, so every function that takes
+    a sonar image takes either.
+
+    Attributes
+    ----------
+    raw : ndarray ``(n_bins, n_beams)``
+        The values as the device stored them (``uint8`` dB bytes for ARIS, gamma-coded
+        ``uint8`` or ``uint16`` for Oculus, any ``ProjectedSonarImage`` type, ...).
+        Row = range bin (near to far), column = beam (left to right).
+    image : float32 ``(n_bins, n_beams)``
+        Linear intensity decoded from ``raw`` with ``encoding`` (``optiacoustic.io.units``).
+    spec : SonarSpec
+        The device as far as the file says (beam table, range window or table, frequency,
+        sound speed); fields the file does not give keep SonarSpec's defaults.
+    time : float
+        Seconds since the Unix epoch (float64); NaN when the file has no clock.
+    encoding : str
+        How ``raw`` maps to ``image`` (``"linear"``, ``"aris_db"``, ``"oculus_gamma8"``, ...).
+    source : str
+        File (and topic) the frame came from.
+    index : int
+        Frame index within the file or topic.
+    meta : mapping
+        Device settings as read (read-only; JSON-able values).
+    """
+
+    raw: np.ndarray
+    image: np.ndarray
+    spec: SonarSpec
+    time: float = float("nan")
+    encoding: str = "linear"
+    source: str = ""
+    index: int = 0
+    meta: Mapping = field(default_factory=dict)
+
+    def __post_init__(self):
+        shape = (self.spec.n_bins, self.spec.n_beams)
+        for name in ("raw", "image"):
+            a = getattr(self, name)
+            if np.shape(a) != shape:
+                raise ValueError(f"MeasuredSonarFrame.{name}: expected shape (n_bins, n_beams) = {shape}, "
+                                 f"got {np.shape(a)}")
+        if not isinstance(self.meta, MappingProxyType):
+            object.__setattr__(self, "meta", MappingProxyType(dict(self.meta)))
+
+    @property
+    def ranges(self) -> np.ndarray:
+        """Range-bin centres (m), ``(n_bins,)``."""
+        return self.spec.ranges
+
+    @property
+    def azimuths(self) -> np.ndarray:
+        """Beam-centre azimuths (rad), ``(n_beams,)``, possibly uneven."""
+        return self.spec.azimuths
+
+    @property
+    def intensity(self) -> np.ndarray:
+        """Alias of ``image`` (a measured frame has no separate noise-free echo)."""
+        return self.image
+
+    def fan(self, which: Literal["image", "intensity"] = "image", *, width: int = 800) -> FanImage:
+        """The linear image resampled to the fan (beam and range tables honoured)."""
+        from .display import polar_to_fan
+
+        if which not in ("image", "intensity"):
+            raise ValueError(f"fan: which must be 'image' or 'intensity', got {which!r}")
+        return polar_to_fan(self.image, self.spec, width=width)
+
+    def save(self, path) -> Path:
+        """Write raw, image, spec, time, encoding and meta to ``.npz`` (atomically); :meth:`load` reads it back."""
+        from .._atomic import save_npz
+
+        header = dict(format=_FORMAT, version=_VERSION, kind="measured", spec=spec_to_dict(self.spec),
+                      time=self.time, encoding=self.encoding, source=self.source, index=int(self.index),
+                      meta=dict(self.meta))
+        return save_npz(path, header=np.array(json.dumps(header, default=_json_default)), raw=self.raw,
+                        image=self.image)
+
+    @staticmethod
+    def load(path) -> "SonarFrame | MeasuredSonarFrame":
+        """Read a frame written by ``save`` (either kind)."""
+        return load_frame(path)
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (bytes, bytearray)):
+        return o.hex()
+    raise TypeError(f"meta value of type {type(o).__name__} is not JSON-able")
+
+
+def load_frame(path) -> "SonarFrame | MeasuredSonarFrame":
+    """Read a frame written by :meth:`SonarFrame.save` or :meth:`MeasuredSonarFrame.save`.
+
+    Raises
+    ------
+    ValueError
+        Not such a file (names the path and what is missing).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    try:
+        z = np.load(path, allow_pickle=False)
+        header = json.loads(str(z["header"]))
+    except Exception as exc:  # zip/npz/json errors of every kind: one clear message
+        raise ValueError(f"{path}: not a saved sonar frame ({type(exc).__name__}: {exc})") from None
+    if header.get("format") != _FORMAT:
+        raise ValueError(f"{path}: not a saved sonar frame (format {header.get('format')!r})")
+    if header.get("version", 0) > _VERSION:
+        raise ValueError(f"{path}: frame format version {header['version']} is newer than this reader ({_VERSION})")
+    spec = spec_from_dict(header["spec"])
+    if header["kind"] == "measured":
+        return MeasuredSonarFrame(raw=z["raw"], image=z["image"], spec=spec, time=float(header["time"]),
+                                  encoding=header["encoding"], source=header["source"], index=header["index"],
+                                  meta=header["meta"])
+    arrays = {k: z[k] for k in z.files}
+    rays = SonarRays(**{f.name: arrays[f"ray_{f.name}"] for f in dataclasses.fields(SonarRays)
+                        if f.name != "elevation_step"}, elevation_step=float(header["elevation_step"]))
+    maps = (arrays["gt_body"], arrays["gt_elevation_min"], arrays["gt_elevation_max"])
+    shadow = arrays["gt_shadow"]
+    gt = SonarGroundTruth(arrays["gt_range_map"], lambda: maps, lambda _emin: shadow)
+    return SonarFrame(spec=spec, pose=Pose(arrays["pose_R"], arrays["pose_t"]), intensity=arrays["intensity"],
+                      image=arrays["image"], ground_truth=gt, rays=rays, body_names=tuple(header["body_names"]),
+                      seabed_share={k: arrays[f"share_{k}"] for k in header["seabed_share"]},
+                      time=float(header["time"]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -234,6 +390,31 @@ class SonarFrame:
             raise ValueError(f"fan: which must be 'image' or 'intensity', got {which!r}")
         return polar_to_fan(getattr(self, which), self.spec, width=width)
 
+    def save(self, path) -> Path:
+        """Write the whole frame (spec, pose, images, rays, ground truth) to ``.npz``; read back with :meth:`load`.
+
+        Written atomically; :meth:`load` (or :func:`load_frame`) gives a frame whose arrays
+        equal these bit for bit.
+        """
+        from .._atomic import save_npz
+
+        gt = self.ground_truth
+        rays = {f"ray_{f.name}": getattr(self.rays, f.name) for f in dataclasses.fields(SonarRays)
+                if f.name != "elevation_step"}
+        share = {f"share_{k}": v for k, v in self.seabed_share.items()}
+        header = dict(format=_FORMAT, version=_VERSION, kind="simulated", spec=spec_to_dict(self.spec),
+                      time=self.time, body_names=list(self.body_names), elevation_step=self.rays.elevation_step,
+                      seabed_share=list(self.seabed_share))
+        return save_npz(path, header=np.array(json.dumps(header)), intensity=self.intensity, image=self.image,
+                        pose_R=self.pose.R, pose_t=self.pose.t, gt_body=gt.body, gt_elevation_min=gt.elevation_min,
+                        gt_elevation_max=gt.elevation_max, gt_shadow=gt.shadow, gt_range_map=gt.range_map,
+                        **rays, **share)
+
+    @staticmethod
+    def load(path) -> "SonarFrame | MeasuredSonarFrame":
+        """Read a frame written by :meth:`SonarFrame.save` or :meth:`MeasuredSonarFrame.save`."""
+        return load_frame(path)
+
     def save_npz(self, path) -> Path:
         """Write intensity, image, ranges, azimuths, pose and ground truth to an ``.npz``."""
         path = Path(path)
@@ -261,163 +442,3 @@ class SonarFrame:
         )
         np.savez_compressed(path, **data)
         return path
-
-    def save(self, path) -> Path:
-        """Write the whole frame (spec, pose, images, rays, ground truth) to ``.npz``; read back with :meth:`load`.
-
-        Written atomically; :meth:`load` (or :func:`load_frame`) gives a frame whose arrays
-        equal these bit for bit.
-        """
-        from .._atomic import save_npz
-
-        gt = self.ground_truth
-        rays = {f"ray_{f.name}": getattr(self.rays, f.name) for f in dataclasses.fields(SonarRays)
-                if f.name != "elevation_step"}
-        share = {f"share_{k}": v for k, v in self.seabed_share.items()}
-        header = dict(format=_FORMAT, version=_VERSION, kind="simulated", spec=spec_to_dict(self.spec),
-                      time=self.time, body_names=list(self.body_names), elevation_step=self.rays.elevation_step,
-                      seabed_share=list(self.seabed_share))
-        return save_npz(path, header=np.array(json.dumps(header)), intensity=self.intensity, image=self.image,
-                        pose_R=self.pose.R, pose_t=self.pose.t, gt_body=gt.body, gt_elevation_min=gt.elevation_min,
-                        gt_elevation_max=gt.elevation_max, gt_shadow=gt.shadow, gt_range_map=gt.range_map,
-                        **rays, **share)
-
-    @staticmethod
-    def load(path) -> "SonarFrame | MeasuredSonarFrame":
-        """Read a frame written by :meth:`SonarFrame.save` or :meth:`MeasuredSonarFrame.save`."""
-        return load_frame(path)
-
-
-@dataclass(frozen=True, eq=False)
-class MeasuredSonarFrame:
-    """One sonar frame read from a real log (or emitted in a device's units).
-
-    Shares :class:`SonarImageLike` with :class:`SonarFrame`, so every function that takes
-    a sonar image takes either.
-
-    Attributes
-    ----------
-    raw : ndarray ``(n_bins, n_beams)``
-        The values as the device stored them (``uint8`` dB bytes for ARIS, gamma-coded
-        ``uint8`` or ``uint16`` for Oculus, any ``ProjectedSonarImage`` type, ...).
-        Row = range bin (near to far), column = beam (left to right).
-    image : float32 ``(n_bins, n_beams)``
-        Linear intensity decoded from ``raw`` with ``encoding`` (``optiacoustic.io.units``).
-    spec : SonarSpec
-        The device as far as the file says (beam table, range window or table, frequency,
-        sound speed); fields the file does not give keep SonarSpec's defaults.
-    time : float
-        Seconds since the Unix epoch (float64); NaN when the file has no clock.
-    encoding : str
-        How ``raw`` maps to ``image`` (``"linear"``, ``"aris_db"``, ``"oculus_gamma8"``, ...).
-    source : str
-        File (and topic) the frame came from.
-    index : int
-        Frame index within the file or topic.
-    meta : mapping
-        Device settings as read (read-only; JSON-able values).
-    """
-
-    raw: np.ndarray
-    image: np.ndarray
-    spec: SonarSpec
-    time: float = float("nan")
-    encoding: str = "linear"
-    source: str = ""
-    index: int = 0
-    meta: Mapping = field(default_factory=dict)
-
-    def __post_init__(self):
-        shape = (self.spec.n_bins, self.spec.n_beams)
-        for name in ("raw", "image"):
-            a = getattr(self, name)
-            if np.shape(a) != shape:
-                raise ValueError(f"MeasuredSonarFrame.{name}: expected shape (n_bins, n_beams) = {shape}, "
-                                 f"got {np.shape(a)}")
-        if not isinstance(self.meta, MappingProxyType):
-            object.__setattr__(self, "meta", MappingProxyType(dict(self.meta)))
-
-    @property
-    def ranges(self) -> np.ndarray:
-        """Range-bin centres (m), ``(n_bins,)``."""
-        return self.spec.ranges
-
-    @property
-    def azimuths(self) -> np.ndarray:
-        """Beam-centre azimuths (rad), ``(n_beams,)``, possibly uneven."""
-        return self.spec.azimuths
-
-    @property
-    def intensity(self) -> np.ndarray:
-        """Alias of ``image`` (a measured frame has no separate noise-free echo)."""
-        return self.image
-
-    def fan(self, which: Literal["image", "intensity"] = "image", *, width: int = 800) -> FanImage:
-        """The linear image resampled to the fan (beam and range tables honoured)."""
-        from .display import polar_to_fan
-
-        if which not in ("image", "intensity"):
-            raise ValueError(f"fan: which must be 'image' or 'intensity', got {which!r}")
-        return polar_to_fan(self.image, self.spec, width=width)
-
-    def save(self, path) -> Path:
-        """Write raw, image, spec, time, encoding and meta to ``.npz`` (atomically); :meth:`load` reads it back."""
-        from .._atomic import save_npz
-
-        header = dict(format=_FORMAT, version=_VERSION, kind="measured", spec=spec_to_dict(self.spec),
-                      time=self.time, encoding=self.encoding, source=self.source, index=int(self.index),
-                      meta=dict(self.meta))
-        return save_npz(path, header=np.array(json.dumps(header, default=_json_default)), raw=self.raw,
-                        image=self.image)
-
-    @staticmethod
-    def load(path) -> "SonarFrame | MeasuredSonarFrame":
-        """Read a frame written by ``save`` (either kind)."""
-        return load_frame(path)
-
-
-def _json_default(o):
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (bytes, bytearray)):
-        return o.hex()
-    raise TypeError(f"meta value of type {type(o).__name__} is not JSON-able")
-
-
-def load_frame(path) -> "SonarFrame | MeasuredSonarFrame":
-    """Read a frame written by :meth:`SonarFrame.save` or :meth:`MeasuredSonarFrame.save`.
-
-    Raises
-    ------
-    ValueError
-        Not such a file (names the path and what is missing).
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
-    try:
-        z = np.load(path, allow_pickle=False)
-        header = json.loads(str(z["header"]))
-    except Exception as exc:  # zip/npz/json errors of every kind: one clear message
-        raise ValueError(f"{path}: not a saved sonar frame ({type(exc).__name__}: {exc})") from None
-    if header.get("format") != _FORMAT:
-        raise ValueError(f"{path}: not a saved sonar frame (format {header.get('format')!r})")
-    if header.get("version", 0) > _VERSION:
-        raise ValueError(f"{path}: frame format version {header['version']} is newer than this reader ({_VERSION})")
-    spec = spec_from_dict(header["spec"])
-    if header["kind"] == "measured":
-        return MeasuredSonarFrame(raw=z["raw"], image=z["image"], spec=spec, time=float(header["time"]),
-                                  encoding=header["encoding"], source=header["source"], index=header["index"],
-                                  meta=header["meta"])
-    arrays = {k: z[k] for k in z.files}
-    rays = SonarRays(**{f.name: arrays[f"ray_{f.name}"] for f in dataclasses.fields(SonarRays)
-                        if f.name != "elevation_step"}, elevation_step=float(header["elevation_step"]))
-    maps = (arrays["gt_body"], arrays["gt_elevation_min"], arrays["gt_elevation_max"])
-    shadow = arrays["gt_shadow"]
-    gt = SonarGroundTruth(arrays["gt_range_map"], lambda: maps, lambda _emin: shadow)
-    return SonarFrame(spec=spec, pose=Pose(arrays["pose_R"], arrays["pose_t"]), intensity=arrays["intensity"],
-                      image=arrays["image"], ground_truth=gt, rays=rays, body_names=tuple(header["body_names"]),
-                      seabed_share={k: arrays[f"share_{k}"] for k in header["seabed_share"]},
-                      time=float(header["time"]))
