@@ -168,9 +168,38 @@ def test_convert_real_logs_into_the_layout(dataset, tmp_path):
     assert bool(s["done"].all())
     # our own export converts back to the same images
     mcap = write_mcap(dataset, tmp_path / "x.mcap")
-    r = CliRunner().invoke(app, ["convert", str(mcap), "--topic", "/sonar/image", "--out", str(tmp_path / "back.zarr")])
+    r = CliRunner().invoke(app, ["convert", str(mcap), "--topic", "/sonar/image", "--camera-topic", "/camera/image",
+                                 "--out", str(tmp_path / "back.zarr")])
     assert r.exit_code == 0, r.output
-    back = zarr.open_group(str(tmp_path / "back.zarr"), mode="r")["sonar"]
-    np.testing.assert_array_equal(back["image"][:], zarr.open_group(str(dataset), mode="r")["sonar"]["image"][:])
+    back = zarr.open_group(str(tmp_path / "back.zarr"), mode="r")
+    orig = zarr.open_group(str(dataset), mode="r")
+    np.testing.assert_array_equal(back["sonar/image"][:], orig["sonar/image"][:])
+    np.testing.assert_array_equal(back["camera/image"][:], orig["camera/image"][:])
+    np.testing.assert_allclose(back["camera/K"][:], orig["camera/K"][:])
+    np.testing.assert_allclose(back["camera/time"][:], orig["camera/time"][:])
     r = CliRunner().invoke(app, ["convert", str(mcap), "--out", str(tmp_path / "back.zarr")])
     assert r.exit_code == 2 and "already exists" in " ".join(r.output.split())
+
+
+def test_device_encodings_decode_back(dataset, tmp_path):
+    """Oculus gamma bytes and ARIS dB bytes: the project's units.decode gives the image back to quantisation."""
+    from optiacoustic.io import units
+
+    s = zarr.open_group(str(dataset), mode="r")["sonar"]
+    img = s["image"][1]
+    fs = float(np.percentile(img, 99))
+    # decode: Oculus bytes give intensity in units of the full-scale power, ARIS bytes over the reference
+    for enc, params, unit in (("oculus_gamma8", {}, fs), ("aris_db", {"reference": fs * 1e-8}, 1.0)):
+        mcap = write_mcap(dataset, tmp_path / f"{enc}.mcap", sonar_encoding=enc, full_scale=fs, ground_truth=False)
+        m = _read(mcap)["/sonar/image"][1][1]
+        assert m.image.dtype == 0  # uint8
+        counts = np.frombuffer(m.image.data.tobytes(), np.uint8).reshape(80, 40)
+        assert counts.max() == 255 and np.mean(counts == 255) < 0.03  # full scale at the top count
+        back = units.decode(counts, enc, **params) * unit
+        ok = (img > fs * 1e-6) & (img < fs)
+        # the top count is full scale; below it decoding returns the intensity to within one count
+        if enc == "aris_db":
+            np.testing.assert_allclose(10 * np.log10(back[ok]), 10 * np.log10(img[ok]), atol=80 / 255 / 2 + 1e-4)
+        else:
+            np.testing.assert_allclose(255 * (back[ok] / fs) ** (127 / 510), 255 * (img[ok] / fs) ** (127 / 510),
+                                       atol=0.5 + 1e-3)

@@ -68,6 +68,8 @@ def export_cmd(
     sonar_dtype: str = typer.Option("float32", "--sonar-dtype", help="float32, uint8 or uint16 sonar data."),
     full_scale: Optional[float] = typer.Option(None, "--full-scale",
                                                help="Intensity of the top count for uint8/uint16 (default: 99.9th pct)."),
+    sonar_encoding: Optional[str] = typer.Option(None, "--sonar-encoding",
+                                                 help="Device units for the sonar: oculus_gamma8 or aris_db."),
     camera_encoding: str = typer.Option("32FC3", "--camera-encoding", help="32FC3 (linear) or rgb8 (sRGB)."),
     start_time: float = typer.Option(0.0, "--start-time", help="ROS time (s) of dataset time 0."),
     ground_truth: bool = typer.Option(True, "--ground-truth/--no-ground-truth", help="Ground-truth topics."),
@@ -75,8 +77,8 @@ def export_cmd(
     """Write a dataset as ROS 2 messages (ProjectedSonarImage, Image, CameraInfo, TF) into an MCAP file."""
     from ..io.mcap_writer import write_mcap
 
-    p = write_mcap(dataset, mcap, sonar_dtype=sonar_dtype, full_scale=full_scale, camera_encoding=camera_encoding,
-                   start_time=start_time, ground_truth=ground_truth)
+    p = write_mcap(dataset, mcap, sonar_dtype=sonar_dtype, full_scale=full_scale, sonar_encoding=sonar_encoding,
+                   camera_encoding=camera_encoding, start_time=start_time, ground_truth=ground_truth)
     out.print(f"wrote {p} ({p.stat().st_size / 1e6:.1f} MB)", highlight=False)
 
 
@@ -86,11 +88,15 @@ def convert_cmd(
     log: Path = typer.Argument(..., metavar="LOG", help="ARIS, Oculus, ROS 1 .bag, ROS 2 bag folder or .mcap."),
     out_path: Path = typer.Option(..., "--out", help="Output Zarr store (DATA.zarr); must not exist."),
     topic: Optional[str] = typer.Option(None, "--topic", help="Sonar topic of a bag (default: its only one)."),
+    camera: Optional[Path] = typer.Option(None, "--camera", help="Camera bag or image folder (default: LOG with --camera-topic)."),
+    camera_topic: Optional[str] = typer.Option(None, "--camera-topic", help="Camera image topic of a bag."),
     skip_damaged: bool = typer.Option(False, "--skip-damaged", help="Leave damaged frames out instead of stopping."),
 ):
-    """Turn a real sonar log into the dataset layout (sonar image, raw values, time, ranges, azimuths)."""
+    """Turn a real log into the dataset layout (sonar image, raw values, time, ranges, azimuths; camera images)."""
     from ..io.convert import convert_log
 
-    res = convert_log(log, out_path, topic=topic, errors="skip" if skip_damaged else "raise")
+    res = convert_log(log, out_path, topic=topic, camera=camera, camera_topic=camera_topic,
+                      errors="skip" if skip_damaged else "raise")
     skipped = f", skipped frames {res['skipped']}" if res["skipped"] else ""
-    out.print(f"{res['path']}: {res['frames']} sonar frames{skipped}", highlight=False)
+    cams = f", {res['camera_frames']} camera frames" if res["camera_frames"] else ""
+    out.print(f"{res['path']}: {res['frames']} sonar frames{cams}{skipped}", highlight=False)

@@ -15,7 +15,6 @@ whatever the number of workers and the order they finish in.
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import threading
 import time
@@ -88,6 +87,7 @@ def _jsonable(x):
 
 def _metadata(seq) -> dict:
     from .. import __version__
+    from ..sonar.frame import spec_to_dict
 
     rig, cam, w = seq.rig, seq.rig.camera, seq.water
     canonical = seq.canonical()
@@ -95,7 +95,7 @@ def _metadata(seq) -> dict:
         "format": FORMAT, "format_version": FORMAT_VERSION, "package_version": __version__,
         "fingerprint": seq.fingerprint(), "seed": seq.config.seed,
         "config": canonical["config"], "scene": canonical["scene"], "body_names": list(seq.scene.body_names()),
-        "sonar_spec": dataclasses.asdict(rig.sonar) if rig.sonar is not None else None,
+        "sonar_spec": spec_to_dict(rig.sonar) if rig.sonar is not None else None,
         "camera": {"fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy, "width": cam.width, "height": cam.height,
                    "dist": list(cam.dist), "K": cam.K},
         "rig": {"R_sonar_from_camera": rig.R, "t_camera_in_sonar": rig.t},

@@ -32,7 +32,7 @@ import numpy as np
 
 from .._atomic import OutputError
 
-__all__ = ["write_mcap", "SONAR_TOPICS", "CAMERA_TOPICS", "R_SONAR_FROM_ACOUSTIC"]
+__all__ = ["write_mcap", "SONAR_TOPICS", "CAMERA_TOPICS", "R_SONAR_FROM_ACOUSTIC", "DEVICE_ENCODINGS"]
 
 SONAR_TOPICS = {"image": "/sonar/image", "intensity": "/sonar/intensity", "body": "/sonar/ground_truth/body",
                 "elevation_min": "/sonar/ground_truth/elevation_min",
@@ -119,8 +119,23 @@ def _static_qos():
                QosTime(0, 0), QosLiveliness.AUTOMATIC, QosTime(0, 0), False)
 
 
+DEVICE_ENCODINGS = ("oculus_gamma8", "aris_db")
+
+
+def _device_counts(image: np.ndarray, encoding: str, full_scale: float) -> np.ndarray:
+    """Intensity in a device's units (:mod:`optiacoustic.io.units`), ``full_scale`` at the top count."""
+    from . import units
+
+    img = np.nan_to_num(image, nan=0.0)
+    if encoding == "oculus_gamma8":
+        return units.encode(img, encoding, full_scale=full_scale)
+    # aris_db: 0-255 spans 80 dB; the reference puts full scale at count 255
+    return units.encode(img, encoding, reference=full_scale * 10.0 ** -8.0)
+
+
 def write_mcap(dataset, out, *, sonar_dtype: str = "float32", full_scale: float | None = None,
-               camera_encoding: str = "32FC3", start_time: float = 0.0, ground_truth: bool = True) -> Path:
+               sonar_encoding: str | None = None, camera_encoding: str = "32FC3", start_time: float = 0.0,
+               ground_truth: bool = True) -> Path:
     """Write a dataset's done frames as ROS 2 messages into one MCAP file.
 
     Parameters
@@ -133,7 +148,11 @@ def write_mcap(dataset, out, *, sonar_dtype: str = "float32", full_scale: float 
         ``round(clip(I / full_scale, 0, 1) * max)``.
     full_scale : float, optional
         Linear intensity of the top count (default: the 99.9th percentile of the
-        dataset's sonar images); ignored for float32.
+        dataset's sonar images); ignored for float32 without ``sonar_encoding``.
+    sonar_encoding : {"oculus_gamma8", "aris_db"}, optional
+        ``/sonar/image`` in a device's own units (:mod:`optiacoustic.io.units`, uint8):
+        Oculus gamma-coded bytes (gamma byte 127) or ARIS 80 dB bytes, with
+        ``full_scale`` at count 255; overrides ``sonar_dtype``.
     camera_encoding : {"32FC3", "rgb8"}
         ``/camera/image``: linear float RGB as stored, or sRGB 8-bit.
     start_time : float
@@ -153,6 +172,10 @@ def write_mcap(dataset, out, *, sonar_dtype: str = "float32", full_scale: float 
 
     if sonar_dtype not in ("float32", "uint8", "uint16"):
         raise ValueError(f"sonar_dtype: expected 'float32', 'uint8' or 'uint16', got {sonar_dtype!r}")
+    if sonar_encoding is not None and sonar_encoding not in DEVICE_ENCODINGS:
+        raise ValueError(f"sonar_encoding: expected one of {list(DEVICE_ENCODINGS)}, got {sonar_encoding!r}")
+    if full_scale is not None and not (np.isfinite(full_scale) and full_scale > 0):
+        raise ValueError(f"full_scale: expected a finite intensity > 0, got {full_scale!r}")
     if camera_encoding not in ("32FC3", "rgb8"):
         raise ValueError(f"camera_encoding: expected '32FC3' or 'rgb8', got {camera_encoding!r}")
     src = Path(dataset)
@@ -212,7 +235,7 @@ def write_mcap(dataset, out, *, sonar_dtype: str = "float32", full_scale: float 
                     frequency=float(spec["frequency"]), sound_speed=float(spec["sound_speed"]),
                     tx_beamwidths=np.full(n_beams, spec["fov_elevation"], np.float32),
                     rx_beamwidths=np.full(n_beams, spec["beamwidth_azimuth"], np.float32))
-                if sonar_dtype != "float32" and full_scale is None:
+                if (sonar_dtype != "float32" or sonar_encoding) and full_scale is None:
                     done_idx = np.flatnonzero(sg["done"][:])
                     vals = np.concatenate([sg["image"][int(k)].ravel() for k in done_idx])
                     vals = vals[np.isfinite(vals) & (vals > 0)]
@@ -233,7 +256,12 @@ def write_mcap(dataset, out, *, sonar_dtype: str = "float32", full_scale: float 
                     put("/tf", T["tf2_msgs/msg/TFMessage"](
                         transforms=[_transform(ts, stamp, "world", "sonar", pose[:3, :3], pose[:3, 3])]), ns)
                     img = g["image"][k]
-                    data = img if sonar_dtype == "float32" else _quantise(img, np.dtype(sonar_dtype), full_scale)
+                    if sonar_encoding:
+                        data = _device_counts(img, sonar_encoding, full_scale)
+                    elif sonar_dtype == "float32":
+                        data = img
+                    else:
+                        data = _quantise(img, np.dtype(sonar_dtype), full_scale)
                     put(SONAR_TOPICS["image"], _sonar_message(ts, stamp, "sonar_acoustic", data, ranges, directions,
                                                               ping), ns)
                     for name in ("intensity", "body", "elevation_min", "elevation_max", "shadow"):

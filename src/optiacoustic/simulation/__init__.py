@@ -7,7 +7,8 @@ schedule of a sequence with per-sensor rates (:mod:`.sequence`).
 """
 
 from .pair import RigFrame, simulate_rig
+from .sequence import Sequence, SequenceConfig, frame_seed, load_config
 from .trajectory import Orbit, Trajectory, WaypointTrajectory, frame_times, lawnmower, load_csv, look_rotations
 
-__all__ = ["Orbit", "RigFrame", "Trajectory", "WaypointTrajectory", "frame_times", "lawnmower", "load_csv",
-           "look_rotations", "simulate_rig"]
+__all__ = ["Orbit", "RigFrame", "Sequence", "SequenceConfig", "Trajectory", "WaypointTrajectory", "frame_seed",
+           "frame_times", "lawnmower", "load_config", "load_csv", "look_rotations", "simulate_rig"]
