@@ -248,15 +248,14 @@ def dataset_pair(path, *, index: int = 0) -> Pair:
         raise SourceUnavailable(msg)
     from .. import io
     from ..camera import PinholeCamera
-    from ..sonar import SonarSpec
+    from ..sonar.frame import spec_from_dict
 
     tree = io.open_dataset(path)
     meta = tree.attrs.get("optiacoustic", {})
     if "sonar" not in tree.children or "camera" not in tree.children:
         raise ValueError(f"{path}: the workbench needs a dataset with both a sonar and a camera")
     try:
-        spec_d = {k: (tuple(v) if isinstance(v, list) else v) for k, v in meta["sonar_spec"].items()}
-        spec = SonarSpec(**spec_d)
+        spec = spec_from_dict(meta["sonar_spec"])
         c = meta["camera"]
         cam = PinholeCamera(fx=c["fx"], fy=c["fy"], cx=c["cx"], cy=c["cy"], width=c["width"], height=c["height"],
                             dist=tuple(c.get("dist", ())))
