@@ -64,7 +64,9 @@ def main(argv=None) -> int:
             text += (f"| {r['name']} | {r['value']:.4g} | {r['unit']} | {r.get('reference', '')} | "
                      f"{'' if ratio is None else f'{ratio:.3g}'} | {r.get('note', '')} |\n")
         text += f"\n(`benchmarks/{stem}.py`, {dt:.0f} s)\n\n"
-    Path(args.out).write_text(text)
+    from optiacoustic._atomic import write_text
+
+    write_text(args.out, text)
     print(f"wrote {args.out}")
     return 0
 

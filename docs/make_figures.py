@@ -13,6 +13,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from optiacoustic._atomic import savefig  # noqa: E402
+
 HERE = Path(__file__).resolve().parent
 IMG = HERE / "img"
 
@@ -85,7 +87,7 @@ def frames_figure(path: Path) -> None:
     ax2.set_yticks([])
     ax2.set_zticks([])
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    savefig(fig, path, dpi=110)
     plt.close(fig)
     assert np.allclose(R_SONAR_FROM_CAMERA_FORWARD @ [0, 0, 1], [0, 1, 0])
 
@@ -108,7 +110,7 @@ def readme_figure(path: Path) -> None:
         ax.set_xlabel("x_s (m)")
         ax.set_ylabel("y_s (m)")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    savefig(fig, path, dpi=90)
     plt.close(fig)
 
 

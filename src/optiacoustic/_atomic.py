@@ -14,14 +14,15 @@ parent) are raised as :class:`OutputError`, a ``ValueError`` whose message names
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import os
 import tempfile
 from pathlib import Path
 from typing import Iterator
 
-__all__ = ["OutputError", "atomic_path", "write_text", "write_bytes", "write_json", "save_npz", "savefig",
-           "imwrite"]
+__all__ = ["OutputError", "atomic_path", "ensure_dir", "write_text", "write_bytes", "write_json", "save_npz",
+           "savefig", "imwrite"]
 
 
 class OutputError(ValueError):
@@ -38,6 +39,36 @@ def _check_destination(path: Path) -> None:
         raise OutputError(f"cannot write {path}: not a regular file")
 
 
+@functools.lru_cache(maxsize=1)
+def _umask() -> int:
+    # Linux shows the umask in /proc; elsewhere os.umask can only be read by setting it (restored at once)
+    with contextlib.suppress(OSError, ValueError):
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def ensure_dir(path: str | os.PathLike) -> Path:
+    """Create folder ``path`` (and its parents) if missing; return it.
+
+    Raises
+    ------
+    OutputError
+        When ``path`` or one of its parents is a file, or the folder cannot be made (names the path).
+    """
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise OutputError(f"cannot write into {path}: it is a file, a folder was expected")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot make folder {path}: {exc.strerror or exc}") from None
+    return path
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, *, make_parents: bool = True) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` when the block succeeds.
@@ -51,9 +82,9 @@ def atomic_path(path: str | os.PathLike, *, make_parents: bool = True) -> Iterat
     """
     path = Path(path)
     _check_destination(path)
+    if make_parents:
+        ensure_dir(path.parent)
     try:
-        if make_parents:
-            path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.tmp-", suffix=path.suffix, dir=path.parent)
         os.close(fd)
     except OSError as exc:
@@ -61,6 +92,8 @@ def atomic_path(path: str | os.PathLike, *, make_parents: bool = True) -> Iterat
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        # mkstemp makes the file private (0600); give the result the mode a plain open() would
+        os.chmod(tmp_path, 0o666 & ~_umask())
         os.replace(tmp_path, path)
     except OSError as exc:
         with contextlib.suppress(OSError):

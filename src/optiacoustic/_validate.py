@@ -11,7 +11,7 @@ from typing import Sequence
 
 import numpy as np
 
-__all__ = ["as_array", "as_positive", "broadcast_arrays", "broadcast_points", "check_finite"]
+__all__ = ["as_array", "as_azimuths", "as_positive", "as_rng", "available_memory", "check_memory", "broadcast_arrays", "broadcast_points", "check_finite"]
 
 
 def _shape_str(shape: Sequence[int | None | str]) -> str:
@@ -55,6 +55,9 @@ def as_array(
         With the expected and the actual shape, or the position of the first
         non-finite value.
     """
+    if np.iscomplexobj(x) and np.dtype(dtype).kind in "fiu":
+        # numpy would drop the imaginary part with only a warning
+        raise ValueError(f"{name}: expected real numbers, got complex values (take np.abs or np.real explicitly)")
     try:
         arr = np.asarray(x, dtype=dtype)
     except (TypeError, ValueError) as exc:
@@ -72,7 +75,7 @@ def as_array(
             raise ValueError(
                 f"{name}: expected shape {_shape_str(shape)}, got {tuple(arr.shape)}"
             )
-    if finite and arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+    if finite and arr.dtype.kind == "f" and not np.isfinite(arr).all():
         bad = np.argwhere(~np.isfinite(arr))[0]
         where = tuple(int(i) for i in bad)
         raise ValueError(f"{name}: must be finite, found {arr[where] if where else arr} at index {where}")
@@ -117,3 +120,67 @@ def broadcast_points(x, name: str, shape: tuple) -> np.ndarray:
         return np.broadcast_to(arr, tuple(shape) + (3,)).reshape(-1, 3)
     except ValueError:
         raise ValueError(f"{name}: expected shape {tuple(shape) + (3,)}, got {arr.shape}") from None
+
+
+def as_rng(seed, name: str = "seed") -> np.random.Generator:
+    """A Generator from a seed (a non-negative integer), a Generator, or None (fresh entropy).
+
+    Floats, strings and booleans are refused rather than truncated or hashed: ``seed=1.5``
+    and ``seed=True`` are mistakes, not seeds.
+    """
+    if isinstance(seed, np.random.Generator):
+        return seed
+    if seed is None:
+        return np.random.default_rng()
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)):
+        raise ValueError(f"{name}: expected a non-negative integer, a numpy.random.Generator or None, "
+                         f"got {seed!r} ({type(seed).__name__})")
+    if seed < 0:
+        raise ValueError(f"{name}: expected a non-negative integer, got {int(seed)}")
+    return np.random.default_rng(int(seed))
+
+
+def as_azimuths(x, name: str = "azimuths", limit: float = np.pi) -> np.ndarray:
+    """Sonar azimuths (rad): finite and within ``[-limit, limit]``.
+
+    ``atan2`` gives azimuths in ``[-pi, pi]``; a value beyond ``limit`` is a mistake, most often
+    degrees passed where radians are expected (which would otherwise give empty curves or NaN
+    points without a word). Pass the fan's half-width as ``limit`` where only the fan makes sense.
+    """
+    a = as_array(x, name)
+    bad = np.abs(a) > limit
+    if np.any(bad):
+        i = tuple(int(k) for k in np.argwhere(bad)[0])
+        v = float(a[i] if i else a)
+        raise ValueError(f"{name}: azimuths are in radians within +-{limit:.4g}; got {v:g} at index {i} "
+                         f"(degrees? use np.deg2rad({v:g}) = {np.deg2rad(v):.4g} rad)")
+    return a
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to a new allocation (Linux ``MemAvailable``), or None if unknown."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import os
+
+        return int(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def check_memory(nbytes: float, what: str) -> None:
+    """Raise a ValueError before allocating ``nbytes`` (an upper estimate) that the machine does not have.
+
+    ``what`` says which request and which fields set its size, e.g.
+    ``"a 100000 x 100000 camera image (PinholeCamera.width x height)"``.
+    """
+    avail = available_memory()
+    if avail is not None and nbytes > avail:
+        raise ValueError(f"{what} needs about {nbytes / 2**30:.1f} GiB of memory; {avail / 2**30:.1f} GiB is "
+                         "available. Use a smaller size.")

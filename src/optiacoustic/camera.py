@@ -12,7 +12,9 @@ import numpy as np
 
 from ._validate import as_array
 
-__all__ = ["PinholeCamera"]
+__all__ = ["PinholeCamera", "MAX_IMAGE_SIDE"]
+
+MAX_IMAGE_SIDE = 32767  # px: OpenCV (remap, imwrite) limit
 
 
 @dataclass(frozen=True)
@@ -52,6 +54,8 @@ class PinholeCamera:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise ValueError(f"PinholeCamera.{name}: must be a positive integer, got {v!r}")
+            if v > MAX_IMAGE_SIDE:  # OpenCV's remap and image writers stop at 32767 px a side
+                raise ValueError(f"PinholeCamera.{name}: at most {MAX_IMAGE_SIDE} px, got {v}")
         d = tuple(float(x) for x in np.asarray(self.dist, float).reshape(-1))
         if len(d) != 5 or not all(np.isfinite(d)):
             raise ValueError(f"PinholeCamera.dist: expected 5 finite numbers (k1, k2, p1, p2, k3), got {self.dist!r}")

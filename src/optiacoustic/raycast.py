@@ -16,11 +16,12 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from ._validate import as_array
-from .scene import Scene
+from .scene import Scene, SceneError
 
 __all__ = ["RayCaster", "Hits", "caster_for", "default_threads"]
 
 _MISS_DIST = np.float32(1e30)
+MAX_COORDINATE = 1e6  # m: float32 resolves 6 cm there; beyond, hits would be wrong by metres
 
 
 def default_threads() -> int:
@@ -113,6 +114,12 @@ class RayCaster:
         self.scene = scene
         self.threads = threads or default_threads()
         surfaces = scene.surfaces()
+        for b, s in zip(scene.bodies, surfaces):
+            # Embree works in float32: a size that overflows it (or loses all precision) hits nothing silently
+            reach = float(np.max(np.abs(s.vertices))) if s.vertices.size else 0.0
+            if not np.isfinite(reach) or reach > MAX_COORDINATE:
+                raise SceneError(f"body '{b.name}': its surface reaches {reach:.3g} m from the origin; the ray caster "
+                                 f"computes in float32 and accepts coordinates up to {MAX_COORDINATE:g} m")
         self._embree = rtcore_scene.EmbreeScene()
         for s in surfaces:
             TriangleMesh(self._embree, s.vertices.astype(np.float32), s.faces.astype(np.int32))

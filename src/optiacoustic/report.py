@@ -7,6 +7,7 @@ import time
 from pathlib import Path
 
 from . import experiments
+from ._atomic import ensure_dir, write_text
 
 __all__ = ["build_report"]
 
@@ -69,8 +70,13 @@ def build_report(out_dir, *, only=None, quick: bool = False, seed: int = 0, prog
     the others; the function raises at the end if any failed, so ``make demo`` fails too.
     """
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    names = [n for n in experiments.names() if only is None or n in only]
+    known = experiments.names()
+    if only is not None:
+        unknown = [n for n in only if n not in known]
+        if unknown or not only:
+            raise ValueError(f"only: unknown experiment(s) {unknown or only}; experiments are {known}")
+    ensure_dir(out_dir)
+    names = [n for n in known if only is None or n in only]
     sections, failures = [], []
     for name in names:
         if progress:
@@ -97,7 +103,7 @@ Each section below is one experiment, run by <code>oas experiment NAME</code>; i
 {''.join(sections)}
 </body></html>"""
     index = out_dir / "index.html"
-    index.write_text(page)
+    write_text(index, page)
     if failures:
         raise RuntimeError(f"experiments failed: {failures}; see {index}")
     return index

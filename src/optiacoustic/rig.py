@@ -112,18 +112,10 @@ class Rig:
               position: [-0.25, 0, 0]        # t (m)
               rotation_deg: [0, 0, -2.27]    # about sonar x, y, z, applied to a forward-looking camera
         """
-        import json
-
-        import yaml
+        from ._config import load_config
 
         path = Path(path)
-        if not path.is_file():
-            raise ValueError(f"{path}: rig file not found")
-        try:
-            text = path.read_text()
-            data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
-        except (OSError, ValueError, yaml.YAMLError) as exc:
-            raise ValueError(f"{path}: cannot parse rig file: {exc}") from None
+        data = load_config(path, what="rig file")  # a ValueError naming the file and what is wrong
         return cls.from_dict(data, str(path))
 
     # ------------------------------------------------------------------ use

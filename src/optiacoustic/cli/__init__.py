@@ -20,4 +20,11 @@ __all__ = ["app", "main"]
 
 
 def main() -> None:
-    app()
+    """The ``oas`` entry point: Ctrl-C anywhere ends with one line and exit status 130."""
+    import sys
+
+    try:
+        app()
+    except KeyboardInterrupt:
+        sys.stderr.write("interrupted\n")
+        sys.exit(130)

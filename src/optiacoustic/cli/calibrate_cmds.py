@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Optional
 
@@ -10,7 +9,7 @@ import numpy as np
 import typer
 from rich.table import Table
 
-from .common import app, out, reports_errors
+from .common import app, out, reports_errors, resolve_input, resolve_inputs
 
 
 @app.command("calibrate")
@@ -28,11 +27,17 @@ def calibrate_cmd(
     """Calibrate the rig from matched grid corners: R, t, their uncertainty and the weak directions."""
     import yaml
 
-    from ..geometry.calibrate import extrinsics, load_view
+    from .._atomic import write_json, write_text
+    from .._config import load_config
+    from ..geometry.calibrate import check_view, extrinsics, load_view
     from ..rig import Rig
 
+    rig_file = resolve_input(rig_file)
     rig = Rig.load(rig_file)
+    views = resolve_inputs(views)
     vs = [load_view(p) for p in views]
+    for p, v in zip(views, vs):
+        check_view(v, rig.camera, rig.sonar, name=str(p))
     initial = (rig.R, rig.t) if start_from_rig else None
     res = extrinsics(rig.camera, vs, sigma_pixel=sigma_pixel, sigma_range=sigma_range,
                      sigma_azimuth=float(np.deg2rad(sigma_azimuth_deg)), sonar=rig.sonar, initial=initial)
@@ -53,14 +58,12 @@ def calibrate_cmd(
         out.print(f"weakly observed: {', '.join(res.weak)} (the sonar does not measure elevation; "
                   "views with the grid spanning the elevation aperture and tilted help)")
     if out_file is not None:
-        src = yaml.safe_load(Path(rig_file).read_text()) if rig_file.suffix.lower() != ".json" else json.loads(rig_file.read_text())
+        src = load_config(rig_file, what="rig file")
         data = {k: v for k, v in (src or {}).items() if k in ("sonar", "camera")}
         data["R"] = np.round(res.R, 12).tolist()
         data["t"] = np.round(res.t, 12).tolist()
-        out_file.parent.mkdir(parents=True, exist_ok=True)
-        out_file.write_text(yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
+        write_text(out_file, yaml.safe_dump(data, sort_keys=False, default_flow_style=None))
         out.print(f"wrote {out_file}")
     if json_file is not None:
-        json_file.parent.mkdir(parents=True, exist_ok=True)
-        json_file.write_text(json.dumps(d, indent=2) + "\n")
+        write_json(json_file, d)
         out.print(f"wrote {json_file}")

@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from .common import app, console, out, reports_errors
+from .common import app, console, out, reports_errors, resolve_input
 
 
 def _progress_bar():
@@ -37,6 +37,7 @@ def dataset_cmd(
     """Render a synchronised sonar + camera sequence with ground truth into Zarr, on Dask; resumable."""
     from ..io.dataset import write_dataset
 
+    config = resolve_input(config)  # examples/... works from any folder
     bar = None
     task = None
 

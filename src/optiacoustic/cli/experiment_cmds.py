@@ -6,16 +6,28 @@ from pathlib import Path
 
 import typer
 
-from .common import app, out, reports_errors
+from .common import _Command, app, out, progress, reports_errors
 
 
-@app.command("experiment")
+class _ExperimentCommand(_Command):
+    """Lists the experiments in its help (read only when help is asked for, so ``oas --help`` stays fast)."""
+
+    def format_help(self, ctx, formatter):
+        from .. import experiments
+
+        rows = "\n".join(f"  {n:15s} ch. {getattr(experiments.get(n), 'CHAPTER', '?')}: "
+                         f"{getattr(experiments.get(n), 'TITLE', '')}" for n in experiments.names())
+        self.epilog = "\b\nExperiments:\n" + rows
+        return super().format_help(ctx, formatter)
+
+
+@app.command("experiment", cls=_ExperimentCommand)
 @reports_errors
 def experiment(
-    name: str = typer.Argument(..., help="Experiment name; 'list' shows them."),
+    name: str = typer.Argument(..., metavar="NAME", help="Experiment name (listed below); 'list' prints them."),
     out_dir: Path = typer.Option(Path("out/experiments"), "--out", help="Output folder (NAME is appended)."),
     quick: bool = typer.Option(False, "--quick", help="Fewer Monte Carlo trials (for smoke runs)."),
-    seed: int = typer.Option(0, "--seed", help="Random seed."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Random seed."),
 ):
     """Run a thesis experiment: writes PNG figures and results.json into --out/NAME."""
     from .. import experiments
@@ -25,8 +37,10 @@ def experiment(
             mod = experiments.get(n)
             out.print(f"{n:16s} ch. {getattr(mod, 'CHAPTER', '?')}: {getattr(mod, 'TITLE', '')}")
         return
+    experiments.get(name)  # an unknown name fails here, before any folder is made
     target = out_dir / name if out_dir.name != name else out_dir
-    res = experiments.run(name, target, quick=quick, seed=seed)
+    with progress(f"experiment {name}"):
+        res = experiments.run(name, target, quick=quick, seed=seed)
     out.print(f"[bold]{name}[/]: {res.summary}")
     for f, cap in res.figures:
         out.print(f"  {f}  - {cap}")

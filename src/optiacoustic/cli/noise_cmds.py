@@ -94,8 +94,8 @@ def noise_fit(
     model: Optional[str] = typer.Option(
         None, "--model", help="Model to draw the --bottom samples from: rayleigh, weibull, k or mixture (default mixture)."
     ),
-    n: int = typer.Option(100_000, "--n", help="Number of samples drawn with --bottom."),
-    seed: int = typer.Option(0, "--seed", help="Random seed of the draw."),
+    n: int = typer.Option(100_000, "--n", min=1, help="Number of samples drawn with --bottom."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Random seed of the draw."),
     input_file: Optional[Path] = typer.Option(
         None, "--input", help="Real sonar data: a sonar log (.aris, Oculus pings, bag, .mcap; polar, linearised "
         "from the device encoding), or a .npy amplitude array / grayscale image."
@@ -119,6 +119,7 @@ def noise_fit(
     from rich.markup import escape
     from rich.table import Table
 
+    from .._atomic import write_json
     from ..sonar import distributions as D
 
     if (bottom is None) == (input_file is None):

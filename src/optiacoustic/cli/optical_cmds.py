@@ -9,7 +9,7 @@ from typing import Optional
 import typer
 from rich.table import Table
 
-from .common import Vec3, app, out, reports_errors, resolve_scene, resolve_view
+from .common import Vec3, app, out, reports_errors, resolve_input, resolve_scene, resolve_view
 
 
 @app.command("waters")
@@ -35,14 +35,15 @@ def optical_cmd(
     target: Optional[Vec3] = typer.Option(None, "--target", help="Point the camera looks at X Y Z (m)."),
     out_dir: Path = typer.Option(Path("out/optical"), "--out", help="Output folder."),
     water: str = typer.Option("thesis", "--water", help="Water type (oas waters)."),
-    width: int = typer.Option(600, "--width", help="Image width (px)."),
-    height: int = typer.Option(400, "--height", help="Image height (px)."),
+    width: int = typer.Option(600, "--width", min=1, help="Image width (px)."),
+    height: int = typer.Option(400, "--height", min=1, help="Image height (px)."),
     focal_mm: float = typer.Option(50.0, "--focal-mm", help="Focal length (mm) on a 36 x 24 mm sensor."),
-    slices: int = typer.Option(32, "--slices", help="Backscatter slices."),
-    seed: Optional[int] = typer.Option(None, "--seed", help="Sensor-noise seed (no noise without it)."),
+    slices: int = typer.Option(32, "--slices", min=1, help="Backscatter slices."),
+    seed: Optional[int] = typer.Option(None, "--seed", min=0, help="Sensor-noise seed (no noise without it)."),
     figures: bool = typer.Option(True, "--figures/--no-figures", help="Write the stage figures."),
 ):
     """Render the underwater camera alone: NPZ (stages, depth, body ids) and PNGs."""
+    from .._atomic import ensure_dir
     from ..camera import PinholeCamera
     from ..frames import Pose
     from ..optical import OpticalOptions, simulate_optical
@@ -55,7 +56,7 @@ def optical_cmd(
     t0 = time.perf_counter()
     frame = simulate_optical(scene, camera, pose, water=water, seed=seed, options=OpticalOptions(slices=slices))
     dt = time.perf_counter() - t0
-    out_dir.mkdir(parents=True, exist_ok=True)
+    ensure_dir(out_dir)
     written = [frame.save_npz(out_dir / "optical.npz")]
     if figures:
         written += [p for p, _ in save_stage_figures(frame, out_dir)]
@@ -77,7 +78,7 @@ def render_cmd(
     target: Optional[Vec3] = typer.Option(None, "--target", help="Point the sonar looks at X Y Z (m)."),
     out_dir: Path = typer.Option(Path("out/render"), "--out", help="Output folder."),
     water: str = typer.Option("thesis", "--water", help="Water type (oas waters)."),
-    seed: int = typer.Option(0, "--seed", help="Seed of the sonar noise and the camera's sensor noise."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Seed of the sonar noise and the camera's sensor noise."),
     sonar_noise: bool = typer.Option(True, "--sonar-noise/--no-sonar-noise", help="Sonar noise and reverberation."),
 ):
     """Render a synchronised sonar + camera pair from a rig, with ground truth and both poses."""
@@ -88,7 +89,7 @@ def render_cmd(
 
     scene = resolve_scene(scene_name)
     e, t = resolve_view(scene, eye, target)
-    rig = Rig.load(rig_file)
+    rig = Rig.load(resolve_input(rig_file))
     t0 = time.perf_counter()
     pair = simulate_rig(scene, rig, Pose.look_at(e, t, body="sonar"), water=Water.preset(water), seed=seed,
                         sonar_noise=None if sonar_noise else False)

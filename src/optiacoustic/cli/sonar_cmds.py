@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from typing import Optional
@@ -78,12 +77,12 @@ def sonar_cmd(
     eye: Optional[Vec3] = typer.Option(None, "--eye", help="Sonar position X Y Z (m); default: the scene's view."),
     target: Optional[Vec3] = typer.Option(None, "--target", help="Point the sonar looks at X Y Z (m)."),
     out_dir: Path = typer.Option(Path("out/sonar"), "--out", help="Output folder."),
-    seed: int = typer.Option(0, "--seed", help="Noise seed."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Noise seed."),
     no_noise: bool = typer.Option(False, "--no-noise", help="Image without noise and reverberation."),
-    elevation_samples: Optional[int] = typer.Option(None, "--elevation-samples", help="Rays per beam across the elevation aperture."),
+    elevation_samples: Optional[int] = typer.Option(None, "--elevation-samples", min=1, help="Rays per beam across the elevation aperture."),
     spreading: bool = typer.Option(False, "--spreading", help="Simulate spreading and absorption instead of ideal TVG."),
     azimuth_pattern: bool = typer.Option(False, "--azimuth-pattern", help="Cross-beam leakage from the azimuth beam pattern."),
-    frames: int = typer.Option(1, "--frames", help="Render this many frames (different noise seeds)."),
+    frames: int = typer.Option(1, "--frames", min=1, help="Render this many frames (different noise seeds)."),
     figures: bool = typer.Option(True, "--figures/--no-figures", help="Write the stage figures."),
 ):
     """Simulate a sonar frame: NPZ (intensity, image, ranges, azimuths, ground truth) and PNGs."""
@@ -91,6 +90,7 @@ def sonar_cmd(
 
     from rich.progress import Progress
 
+    from .._atomic import ensure_dir, write_json
     from ..frames import Pose
     from ..sonar import SonarOptions, SonarSpec, simulate_sonar
     from ..sonar.display import save_png, to_display
@@ -103,7 +103,7 @@ def sonar_cmd(
         spec = dataclasses.replace(spec, elevation_samples=elevation_samples)
     options = SonarOptions(propagation="spreading" if spreading else "tvg", azimuth_pattern=azimuth_pattern)
     pose = Pose.look_at(e, t)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    ensure_dir(out_dir)
     with Progress(console=console, transient=True) as progress:
         task = progress.add_task("simulating", total=frames)
         for k in range(frames):
@@ -133,5 +133,5 @@ def sonar_cmd(
         "seconds_last_frame": dt,
         "body_names": list(frame.body_names),
     }
-    (out_dir / "frame.json").write_text(json.dumps(meta, indent=2))
+    write_json(out_dir / "frame.json", meta)
     out.print(f"{scene.name} with {spec.name}: {frames} frame(s), last in {dt * 1e3:.0f} ms -> {out_dir}")

@@ -9,12 +9,13 @@ and ``results.json`` into ``out_dir``. Modules are discovered automatically.
 from __future__ import annotations
 
 import importlib
-import json
 import pkgutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from .._atomic import ensure_dir, write_json
 
 __all__ = ["ExperimentResult", "names", "get", "run", "write_results"]
 
@@ -65,7 +66,7 @@ def _jsonable(x):
 def write_results(result: ExperimentResult, out_dir) -> Path:
     """Write ``results.json`` (numbers, summary, figure list, tables) into ``out_dir``."""
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    ensure_dir(out_dir)
     data = {
         "name": result.name,
         "summary": result.summary,
@@ -74,8 +75,7 @@ def write_results(result: ExperimentResult, out_dir) -> Path:
         "tables": [{"title": t, "header": h, "rows": r} for t, h, r in result.tables],
     }
     path = out_dir / "results.json"
-    path.write_text(json.dumps(_jsonable(data), indent=2) + "\n")
-    return path
+    return write_json(path, _jsonable(data))
 
 
 def _modules() -> dict:
@@ -105,7 +105,7 @@ def get(name: str):
 def run(name: str, out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     """Run experiment ``name`` into ``out_dir`` and write its ``results.json``."""
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    ensure_dir(out_dir)
     result = get(name).run(out_dir, quick=quick, seed=seed)
     write_results(result, out_dir)
     return result

@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from . import ExperimentResult
+from .._atomic import ensure_dir, savefig
+from .._progress import track
 
 NAME = "calibration"
 TITLE = "Rig calibration from a planar grid seen by both sensors (thesis appendix A)"
@@ -47,7 +49,7 @@ def _trials(rig, n_views, scale, runs, seed):
 
     sig = {k: v * scale for k, v in SIGMA.items()}
     errs, stds, nees, fails = [], [], [], 0
-    for k in range(runs):
+    for k in track(range(runs), f"calibration: {n_views} views, noise x{scale:g}"):
         views, _ = C.simulate_views(rig, n_views, seed=seed + 7919 * k + 101 * n_views, **sig)
         res = C.extrinsics(rig.camera, views, sonar=rig.sonar, **sig)
         if not res:
@@ -95,7 +97,7 @@ def _fig_vs(xs, results, xlabel, title, path, logx=False):
     axes[1].set_title("translation (sonar frame)")
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    savefig(fig, path, dpi=100)
     plt.close(fig)
     return path
 
@@ -129,7 +131,7 @@ def _fig_setup(rig, path, seed):
         ax.set_aspect("equal")
         ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    savefig(fig, path, dpi=100)
     plt.close(fig)
     return path
 
@@ -138,7 +140,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     from scipy.stats import chi2
 
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    ensure_dir(out)
     rig = _rig()
     runs = 3 if quick else 30
     views = (2, 6) if quick else VIEWS

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from . import ExperimentResult
+from .._atomic import savefig
 
 NAME = "sonar"
 TITLE = "2D imaging sonar simulator (scene 1, BlueView P900-90)"
@@ -67,7 +68,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     ax.legend()
     fig.tight_layout()
     p = out / "convergence.png"
-    fig.savefig(p, dpi=100)
+    savefig(fig, p, dpi=100)
     plt.close(fig)
     figures.append((p, "The image converges at first order in the elevation step; the default of 128 rays per beam "
                        "changes by under 1% when doubled."))
@@ -89,7 +90,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
         ax.set_ylabel("y_s (m)")
     fig.tight_layout()
     p = out / "variants.png"
-    fig.savefig(p, dpi=90)
+    savefig(fig, p, dpi=90)
     plt.close(fig)
     figures.append((p, "Left: the 130-degree P900. Right: raw echo with spherical spreading and absorption "
                        "(no TVG) and cross-beam leakage from the 1-degree azimuth beam pattern (dB display)."))

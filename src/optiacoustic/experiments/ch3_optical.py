@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from . import ExperimentResult
+from .._atomic import ensure_dir, savefig
 
 NAME = "optical"
 TITLE = "Underwater optical image simulator (Jaffe-McGlamery)"
@@ -76,7 +77,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     from ..simulation.figures import save_pair_figure
 
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    ensure_dir(out)
     scene = scenes.get("thesis_scene1")
     rig = thesis_rig()
     sonar_pose = Pose.look_at(THESIS_SONAR_EYE, (0.0, 0.0, 0.0), body="sonar")
@@ -148,7 +149,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     ax.legend()
     fig.tight_layout()
     p = out / "optical_contrast_vs_range.png"
-    fig.savefig(p, dpi=90)
+    savefig(fig, p, dpi=90)
     plt.close(fig)
     figures.append((p, "Contrast of a white target against the veil falls with range, faster in more turbid water "
                        "(Jerlov 1C: gone by a few metres)."))

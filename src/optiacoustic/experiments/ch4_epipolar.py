@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from . import ExperimentResult
+from .._atomic import ensure_dir, savefig
 
 NAME = "epipolar"
 TITLE = "Opti-acoustic epipolar geometry (scene 1, BlueView P900-90 + 50 mm camera)"
@@ -170,7 +171,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     from ..sonar import SonarSpec, simulate_sonar
 
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    ensure_dir(out)
     scene = scenes.get("thesis_scene1")
     spec = SonarSpec.preset("blueview-p900-90")
     camera = PinholeCamera.from_sensor(600, 400, (36, 24), 50)
@@ -226,7 +227,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
         axs[1].annotate(str(k + 1), f["pixel"], xytext=(5, -8), textcoords="offset points", color=COLORS[k % 9], fontsize=9)
     fig.tight_layout()
     p = out / "epipolar_sonar_to_optical.png"
-    fig.savefig(p, dpi=110)
+    savefig(fig, p, dpi=110)
     plt.close(fig)
     figures.append((p, "Fig. 4.4: (a) leading edges of the objects marked in the sonar fan image; (b) their epipolar "
                        "conics in the optical image: solid, the arc the sonar's +-10 deg elevation aperture allows; dashed, "
@@ -275,7 +276,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
                     color="cyan", fontsize=8)
     fig.tight_layout()
     p = out / "epipolar_optical_to_sonar.png"
-    fig.savefig(p, dpi=110)
+    savefig(fig, p, dpi=110)
     plt.close(fig)
     figures.append((p, "Fig. 4.5: (a) optical features; (b) their curves r(theta) in the sonar fan image: solid where the "
                        "point would lie inside the +-10 deg elevation aperture and the fan, dashed beyond; every curve starts "
@@ -326,7 +327,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
         big.set_ylabel("v (px)")
     fig.tight_layout()
     p = out / "epipolar_vergence.png"
-    fig.savefig(p, dpi=110)
+    savefig(fig, p, dpi=110)
     plt.close(fig)
     figures.append((p, "Fig. 4.3: the same sonar features' conics for (a) the nearly parallel thesis rig and "
                        f"(b) a camera {SIDE_ANGLE_DEG:.0f} deg around the scene (vergence {np.rad2deg(side.vergence):.0f} deg); "

@@ -24,6 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from . import ExperimentResult
+from .._atomic import ensure_dir, savefig
+from .._progress import track
 
 NAME = "motion"
 TITLE = "Motion from opti-acoustic image sequences: perpendicular planes (thesis Figs. 6.2-6.6)"
@@ -122,7 +124,7 @@ def _monte_carlo(rig, s1, s2, runs, sigma_pixel, seed):
     rows = {k: [] for k in STAGES + ("monocular",)}
     nees, prec, rec, times, fails, planes = [], [], [], [], 0, []
     first = None
-    for k in range(runs):
+    for k in track(range(runs), f"motion: Monte Carlo, {sigma_pixel:.3g} px"):
         rng = np.random.default_rng(seed + 1000 * k)
         D = _matches(rig, s1, s2, rng, sigma_pixel)
         t0 = time.perf_counter()
@@ -188,7 +190,7 @@ def _fig_geometry(rig, s1, s2, path):
     ax.set_ylabel("y (m)")
     ax.set_title("Rig positions relative to the walls (top view; S sonar, O camera)")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    savefig(fig, path, dpi=110)
     plt.close(fig)
     return path
 
@@ -224,7 +226,7 @@ def _fig_views(scene, rig, s1, s2, D, res, path):
         ax.set_title(f"Sonar fan image, view {k + 1} (0.5-3 m window)")
     fig.suptitle("Thesis Fig. 6.3: the scene in the two views, with the optical and sonar matches")
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    savefig(fig, path, dpi=90)
     plt.close(fig)
     return path
 
@@ -278,7 +280,7 @@ def _fig_reconstruction(rig, s1, D, stage, title, path):
     ax2.set_title("top view (grey: the true walls)")
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=95)
+    savefig(fig, path, dpi=95)
     plt.close(fig)
     return path
 
@@ -298,7 +300,7 @@ def _fig_errors(mc, path):
         ax.grid(alpha=0.3)
     fig.suptitle(f"Errors over {mc['runs']} noise draws (monocular: the better of the two interpretations, no scale)")
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
+    savefig(fig, path, dpi=100)
     plt.close(fig)
     return path
 
@@ -345,7 +347,7 @@ def _summary_numbers(mc):
 
 def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    ensure_dir(out)
     scene, rig, s1, s2 = _setup()
     thesis_px = float(rig.camera.fx * 0.01 / 1.5)  # the thesis's "1 cm", read as 1 cm on the walls at 1.5 m
     runs = 4 if quick else 40

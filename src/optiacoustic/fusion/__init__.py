@@ -22,13 +22,14 @@ from .geometric import (
     plane_elevation,
     reconstruct_matches,
 )
-from .rbf import BASES, CrossValidation, RBFMapping, cross_validate, epsilon_from_sigma
+from .rbf import BASES, CrossValidation, IllConditionedWarning, RBFMapping, cross_validate, epsilon_from_sigma
 
 __all__ = [
     "BASES",
     "CrossValidation",
     "ElevationSolution",
     "GeometricMap",
+    "IllConditionedWarning",
     "PiecewisePlanarMapping",
     "PlaneMapping",
     "RBFMapping",

@@ -33,7 +33,15 @@ from scipy.interpolate import RBFInterpolator
 from .._validate import as_array, as_positive
 from ._checks import check_layout, check_matches, query_points
 
-__all__ = ["RBFMapping", "CrossValidation", "cross_validate", "epsilon_from_sigma", "BASES"]
+__all__ = ["RBFMapping", "CrossValidation", "IllConditionedWarning", "cross_validate", "epsilon_from_sigma", "BASES",
+           "MAX_CONDITION"]
+
+#: Above this condition number of the kernel matrix an exact fit's weights are mostly round-off.
+MAX_CONDITION = 1e12
+
+
+class IllConditionedWarning(RuntimeWarning):
+    """An exact RBF fit whose kernel matrix is too ill-conditioned for its weights to mean anything."""
 
 Base = Literal["none", "affine", "homography"]
 #: Bases of :class:`RBFMapping` and the fewest features each needs.
@@ -81,6 +89,15 @@ def _rbf(xy, target, sigma, smoothing, base) -> RBFInterpolator:
     """scipy's interpolator; LinAlgError when the system is singular."""
     return RBFInterpolator(xy, target, kernel="gaussian", epsilon=epsilon_from_sigma(sigma),
                            degree=_DEGREE[base], smoothing=smoothing)
+
+
+def _condition(xy, sigma, smoothing) -> float:
+    """2-norm condition number of ``K + smoothing I`` (symmetric positive semi-definite: eigenvalues)."""
+    from scipy.spatial.distance import cdist
+
+    K = np.exp(-(epsilon_from_sigma(sigma) * cdist(xy, xy)) ** 2) + smoothing * np.eye(len(xy))
+    ev = np.abs(np.linalg.eigvalsh(K))
+    return float(ev.max() / ev.min()) if ev.min() > 0 else float("inf")
 
 
 def _solve(xy, px, sigma, smoothing, base):
@@ -166,6 +183,15 @@ class RBFMapping:
                 f"for this width: use a smaller sigma or smoothing > 0"
             ) from None
         fitted = _evaluate(rbf, H, xy)
+        cond = _condition(xy, sigma, smoothing)
+        if cond > MAX_CONDITION:
+            import warnings
+
+            warnings.warn(
+                f"RBFMapping.fit: kernel condition number {cond:.1e} at sigma={sigma:g} m, smoothing={smoothing:g} "
+                f"(above {MAX_CONDITION:.0e}): the weights are dominated by round-off and the mapping away from the "
+                "features is not reproducible; use a smaller sigma or smoothing > 0 (fusion.cross_validate picks one)",
+                IllConditionedWarning, stacklevel=2)
         for a in (xy, px, fitted):
             a.setflags(write=False)
         res = fitted - px
@@ -187,10 +213,7 @@ class RBFMapping:
         centres, are dominated by round-off: wide Gaussians (the flat limit) or near-coincident
         features.
         """
-        from scipy.spatial.distance import cdist
-
-        K = np.exp(-(self.epsilon * cdist(self.sonar_xy, self.sonar_xy)) ** 2)
-        return float(np.linalg.cond(K + self.smoothing * np.eye(len(K))))
+        return _condition(self.sonar_xy, self.sigma, self.smoothing)
 
     @property
     def training_error(self) -> float:

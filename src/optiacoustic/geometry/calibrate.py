@@ -39,13 +39,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array, as_positive
+from .._validate import as_array, as_positive, as_rng
 from ..camera import PinholeCamera
 from ..frames import R_SONAR_FROM_CAMERA_FORWARD, orthonormalize
 from ..rig import Rig
 from . import _bundle as B
 
-__all__ = ["CalibrationView", "CalibrationResult", "extrinsics", "simulate_views", "load_view", "save_view"]
+__all__ = ["CalibrationView", "CalibrationResult", "check_view", "extrinsics", "simulate_views", "load_view", "save_view"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,7 +72,12 @@ class CalibrationView:
         r = as_array(self.ranges, "ranges", (n,))
         a = as_array(self.azimuths, "azimuths", (n,))
         if np.any(r <= 0):
-            raise ValueError("ranges: must be > 0")
+            i = int(np.argmax(r <= 0))
+            raise ValueError(f"ranges: must be > 0, got {float(r[i])!r} at corner {i}")
+        if np.any(np.abs(a) > np.pi / 2):
+            i = int(np.argmax(np.abs(a) > np.pi / 2))
+            raise ValueError(f"azimuths: a forward-looking sonar sees |azimuth| <= pi/2 rad, got {float(a[i])!r} at corner {i} "
+                             "(degrees given as radians? name the column azimuth_deg)")
         object.__setattr__(self, "pixels", px)
         object.__setattr__(self, "ranges", r)
         object.__setattr__(self, "azimuths", a)
@@ -146,7 +151,9 @@ class CalibrationResult:
         return bool(self.success)
 
     def rig(self, camera: PinholeCamera, sonar=None) -> Rig:
-        """The calibrated :class:`Rig`."""
+        """The calibrated :class:`Rig` (a ValueError with the failure's message if the calibration failed)."""
+        if not self.success:
+            raise ValueError(f"rig: the calibration failed ({self.message}); there is no calibrated rig")
         return Rig(self.R, self.t, camera, sonar)
 
     def to_dict(self) -> dict:
@@ -210,14 +217,26 @@ def load_view(path) -> CalibrationView:
         if not lines:
             raise ValueError(f"{path}: empty view file")
         names = [c.strip().lower() for c in lines[0].split(",")]
-        try:
-            rows = np.array([[float(x) for x in ln.split(",")] for ln in lines[1:]], float).reshape(-1, len(names))
-        except ValueError as exc:
-            raise ValueError(f"{path}: expected a header row and rows of {len(names)} numbers ({exc})") from None
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"{path}: column {dup[0]!r} appears twice in the header")
+        rows = []
+        for k, ln in enumerate(lines[1:], 2):
+            cells = ln.split(",")
+            if len(cells) != len(names):
+                raise ValueError(f"{path}: data row {k - 1} has {len(cells)} values, the header names {len(names)} "
+                                 f"columns ({', '.join(names)})")
+            try:
+                rows.append([float(x) for x in cells])
+            except ValueError as exc:
+                raise ValueError(f"{path}: data row {k - 1}: {exc}") from None
+        rows = np.array(rows, float).reshape(-1, len(names))
         cols = {k: rows[:, i] for i, k in enumerate(names)}
     need = {"u", "v", "range"}
     if not need <= set(cols) or not ({"azimuth", "azimuth_deg"} & set(cols)):
         raise ValueError(f"{path}: expected columns u, v, range and azimuth (rad) or azimuth_deg; got {sorted(cols)}")
+    if "azimuth" in cols and "azimuth_deg" in cols:
+        raise ValueError(f"{path}: both azimuth (rad) and azimuth_deg given; keep one")
     az = cols["azimuth"] if "azimuth" in cols else np.deg2rad(cols["azimuth_deg"])
     try:
         return CalibrationView(np.stack([cols["u"], cols["v"]], -1), cols["range"], az)
@@ -227,11 +246,11 @@ def load_view(path) -> CalibrationView:
 
 def save_view(path, view: CalibrationView, *, header: str = "") -> None:
     """Write a view as the CSV :func:`load_view` reads (azimuth in degrees)."""
-    from pathlib import Path
+    from .._atomic import write_text
 
     rows = np.column_stack([view.pixels, view.ranges, np.rad2deg(view.azimuths)])
     comment = "".join(f"# {line}\n" for line in header.splitlines()) if header else ""
-    Path(path).write_text(comment + "u,v,range,azimuth_deg\n"
+    write_text(path, comment + "u,v,range,azimuth_deg\n"
                           + "".join(f"{u:.6f},{v:.6f},{r:.6f},{a:.6f}\n" for u, v, r, a in rows))
 
 
@@ -241,6 +260,35 @@ def _failed(message, V=0, R0=None, t0=None):
                              np.full(6, np.nan), np.full(6, np.nan), np.full((6, 6), np.nan), (),
                              np.full((V, 4), np.nan), np.full((3, 3), np.nan) if R0 is None else R0,
                              np.full(3, np.nan) if t0 is None else t0, nan, nan, nan, nan, 0)
+
+
+def check_view(view: CalibrationView, camera: PinholeCamera, sonar=None, *, name: str = "view") -> None:
+    """Raise a ValueError naming ``name`` if a view's corners lie outside the image or the sonar's fan.
+
+    Corners far outside what the sensors can see mean a mistake in the data (wrong units, wrong
+    camera, swapped columns), not noise: the slack (5 % of the image, 1 degree or a quarter beam
+    beyond the fan, 5 % of the range span) lets noisy corners at the edges through.
+    """
+    u, v = view.pixels[:, 0], view.pixels[:, 1]
+    mu, mv = 0.05 * camera.width, 0.05 * camera.height
+    bad = (u < -0.5 - mu) | (u > camera.width - 0.5 + mu) | (v < -0.5 - mv) | (v > camera.height - 0.5 + mv)
+    if np.any(bad):
+        i = int(np.argmax(bad))
+        raise ValueError(f"{name}: corner {i} at pixel ({u[i]:.6g}, {v[i]:.6g}) lies outside the "
+                         f"{camera.width} x {camera.height} image")
+    if sonar is not None:
+        half = float(sonar.fov_azimuth) / 2 + max(np.deg2rad(1.0), 0.25 * float(getattr(sonar, "beamwidth_azimuth", 0.0)))
+        bad = np.abs(view.azimuths) > half
+        if np.any(bad):
+            i = int(np.argmax(bad))
+            raise ValueError(f"{name}: corner {i} has azimuth {np.rad2deg(view.azimuths[i]):.4g} deg, outside the "
+                             f"sonar's fan of +-{np.rad2deg(sonar.fov_azimuth) / 2:.4g} deg (degrees given as radians?)")
+        slack = 0.05 * (float(sonar.range_max) - float(sonar.range_min))
+        bad = (view.ranges < float(sonar.range_min) - slack) | (view.ranges > float(sonar.range_max) + slack)
+        if np.any(bad):
+            i = int(np.argmax(bad))
+            raise ValueError(f"{name}: corner {i} has range {view.ranges[i]:.6g} m, outside the sonar's "
+                             f"{sonar.range_min:g}-{sonar.range_max:g} m")
 
 
 def _views(views):
@@ -445,6 +493,8 @@ def extrinsics(
     if not isinstance(camera, PinholeCamera):
         raise ValueError(f"camera: expected a PinholeCamera, got {type(camera).__name__}")
     vs = _views(views)
+    for i, v in enumerate(vs):
+        check_view(v, camera, sonar, name=f"views[{i}]")
     sp = as_positive(sigma_pixel, "sigma_pixel")
     sr = as_positive(sigma_range, "sigma_range")
     sa = as_positive(sigma_azimuth, "sigma_azimuth")
@@ -559,7 +609,7 @@ def simulate_views(
     corners_camera : list of ndarray (N, 3)
         The corners in the camera frame (m), the ground truth.
     """
-    rng = np.random.default_rng(seed)
+    rng = as_rng(seed)
     fov = rig.fov_elevation if rig.sonar is not None else np.deg2rad(20.0)
     fov_az = float(rig.sonar.fov_azimuth) if rig.sonar is not None else np.deg2rad(90.0)
     nx, ny = grid_shape

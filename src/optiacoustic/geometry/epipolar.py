@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array, as_positive
+from .._validate import as_array, as_azimuths, as_positive
 from ..frames import fan_from_polar, sonar_from_spherical, spherical_from_sonar
 from ..rig import Rig
 from .projection import _bc, _check_rig, _sonar_window, normalized_coordinates
@@ -91,7 +91,7 @@ def conic(rig: Rig, ranges, azimuths) -> np.ndarray:
     """
     _check_rig(rig)
     r = as_array(ranges, "ranges")
-    th = as_array(azimuths, "azimuths")
+    th = as_azimuths(azimuths, "azimuths", limit=2 * np.pi)
     r, th = _bc(("ranges", r), ("azimuths", th))
     a, b = _plane_terms(rig, th)
     g = rig.R.T @ rig.t
@@ -301,7 +301,10 @@ def sonar_to_optical_curves(rig: Rig, ranges, azimuths, *, n_samples: int = 181,
     """
     _check_rig(rig)
     r = as_array(ranges, "ranges")
-    th = as_array(azimuths, "azimuths")
+    # Seen by the sonar (clip_elevation), an azimuth outside its fan (1 degree of slack for noise) is a
+    # mistake, most often degrees given as radians; as pure geometry any azimuth in [-pi, pi] has a conic.
+    fan = (float(rig.sonar.fov_azimuth) / 2 + np.deg2rad(1.0)) if (rig.sonar is not None and clip_elevation) else 2 * np.pi
+    th = as_azimuths(azimuths, "azimuths", limit=fan)
     r, th = _bc(("ranges", r), ("azimuths", th))
     r, th = r.reshape(-1), th.reshape(-1)
     if np.any(r <= 0):
@@ -351,7 +354,7 @@ def sonar_range(rig: Rig, pixels, azimuths, *, clip_elevation: bool = False) -> 
     """
     _check_rig(rig)
     x, y = normalized_coordinates(rig, pixels)
-    th = as_array(azimuths, "azimuths")
+    th = as_azimuths(azimuths, "azimuths", limit=2 * np.pi)
     x, y, th = _bc(("pixels", x), ("pixels", y), ("azimuths", th))
     R, t = rig.R, rig.t
     d = [R[i, 0] * x + R[i, 1] * y + R[i, 2] for i in range(3)]

@@ -238,6 +238,11 @@ class MotionResult:
     def __bool__(self) -> bool:
         return bool(self.success)
 
+    def _require(self, what: str) -> None:
+        # a failed estimate has no motion: say so instead of failing on its NaN internals
+        if not self.success:
+            raise ValueError(f"{what}: the motion estimation failed ({self.message}); there is no motion to use")
+
     # ------------------------------------------------------------------ views
     @property
     def inliers_optical(self) -> np.ndarray:
@@ -250,11 +255,13 @@ class MotionResult:
     @property
     def R_s(self) -> np.ndarray:
         """Sonar rotation ``R R_o R^T``."""
+        self._require("R_s")
         return sonar_motion(self.rig, self.R_o, self.t_o)[0]
 
     @property
     def t_s(self) -> np.ndarray:
         """Sonar translation ``(I - R_s) t + R t_o`` (m)."""
+        self._require("t_s")
         return sonar_motion(self.rig, self.R_o, self.t_o)[1]
 
     @property
@@ -286,6 +293,7 @@ class MotionResult:
 
     def nees(self, R_o_true, t_o_true) -> float:
         """Normalised estimation error squared of ``(w, t_o)`` against a ground truth (6 dof)."""
+        self._require("nees")
         e = np.concatenate([B.log_so3(np.asarray(R_o_true) @ self.R_o.T), np.asarray(t_o_true) - self.t_o])
         return float(e @ np.linalg.solve(self.covariance_motion, e))
 

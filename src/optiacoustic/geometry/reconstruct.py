@@ -207,6 +207,9 @@ def range_solution(rig: Rig, pixels, ranges, *, clip_elevation: bool = False) ->
         crossing is behind the camera (status 2).
     """
     shape, (x, y, r) = _inputs(rig, pixels, ranges=ranges)
+    if np.any(r < 0):
+        i = int(np.argmax(r < 0))
+        raise ValueError(f"ranges: must be >= 0 m (a range is a distance), got {float(r[i])!r} at index {i}")
     z, status, amb = _range_depth(rig, x, y, r)
     return _finish(shape, x, y, z, status, amb, rig, clip_elevation, "range solution")
 
@@ -469,12 +472,20 @@ def crlb(rig: Rig, points_camera, *, sigma_pixel, sigma_range, sigma_azimuth) ->
     Returns
     -------
     ndarray, shape (..., 3, 3)
-        Lower bound on the covariance (m^2).
+        Lower bound on the covariance (m^2). NaN for points not in front of the camera
+        (``points_camera[..., 2] <= 0``): the camera cannot see them, so no bound exists;
+        ``np.isfinite(cov[..., 0, 0])`` is the mask of valid points.
     """
     su, sv, sr, sa = _sigmas(sigma_pixel, sigma_range, sigma_azimuth)
     J = measurement_jacobian(rig, points_camera)
     w = np.array([1 / su ** 2, 1 / sv ** 2, 1 / sr ** 2, 1 / sa ** 2])
-    return _inv3(np.einsum("...ki,k,...kj->...ij", J, w, J))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cov = _inv3(np.einsum("...ki,k,...kj->...ij", J, w, J))
+    behind = ~(np.asarray(points_camera, float)[..., 2] > 0)
+    if np.any(behind):
+        cov = np.array(cov, copy=True)
+        cov[behind] = np.nan
+    return cov
 
 
 def first_order_mse(rig: Rig, points_camera, *, sigma_pixel, sigma_range, sigma_azimuth,
@@ -845,9 +856,25 @@ def refine(rig: Rig, pixels, ranges, azimuths, *, sigma_pixel, sigma_range, sigm
         res, J = _direct_residuals(rig, P, meas, inv_sig)
         cost = np.sum(res * res, -1)
         status[st_r != 0] = st_r[st_r != 0]
-        # The conic also holds the opposite half-plane: check the point's azimuth.
+        # The conic g = 0 is necessary for consistent measurements, not sufficient: it also holds
+        # the opposite half-plane and points behind the camera, and the iteration can end there
+        # (about 1e-4 of noisy matches on random rigs). The consistent measurements closest to
+        # the measured ones are the projections of the ML point, so solve those matches in point
+        # coordinates (the direct form of the same problem), from the point the indirect started at.
         ps = P @ rig.R.T + rig.t
-        wrong = np.abs(((np.arctan2(ps[:, 0], ps[:, 1]) - m[:, 3]) + np.pi) % (2 * np.pi) - np.pi) > 1e-6
+        with np.errstate(invalid="ignore"):
+            wrong = np.abs(((np.arctan2(ps[:, 0], ps[:, 1]) - m[:, 3]) + np.pi) % (2 * np.pi) - np.pi) > 1e-6
+        redo = np.flatnonzero(wrong | (st_r != 0) | ~conv)
+        init = z0[redo, None] * np.stack([x[redo], y[redo], np.ones(redo.size)], -1)
+        redo = redo[np.all(np.isfinite(init), -1) & (init[:, 2] > 0)]
+        if redo.size:
+            def fun_redo(Pp, idx):
+                return _direct_residuals(rig, Pp, meas[redo][idx], inv_sig)
+
+            init = z0[redo, None] * np.stack([x[redo], y[redo], np.ones(redo.size)], -1)
+            P[redo], res[redo], J[redo], cost[redo], conv[redo], _ = _lm(fun_redo, init, max_iter=int(max_iter))
+            wrong[redo] = False
+            status[redo] = 0
         status[(status == 0) & wrong] = 4
     status[(status == 0) & ~conv] = 6
     with np.errstate(invalid="ignore"):

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from .frame import OpticalFrame, auto_exposure, to_srgb8
+from .._atomic import ensure_dir, savefig
 
 __all__ = ["save_stage_figures", "save_ground_truth_figure"]
 
@@ -25,20 +26,20 @@ def save_stage_figures(frame: OpticalFrame, out_dir, *, prefix: str = "optical",
     """The four stages of Figs. 3.7-3.8 as one panel, the two scattered components alone,
     and (``individual``) each stage as a full-resolution PNG.
 
-    ``clear`` is shown with its own exposure; the water stages share the final image's,
-    so that the veil is seen adding light and attenuation taking it away.
+    All four stages share one exposure (the larger of the clear and the final image's auto
+    exposures), so that attenuation is seen taking light away and the veil adding it; an
+    exposure per panel would brighten the attenuated seabed back up.
     Returns ``[(path, caption), ...]``.
     """
     plt = _plt()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    e_clear = frame.exposure("clear")
-    e_img = frame.exposure("image")
+    ensure_dir(out)
+    e = max(frame.exposure("clear"), frame.exposure("image"))  # one exposure: panels compare
     panels = [
-        ("clear", e_clear, "a) clear (no water), Fig. 3.7a"),
-        ("attenuated", e_img, "b) attenuation, Fig. 3.7b"),
-        ("forward_scatter", e_img, "c) + forward scatter, Fig. 3.8a"),
-        ("image", e_img, "d) + backscatter, Fig. 3.8b"),
+        ("clear", e, "a) clear (no water), Fig. 3.7a"),
+        ("attenuated", e, "b) attenuation, Fig. 3.7b"),
+        ("forward_scatter", e, "c) + forward scatter, Fig. 3.8a"),
+        ("image", e, "d) + backscatter, Fig. 3.8b"),
     ]
     figs = []
     fig, axes = plt.subplots(2, 2, figsize=(12, 8.4))
@@ -50,10 +51,11 @@ def save_stage_figures(frame: OpticalFrame, out_dir, *, prefix: str = "optical",
     fig.suptitle(title or f"{w.name} water, c = ({', '.join(f'{x:.3g}' for x in w.c)}) /m (R, G, B)")
     fig.tight_layout()
     p = out / f"{prefix}_stages.png"
-    fig.savefig(p, dpi=80)
+    savefig(fig, p, dpi=80)
     plt.close(fig)
     figs.append((p, f"Underwater image formation step by step in {w.name} water (thesis Figs. 3.7-3.8): "
-                    "clear scene, attenuation (red fades first), forward scatter, and the veiling backscatter."))
+                    "clear scene, attenuation (red fades first), forward scatter, and the veiling backscatter; "
+                    "one exposure for all four panels."))
     for stage, e, label in panels if individual else ():
         p = out / f"{prefix}_{stage}.png"
         frame.save_png(p, stage, e)
@@ -69,7 +71,7 @@ def save_stage_figures(frame: OpticalFrame, out_dir, *, prefix: str = "optical",
         a.axis("off")
     fig.tight_layout()
     p = out / f"{prefix}_components.png"
-    fig.savefig(p, dpi=80)
+    savefig(fig, p, dpi=80)
     plt.close(fig)
     share = float(np.sum(frame.backscatter) / max(np.sum(frame.image), 1e-30))
     figs.append((p, f"The two scattered components on their own: the veil ({100 * share:.0f} % of the image's light) "
@@ -94,6 +96,6 @@ def save_ground_truth_figure(frame: OpticalFrame, path) -> Path:
         a.set_xlabel("u (px)")
         a.set_ylabel("v (px)")
     fig.tight_layout()
-    fig.savefig(path, dpi=80)
+    savefig(fig, path, dpi=80)
     plt.close(fig)
     return Path(path)

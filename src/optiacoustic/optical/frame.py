@@ -45,14 +45,10 @@ def to_srgb8(image: np.ndarray, exposure: float | None = None) -> np.ndarray:
 
 def save_png(path, image: np.ndarray, exposure: float | None = None) -> Path:
     """Write linear RGB ``(H, W, 3)`` as an 8-bit sRGB PNG (see :func:`to_srgb8`)."""
-    import cv2
+    from .._atomic import imwrite
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     rgb = to_srgb8(image, exposure)
-    if not cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)):
-        raise ValueError(f"path: cannot write {path}")
-    return path
+    return imwrite(path, np.ascontiguousarray(rgb[..., ::-1]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -122,10 +118,11 @@ class OpticalFrame:
 
     def save_npz(self, path) -> Path:
         """Write every stage, depth, body ids, normals, K, pose and the water to an ``.npz``."""
+        from .._atomic import save_npz
+
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
         w = self.water
-        np.savez_compressed(
+        save_npz(
             path,
             **{s: getattr(self, s) for s in STAGES},
             depth=self.depth,

@@ -32,7 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array
+from .._validate import as_array, as_rng, check_memory
+from ._sanity import warn_if_blind
 from ..camera import PinholeCamera
 from ..frames import Pose
 from ..scene import Scene
@@ -562,6 +563,9 @@ def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=N
     if not isinstance(options, OpticalOptions):
         raise ValueError(f"options: expected OpticalOptions, got {type(options).__name__}")
     lights = resolve_lights(lights, pose)
+    # a lower estimate of the bytes a render takes (rays, stages, depth, normals): refuse before allocating
+    check_memory(160.0 * camera.width * camera.height,
+                 f"a {camera.width} x {camera.height} camera image (PinholeCamera.width x height)")
     caster = caster_for(scene)
     names = scene.body_names()
     _check_not_inside(caster, names, pose, lights)
@@ -576,6 +580,7 @@ def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=N
     hits = caster.cast(pose.t, d_world)
     depth = hits.distance
     hit = hits.body >= 0
+    warn_if_blind(hit, pose, scene)
     full = bool(hit.all())
     sel = slice(None) if full else np.flatnonzero(hit)   # scenes with a seabed hit everywhere
     dist = depth[sel].astype(np.float32)
@@ -621,7 +626,7 @@ def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=N
     if noise is None and seed is not None:
         noise = SensorNoise()
     if isinstance(noise, SensorNoise):
-        rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        rng = as_rng(seed)
         image = noise.apply(image, rng)
 
     normal = scatter(nrm) if full else np.full((H * W, 3), np.nan, np.float32)

@@ -1,6 +1,6 @@
 """Reading and writing scene files (YAML or JSON), with errors that name file, body and field.
 
-Schema (docs/scenes.md has it in full)::
+Schema (docs/conventions.md, "Scene files", has it in full)::
 
     name: my_scene                     # optional
     description: ...                   # optional
@@ -15,8 +15,8 @@ Schema (docs/scenes.md has it in full)::
 
 from __future__ import annotations
 
+import collections
 import dataclasses
-import json
 import os
 from pathlib import Path
 
@@ -24,11 +24,12 @@ import numpy as np
 import yaml
 from pydantic import ValidationError
 
+from .._atomic import write_json, write_text
 from ..frames import Pose, euler_xyz_from_rotation
-from .model import Body, Material, Scene, SceneError, Texture, View
+from .parts import Body, Material, SceneError, Texture, View
 from .shapes import SHAPES, Mesh
 
-__all__ = ["load_scene", "save_scene", "scene_from_dict", "scene_to_dict"]
+__all__ = ["read_scene_parts", "save_scene", "scene_parts_from_dict", "scene_to_dict"]
 
 _TOP_KEYS = {"bodies", "name", "description", "view"}
 _BODY_KEYS = {"name", "shape", "pose", "material"}
@@ -136,8 +137,8 @@ def _body_from_dict(raw, index: int, source: str, base_dir: str) -> Body:
     return Body(name, shape, pose, material)
 
 
-def scene_from_dict(data, source: str = "<dict>", base_dir: str = ".") -> Scene:
-    """Build a :class:`Scene` from the parsed contents of a scene file."""
+def scene_parts_from_dict(data, source: str = "<dict>", base_dir: str = ".") -> dict:
+    """The keyword arguments of ``Scene(...)`` (bodies, name, description, view) from a scene file's contents."""
     if not isinstance(data, dict):
         raise SceneError(f"{source}: expected a mapping with a 'bodies' list at the top, got {type(data).__name__}")
     extra = set(data) - _TOP_KEYS
@@ -148,7 +149,8 @@ def scene_from_dict(data, source: str = "<dict>", base_dir: str = ".") -> Scene:
         raise SceneError(f"{source}: field 'bodies': expected a non-empty list of bodies, got {bodies_raw!r}")
     bodies = [_body_from_dict(b, i, source, base_dir) for i, b in enumerate(bodies_raw)]
     names = [b.name for b in bodies]
-    dup = sorted({n for n in names if names.count(n) > 1})
+    counts = collections.Counter(names)  # not names.count(n) per body: that is quadratic in the bodies
+    dup = sorted(n for n, c in counts.items() if c > 1)
     if dup:
         i = names.index(dup[0], names.index(dup[0]) + 1)
         raise SceneError(f"{source}: body '{dup[0]}' (#{i}): field 'name': duplicate body name")
@@ -159,28 +161,23 @@ def scene_from_dict(data, source: str = "<dict>", base_dir: str = ".") -> Scene:
         except (ValidationError, TypeError) as exc:
             msg = _fmt_validation(exc, "view")[1] if isinstance(exc, ValidationError) else str(exc)
             raise SceneError(f"{source}: field 'view': {msg}") from None
-    return Scene(bodies, name=str(data.get("name", "") or ""), description=str(data.get("description", "") or ""), view=view)
+    return dict(bodies=bodies, name=str(data.get("name", "") or ""), description=str(data.get("description", "") or ""),
+                view=view)
 
 
-def load_scene(path) -> Scene:
-    """Load a scene file; mesh paths inside are relative to the file's folder."""
+def read_scene_parts(path) -> dict:
+    """Read a scene file into ``Scene(...)``'s keyword arguments; mesh paths inside are relative to its folder."""
+    from .._config import ConfigError, load_config
+
     path = Path(path)
     source = str(path)
-    if not path.is_file():
-        raise SceneError(f"{source}: scene file not found")
     try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SceneError(f"{source}: cannot read: {exc}") from None
-    try:
-        data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
-    except (json.JSONDecodeError, yaml.YAMLError) as exc:
-        kind = "JSON" if path.suffix.lower() == ".json" else "YAML"
-        raise SceneError(f"{source}: not valid {kind}: {exc}") from None
-    scene = scene_from_dict(data, source, str(path.parent.resolve()))
-    if not scene.name:
-        scene.name = path.stem
-    return scene
+        data = load_config(path, what="scene file")
+    except ConfigError as exc:
+        raise SceneError(str(exc)) from None
+    parts = scene_parts_from_dict(data, source, str(path.parent.resolve()))
+    parts["name"] = parts["name"] or path.stem
+    return parts
 
 
 def _clean(x):
@@ -188,13 +185,16 @@ def _clean(x):
         return [_clean(v) for v in x]
     if isinstance(x, (np.floating, float)):
         v = float(x)
-        return int(v) if v.is_integer() and abs(v) < 1e9 else round(v, 9)
+        if v.is_integer() and abs(v) < 1e9:
+            return int(v)
+        # 12 significant digits tidy 19.999999999999996 into 20 but never turn a small value into 0
+        return float(f"{v:.12g}")
     if isinstance(x, (np.integer,)):
         return int(x)
     return x
 
 
-def scene_to_dict(scene: Scene, base_dir: str | None = None) -> dict:
+def scene_to_dict(scene, base_dir: str | None = None) -> dict:
     """The scene as plain data in the file schema (mesh paths relative to ``base_dir``)."""
     bodies = []
     for b in scene:
@@ -233,11 +233,14 @@ def scene_to_dict(scene: Scene, base_dir: str | None = None) -> dict:
     return out
 
 
-def save_scene(scene: Scene, path) -> None:
+def save_scene(scene, path) -> None:
     path = Path(path)
     data = scene_to_dict(scene, str(path.parent))
-    path.parent.mkdir(parents=True, exist_ok=True)
+    try:  # what is written must load again: check before writing, not when a user next reads it
+        scene_parts_from_dict(data, str(path), str(path.parent.resolve()))
+    except SceneError as exc:
+        raise SceneError(f"cannot export the scene to {path}: the written file would not load: {exc}") from None
     if path.suffix.lower() == ".json":
-        path.write_text(json.dumps(data, indent=2) + "\n")
+        write_json(path, data)
     else:
-        path.write_text(yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100))
+        write_text(path, yaml.safe_dump(data, sort_keys=False, default_flow_style=None, width=100))

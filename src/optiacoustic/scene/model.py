@@ -1,100 +1,16 @@
-"""The scene model: bodies with a shape, a pose and a material."""
+"""The scene model: an immutable list of uniquely named bodies (parts in :mod:`.parts`, files in :mod:`.io`)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Iterator, Literal, Optional
+from typing import Iterator
 
 import numpy as np
-from pydantic import ConfigDict, Field
-from pydantic.dataclasses import dataclass as pyd_dataclass
-from typing_extensions import Annotated
 
-from ..frames import Pose
-from .shapes import SHAPES, Shape, tessellate_cached
+from .io import read_scene_parts, save_scene, scene_parts_from_dict, scene_to_dict
+from .parts import Body, Material, SceneError, Texture, View
 from .surface import Surface
 
 __all__ = ["Texture", "Material", "Body", "Scene", "View", "SceneError"]
-
-_CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False)
-Unit = Annotated[float, Field(ge=0.0, le=1.0)]
-RGB = tuple[Unit, Unit, Unit]
-
-
-class SceneError(ValueError):
-    """A scene that cannot be built; the message names file, body and field."""
-
-
-@pyd_dataclass(frozen=True, config=_CONFIG)
-class Texture:
-    """A procedural optical texture, evaluated in the body frame.
-
-    On planes it uses the body's x-y coordinates; on solids, the two coordinates across
-    the body axis nearest to the surface normal (so a box's every face is checkered).
-    ``checker``: squares of side ``size`` alternating ``color`` and ``color2``.
-    ``grid``: lines of width ``line_width`` every ``size`` metres in ``color2`` on ``color``.
-    """
-
-    kind: Literal["checker", "grid"]
-    size: Annotated[float, Field(gt=0.0)]
-    color2: RGB = (0.05, 0.05, 0.05)
-    line_width: Annotated[float, Field(gt=0.0)] = 0.02
-
-
-@pyd_dataclass(frozen=True, config=_CONFIG)
-class Material:
-    """Surface properties.
-
-    Attributes
-    ----------
-    reflectivity : float in [0, 1]
-        Acoustic reflectivity ``R_k`` of eq. (2.10).
-    color : (3,) floats in [0, 1]
-        Diffuse optical albedo per R, G, B channel (linear).
-    texture : Texture, optional
-        Procedural optical texture (modulates ``color``).
-    bottom_type : str, optional
-        Marks a seabed: reverberation statistics of this bottom type (Table 2.2:
-        ``sand/shell``, ``coarse sand``, ``posidonia``, ``mud``, ``medium sand``,
-        ``shells``) are applied to its echoes by the sonar's noise model.
-    """
-
-    reflectivity: Unit = 0.5
-    color: RGB = (0.5, 0.5, 0.5)
-    texture: Optional[Texture] = None
-    bottom_type: Optional[str] = None
-
-
-@pyd_dataclass(frozen=True, config=_CONFIG)
-class View:
-    """A suggested sensor placement for a scene: ``eye`` aimed at ``target`` (world, m)."""
-
-    eye: tuple[float, float, float]
-    target: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-
-@dataclass(frozen=True, eq=False)
-class Body:
-    """A named rigid body: ``shape`` in its own frame, placed by ``pose`` (body -> world)."""
-
-    name: str
-    shape: Shape
-    pose: Pose = field(default_factory=Pose.identity)
-    material: Material = field(default_factory=Material)
-
-    def __post_init__(self):
-        if not isinstance(self.name, str) or not self.name.strip():
-            raise SceneError(f"body name must be a non-empty string, got {self.name!r}")
-        if type(self.shape) not in SHAPES.values():
-            raise SceneError(f"body '{self.name}': shape must be one of {sorted(SHAPES)}, got {self.shape!r}")
-        if not isinstance(self.pose, Pose):
-            raise SceneError(f"body '{self.name}': pose must be a Pose, got {type(self.pose).__name__}")
-        if not isinstance(self.material, Material):
-            raise SceneError(f"body '{self.name}': material must be a Material")
-
-    def surface(self) -> Surface:
-        """The body's tessellated surface in world coordinates."""
-        return tessellate_cached(self.shape).transformed(self.pose)
 
 
 class Scene:
@@ -180,18 +96,17 @@ class Scene:
     # ------------------------------------------------------------------ files
     @classmethod
     def load(cls, path) -> "Scene":
-        """Load a scene from a YAML or JSON file (see docs/scenes.md for the schema)."""
-        from .io import load_scene
+        """Load a scene from a YAML or JSON file (schema: docs/conventions.md, "Scene files")."""
+        return cls(**read_scene_parts(path))
 
-        return load_scene(path)
+    @classmethod
+    def from_dict(cls, data, source: str = "<dict>", base_dir: str = ".") -> "Scene":
+        """Build a scene from the parsed contents of a scene file."""
+        return cls(**scene_parts_from_dict(data, source, base_dir))
 
     def save(self, path) -> None:
         """Write the scene as YAML (``.yaml``/``.yml``) or JSON (``.json``)."""
-        from .io import save_scene
-
         save_scene(self, path)
 
     def to_dict(self, base_dir: str | None = None) -> dict:
-        from .io import scene_to_dict
-
         return scene_to_dict(self, base_dir)

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._atomic import savefig
 from ..optical.figures import _plt
 from ..sonar.display import to_display
 
@@ -30,6 +31,6 @@ def save_pair_figure(sonar_frame, optical_frame: OpticalFrame, path, *, title: s
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=80)
+    savefig(fig, path, dpi=80)
     plt.close(fig)
     return Path(path)

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .._atomic import write_text
+from .._atomic import ensure_dir, write_json
 from ..frames import Pose
 from ..optical import OpticalFrame, OpticalOptions, simulate_optical
 from ..rig import Rig
@@ -74,7 +73,7 @@ class RigFrame:
         from .figures import save_pair_figure
 
         out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
+        ensure_dir(out)
         s = self.sonar
         written = [s.save_npz(out / "sonar.npz")]
         ref = np.percentile(s.intensity[s.intensity > 0], 99.5) if np.any(s.intensity > 0) else 1.0
@@ -94,7 +93,7 @@ class RigFrame:
         meta = self.metadata()
         meta["files"] = [f.name for f in written]
         p = out / "pair.json"
-        write_text(p, json.dumps(meta, indent=2) + "\n")
+        write_json(p, meta)
         written.append(p)
         return written
 

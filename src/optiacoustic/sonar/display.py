@@ -3,13 +3,39 @@
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 
 import numpy as np
 
-from .frame import FanImage
 from .spec import SonarSpec
 
-__all__ = ["polar_to_fan", "fan_geometry", "to_display", "save_png"]
+__all__ = ["FanImage", "polar_to_fan", "fan_geometry", "to_display", "save_png"]
+
+
+@dataclass(frozen=True, eq=False)
+class FanImage:
+    """A sonar image resampled to Cartesian fan coordinates (sonar at the bottom centre).
+
+    ``data[v, u]`` covers ``x_s`` in ``extent[0:2]`` (m, left to right) and ``y_s`` in
+    ``extent[2:4]`` (m, bottom to top); ``mask`` is True inside the fan.
+    """
+
+    data: np.ndarray
+    mask: np.ndarray
+    extent: tuple[float, float, float, float]
+    pixel_size: float
+
+    def to_pixel(self, x_s, y_s) -> tuple[np.ndarray, np.ndarray]:
+        """Fan-image pixel ``(u, v)`` of fan coordinates (m); pixel centres are integers."""
+        u = (np.asarray(x_s, float) - self.extent[0]) / self.pixel_size - 0.5
+        v = (self.extent[3] - np.asarray(y_s, float)) / self.pixel_size - 0.5
+        return u, v
+
+    def from_pixel(self, u, v) -> tuple[np.ndarray, np.ndarray]:
+        """Fan coordinates ``(x_s, y_s)`` (m) of fan-image pixels ``(u, v)``."""
+        x = self.extent[0] + (np.asarray(u, float) + 0.5) * self.pixel_size
+        y = self.extent[3] - (np.asarray(v, float) + 0.5) * self.pixel_size
+        return x, y
 
 
 @functools.lru_cache(maxsize=32)
@@ -84,11 +110,12 @@ def to_display(image: np.ndarray, *, mode: str = "db", dynamic_range_db: float =
 
 def save_png(path, image01: np.ndarray, *, cmap: str = "copper", mask=None) -> None:
     """Write a [0, 1] image with a matplotlib colormap as an 8-bit PNG (outside ``mask`` black)."""
-    import cv2
     from matplotlib import colormaps
+
+    from .._atomic import imwrite
 
     rgba = colormaps[cmap](np.clip(image01, 0, 1))
     rgb = (rgba[..., :3] * 255 + 0.5).astype(np.uint8)
     if mask is not None:
         rgb[~np.asarray(mask)] = 0
-    cv2.imwrite(str(path), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    imwrite(path, np.ascontiguousarray(rgb[..., ::-1]))

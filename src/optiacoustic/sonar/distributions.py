@@ -962,7 +962,11 @@ def amplitudes_from_image(path, roi: Sequence[int] | None = None) -> np.ndarray:
         img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH)
         if img is None:
             raise ValueError(f"path: OpenCV cannot read {str(path)!r} as an image")
-    img = np.asarray(img, dtype=float)
+    img = np.asarray(img)
+    if img.dtype.kind not in "fiub":
+        what = "complex (I/Q?) values: save the amplitude np.abs(x)" if img.dtype.kind == "c" else f"dtype {img.dtype}"
+        raise ValueError(f"path: {str(path)!r} holds {what}; expected real linear amplitudes")
+    img = img.astype(float)
     if img.ndim != 2:
         raise ValueError(f"path: expected a 2-D amplitude image (H, W), got shape {img.shape}")
     if roi is not None:

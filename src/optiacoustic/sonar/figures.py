@@ -8,6 +8,7 @@ import numpy as np
 
 from .display import to_display
 from .frame import SonarFrame
+from .._atomic import ensure_dir, savefig
 
 __all__ = ["save_stage_figures", "plot_scene_overview"]
 
@@ -96,7 +97,7 @@ def plot_scene_overview(scene, sonar_pose, spec, path, *, camera_pose=None, titl
     ax.legend(loc="upper left")
     ax.set_title(title or f"{scene.name}: scene and sonar fan")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    savefig(fig, path, dpi=110)
     plt.close(fig)
     return Path(path)
 
@@ -109,7 +110,7 @@ def save_stage_figures(frame: SonarFrame, out_dir, *, prefix: str = "sonar", fan
     """
     plt = _plt()
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    ensure_dir(out)
     spec = frame.spec
     figs = []
     deg = np.rad2deg
@@ -141,7 +142,7 @@ def save_stage_figures(frame: SonarFrame, out_dir, *, prefix: str = "sonar", fan
     fig.suptitle(f"Scan: {spec.n_beams} beams x {spec.elevation_samples} elevation samples")
     fig.tight_layout()
     p = out / f"{prefix}_rays.png"
-    fig.savefig(p, dpi=90)
+    savefig(fig, p, dpi=90)
     plt.close(fig)
     figs.append((p, "Per-ray matrices of the scan: range, Lambert intensity and body hit (Figs. 2.4-2.7)."))
 
@@ -162,7 +163,7 @@ def save_stage_figures(frame: SonarFrame, out_dir, *, prefix: str = "sonar", fan
         a.set_xlim(spec.range_min, spec.range_max)
     fig.tight_layout()
     p = out / f"{prefix}_beam_profile.png"
-    fig.savefig(p, dpi=90)
+    savefig(fig, p, dpi=90)
     plt.close(fig)
     figs.append((p, f"Beam {j}: raw returns of its rays against range, and the echo after summing returns of equal range, integration into bins and decimation."))
 
@@ -176,7 +177,7 @@ def save_stage_figures(frame: SonarFrame, out_dir, *, prefix: str = "sonar", fan
     ax.set_title(f"Image after decimation ({spec.n_bins} bins x {spec.n_beams} beams)")
     fig.tight_layout()
     p = out / f"{prefix}_polar.png"
-    fig.savefig(p, dpi=90)
+    savefig(fig, p, dpi=90)
     plt.close(fig)
     figs.append((p, "Image directly formed after decimation, range vs azimuth (Fig. 2.16)."))
 
@@ -194,7 +195,7 @@ def save_stage_figures(frame: SonarFrame, out_dir, *, prefix: str = "sonar", fan
         ax.set_title(("noise-free echo" if which == "intensity" else "with noise and reverberation") + " (40 dB display)")
         fig.tight_layout()
         p = out / f"{prefix}_{name}.png"
-        fig.savefig(p, dpi=90)
+        savefig(fig, p, dpi=90)
         plt.close(fig)
         figs.append((p, cap))
 
@@ -217,7 +218,7 @@ def save_stage_figures(frame: SonarFrame, out_dir, *, prefix: str = "sonar", fan
         a.set_ylabel("range (m)")
     fig.tight_layout()
     p = out / f"{prefix}_ground_truth.png"
-    fig.savefig(p, dpi=90)
+    savefig(fig, p, dpi=90)
     plt.close(fig)
     figs.append((p, "Ground truth per cell: strongest body, the elevation span the sonar cannot resolve, acoustic shadow."))
     return figs

@@ -24,6 +24,7 @@ from typing import Literal
 
 import numpy as np
 
+from .._validate import as_rng, check_memory
 from ..frames import Pose
 from ..raycast import RayCaster, caster_for
 from ..scene import Scene
@@ -294,12 +295,16 @@ def simulate_sonar(
         elif not isinstance(noise, NoiseModel):
             raise TypeError(f"noise: expected a NoiseModel, False or None, got {type(noise).__name__}")
 
+    # a lower estimate of the bytes a frame takes (rays, bins x beams images): refuse before allocating
+    check_memory(96.0 * spec.n_beams * spec.elevation_samples + 64.0 * spec.n_bins * spec.n_beams,
+                 f"a {spec.n_bins} x {spec.n_beams} sonar frame with {spec.elevation_samples} elevation samples "
+                 "(SonarSpec.n_bins x n_beams x elevation_samples)")
     caster = caster_for(scene)
     bottom_types = _bottom_types(scene)
     draws = None
     if noise is not False:
         # the noise variates do not depend on the echo: draw them on the other core meanwhile
-        draws = _background().submit(noise.draw, (spec.n_bins, spec.n_beams), list(bottom_types), np.random.default_rng(seed))
+        draws = _background().submit(noise.draw, (spec.n_bins, spec.n_beams), list(bottom_types), as_rng(seed))
     rays = _scan(scene, caster, spec, pose, options)
     # the seabed/target split needs only the rays: integrate it on the other core meanwhile
     parts = _background().submit(_class_parts, bottom_types, spec, rays, options)

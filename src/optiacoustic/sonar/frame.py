@@ -12,6 +12,7 @@ from typing import Literal, Mapping, Protocol, runtime_checkable
 import numpy as np
 
 from ..frames import Pose
+from .display import FanImage, polar_to_fan
 from .spec import SonarSpec
 
 __all__ = ["SonarFrame", "SonarGroundTruth", "SonarRays", "FanImage", "MeasuredSonarFrame", "SonarImageLike",
@@ -312,32 +313,6 @@ class SonarGroundTruth:
 
 
 @dataclass(frozen=True, eq=False)
-class FanImage:
-    """A sonar image resampled to Cartesian fan coordinates (sonar at the bottom centre).
-
-    ``data[v, u]`` covers ``x_s`` in ``extent[0:2]`` (m, left to right) and ``y_s`` in
-    ``extent[2:4]`` (m, bottom to top); ``mask`` is True inside the fan.
-    """
-
-    data: np.ndarray
-    mask: np.ndarray
-    extent: tuple[float, float, float, float]
-    pixel_size: float
-
-    def to_pixel(self, x_s, y_s) -> tuple[np.ndarray, np.ndarray]:
-        """Fan-image pixel ``(u, v)`` of fan coordinates (m); pixel centres are integers."""
-        u = (np.asarray(x_s, float) - self.extent[0]) / self.pixel_size - 0.5
-        v = (self.extent[3] - np.asarray(y_s, float)) / self.pixel_size - 0.5
-        return u, v
-
-    def from_pixel(self, u, v) -> tuple[np.ndarray, np.ndarray]:
-        """Fan coordinates ``(x_s, y_s)`` (m) of fan-image pixels ``(u, v)``."""
-        x = self.extent[0] + (np.asarray(u, float) + 0.5) * self.pixel_size
-        y = self.extent[3] - (np.asarray(v, float) + 0.5) * self.pixel_size
-        return x, y
-
-
-@dataclass(frozen=True, eq=False)
 class SonarFrame:
     """One simulated sonar frame.
 
@@ -384,8 +359,6 @@ class SonarFrame:
 
     def fan(self, which: Literal["image", "intensity"] = "image", *, width: int = 800) -> FanImage:
         """The image resampled to the fan (``cv2.remap`` through a cached map; sec. 2.6.2.4)."""
-        from .display import polar_to_fan
-
         if which not in ("image", "intensity"):
             raise ValueError(f"fan: which must be 'image' or 'intensity', got {which!r}")
         return polar_to_fan(getattr(self, which), self.spec, width=width)
@@ -418,7 +391,6 @@ class SonarFrame:
     def save_npz(self, path) -> Path:
         """Write intensity, image, ranges, azimuths, pose and ground truth to an ``.npz``."""
         path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
         data = dict(
             intensity=self.intensity,
             image=self.image,
@@ -440,5 +412,6 @@ class SonarFrame:
             gt_shadow=gt.shadow,
             gt_range_map=gt.range_map,
         )
-        np.savez_compressed(path, **data)
-        return path
+        from .._atomic import save_npz
+
+        return save_npz(path, **data)

@@ -9,7 +9,10 @@ import numpy as np
 
 from ..frames import project_to_sonar, SonarProjection
 
-__all__ = ["SonarSpec", "PRESETS"]
+__all__ = ["SonarSpec", "PRESETS", "MAX_COUNTS"]
+
+#: Upper bounds of the count fields (real sonars: up to ~1024 beams and ~4000 bins).
+MAX_COUNTS = {"n_beams": 8192, "n_bins": 65536, "elevation_samples": 4096}
 
 
 @dataclass(frozen=True)
@@ -87,6 +90,8 @@ class SonarSpec:
             v = getattr(self, fld)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 bad(fld, "must be a positive integer")
+            if v > MAX_COUNTS[fld]:  # no real sonar comes near; beyond, a frame would not fit in memory
+                bad(fld, f"must be at most {MAX_COUNTS[fld]}")
         for fld in ("fov_azimuth", "fov_elevation", "range_max", "frequency", "sound_speed"):
             v = getattr(self, fld)
             if not isinstance(v, (int, float, np.floating)) or not np.isfinite(v) or v <= 0:

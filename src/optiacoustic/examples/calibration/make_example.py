@@ -16,6 +16,7 @@ import numpy as np
 import yaml
 
 from optiacoustic import PinholeCamera, Rig, SonarSpec
+from optiacoustic._atomic import write_text
 from optiacoustic.geometry.calibrate import save_view, simulate_views
 
 HERE = Path(__file__).resolve().parent
@@ -34,8 +35,8 @@ def main():
     for k, v in enumerate(views):
         save_view(HERE / f"view_{k + 1:02d}.csv", v,
                   header=f"simulated view {k + 1} of a 7 x 5 planar grid; noise 0.5 px, 5 mm, 0.1 deg")
-    (HERE / "truth.yaml").write_text("# the rig that made the views\n" + yaml.safe_dump(truth, sort_keys=False,
-                                                                                         default_flow_style=None))
+    write_text(HERE / "truth.yaml", "# the rig that made the views\n" + yaml.safe_dump(truth, sort_keys=False,
+                                                                                      default_flow_style=None))
     print(f"wrote {len(views)} views to {HERE}")
 
 

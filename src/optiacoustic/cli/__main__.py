@@ -1,0 +1,5 @@
+"""``python -m optiacoustic.cli``: the same as the ``oas`` command."""
+
+from . import main
+
+main()
