@@ -84,6 +84,10 @@ class MatchOptions:
     occupancy_factor : float
         An echo this many times its CFAR background counts as a possible occluder (lower
         than the detection factor: a weak echo still hides what is behind it).
+    corner_weight : float
+        Cost per unit of log corner strength (relative to the image's median); the ratio of
+        the score model's weights of log corner strength and epipolar chi-square, so the
+        assignment weighs them as the calibration found them to predict correctness.
     smoothness : bool
         Second assignment pass with the neighbours' depth agreement in the cost.
     use_acoustic : bool
@@ -97,6 +101,7 @@ class MatchOptions:
     seabed_clearance: float = 0.10
     occluder_margin: float = 0.5
     occupancy_factor: float = 3.0
+    corner_weight: float = 0.46
     smoothness: bool = False
     use_acoustic: bool = True
     cfar: CfarOptions = field(default_factory=CfarOptions)
@@ -183,6 +188,10 @@ def _check_sonar(sonar):
         raise ValueError(f"sonar.image: expected shape (n_bins, n_beams) = ({r.size}, {th.size}), got {img.shape}")
     if not np.all(np.isfinite(img)):
         raise ValueError("sonar.image: contains NaN or infinite values")
+    if r.size < 3 or th.size < 3:
+        raise ValueError(f"sonar.image: expected at least 3 bins and 3 beams, got {img.shape}")
+    if np.any(np.diff(r) <= 0) or np.any(np.diff(th) <= 0):
+        raise ValueError("sonar.ranges and sonar.azimuths: must be strictly increasing")
     return img, r, th
 
 
@@ -249,34 +258,29 @@ def _assign(cost, rows, cols, n_rows, null_cost):
     return chosen[M[ri, ci][: chosen.size] < big] if chosen.size else chosen
 
 
-def _smoothness_cost(pix, depth, k=6, radius=60.0, rel_tol=0.05):
-    """Squared normalised disagreement of each match's depth with its image neighbours' median.
+def _two_view(out: Matches, second, motion, rig, noise, opt) -> Matches:
+    from .two_view import consistent, motion_arrays
 
-    Neighbours: up to ``k`` other matches within ``radius`` px. A true match on a smooth
-    surface agrees with its neighbours within ``rel_tol`` of the depth; isolated matches pay
-    nothing.
-    """
-    from scipy.spatial import cKDTree
-
-    n = len(depth)
-    out = np.zeros(n)
-    if n < 3:
-        return out
-    tree = cKDTree(pix)
-    d, idx = tree.query(pix, k=min(k + 1, n), distance_upper_bound=radius)
-    idx = idx[:, 1:]
-    has = idx < n
-    nb = np.where(has, depth[np.minimum(idx, n - 1)], np.nan)
-    enough = has.sum(1) >= 2
-    with np.errstate(invalid="ignore"):
-        med = np.nanmedian(np.where(enough[:, None], nb, np.nan), axis=1)
-        e = (depth - med) / (rel_tol * depth)
-    out[enough] = np.minimum(e[enough] ** 2, 25.0)
-    return out
+    if motion is None:
+        raise ValueError("motion: required with 'second' (P_camera2 = R_o P_camera1 + t_o)")
+    motion_arrays(motion)  # validates
+    if not (isinstance(second, (tuple, list)) and len(second) == 2):
+        raise ValueError("second: expected (sonar, camera_image) of the second view")
+    m2 = match(second[0], second[1], rig, noise=noise, options=opt, min_score=0.0)
+    ok = consistent(out.points, m2.points, motion) if m2 else np.zeros(len(out), bool)
+    if not ok.any():
+        return _empty(f"no match of {len(out)} is consistent with the second view ({len(m2)} matches there)",
+                      out.sonar_features, out.camera_features, out.seabed)
+    feats = dict(out.features, two_view=ok)
+    kept = Matches(out.pixels, out.ranges, out.azimuths, out.points, out.score, out.cost, out.sonar_index,
+                   out.camera_index, out.sonar_features, out.camera_features, out.seabed,
+                   f"{int(ok.sum())} of {len(out)} matches consistent with the second view ({len(m2)} matches there)",
+                   feats)
+    return kept.select(ok)
 
 
 def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, options: MatchOptions | None = None,
-          min_score: float = 0.25) -> Matches:
+          min_score: float = 0.25, second=None, motion=None) -> Matches:
     """Match sonar features to camera features of one synchronised pair.
 
     Parameters
@@ -296,6 +300,12 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
         Only matches with at least this score are returned (0 returns the whole assignment,
         for precision-recall curves). The score is a calibrated probability of being
         correct (:data:`SCORE_MODEL`).
+    second : (sonar, camera_image), optional
+        A second pair of the same rig after it moved by ``motion``: only matches whose
+        reconstructed point is also reconstructed from the second pair's matches are kept
+        (:func:`.two_view.consistent`); ``features["two_view"]`` says so.
+    motion : MotionResult, Pose or (R_o, t_o), optional
+        ``P_camera2 = R_o P_camera1 + t_o``; required with ``second``.
 
     Returns
     -------
@@ -312,7 +322,13 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     img_s, r_bins, th_beams = _check_sonar(sonar)
     spec = sonar.spec
     if rig.sonar is None:
+        if not hasattr(spec, "fov_elevation"):
+            raise ValueError("sonar.spec: has no fov_elevation and the rig carries no sonar; "
+                             "attach one with rig.with_sonar(spec)")
         rig = rig.with_sonar(spec)
+    # Measured frames may not state these: fall back to one bin and one beam spacing.
+    range_res = float(getattr(spec, "range_resolution", None) or np.median(np.diff(r_bins)))
+    beamwidth = float(getattr(spec, "beamwidth_azimuth", None) or np.median(np.diff(th_beams)))
     cam_img = np.asarray(camera_image)
     cam = rig.camera
     if cam_img.ndim != 3 or cam_img.shape[:2] != (cam.height, cam.width):
@@ -321,8 +337,8 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     if not _camera_sees_fan(rig, r_bins, th_beams):
         return _empty("the camera sees nothing of the sonar's fan: no epipolar curve enters the image")
 
-    sf = detect_sonar_features(img_s, r_bins, th_beams, range_resolution=float(spec.range_resolution),
-                               beamwidth=float(spec.beamwidth_azimuth), options=opt.cfar)
+    sf = detect_sonar_features(img_s, r_bins, th_beams, range_resolution=range_res, beamwidth=beamwidth,
+                               options=opt.cfar)
     if len(sf) == 0:
         return _empty("no sonar features: CFAR found no echo standing out of its background")
     cf = detect_camera_features(cam_img, opt.keypoints)
@@ -376,6 +392,11 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
                            margin=opt.occluder_margin)
             cost[alive[occ]] = np.inf
 
+    if opt.corner_weight:
+        # Strong corners sit on silhouettes, where the depth jumps and a pixel's neighbour
+        # sees another surface: prefer the weaker, interior corners among competitors.
+        rel = cf.response / max(float(np.median(cf.response)), 1e-12)
+        cost = cost + opt.corner_weight * np.log(np.maximum(rel[cols], 1e-3))
     keep = np.isfinite(cost) & (cost < opt.null_cost)
     if not keep.any():
         return _empty(f"no candidates: the {rows.size} epipolar candidates all fail the reconstruction, "
@@ -424,6 +445,8 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     out = Matches(cf.pixels[cols[ch]], sf.ranges[rows[ch]], sf.azimuths[rows[ch]], P[ch], score[order], cost[ch],
                   rows[ch], cols[ch], sf, cf, seabed,
                   f"{ch.size} matches of {len(sf)} sonar and {len(cf)} camera features", feats)
+    if second is not None:
+        out = _two_view(out, second, motion, rig, noise, opt)
     res = out.above(min_score)
     if not res:
         return _empty(f"nothing reliable: {ch.size} tentative matches, none with score >= {min_score}",
