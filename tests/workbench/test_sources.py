@@ -38,6 +38,15 @@ def _check_curve(session, client):
         assert np.nanmax(ep.sampson_distance(C, np.asarray(line))) < 0.01
 
 
+def test_the_default_rig_is_the_packaged_thesis_rig():
+    from optiacoustic.rig import Rig
+
+    a = Rig.from_dict(THESIS_RIG)
+    b = Rig.load(REPO / "src" / "optiacoustic" / "examples" / "rig_thesis.yaml")
+    assert np.allclose(a.R, b.R, atol=1e-12) and np.allclose(a.t, b.t, atol=1e-12)
+    assert np.allclose(a.camera.K, b.camera.K) and a.sonar.name == b.sonar.name
+
+
 def test_real_pair_from_a_real_sonar_log_and_an_image_folder(tmp_path):
     ok, msg = source_kinds()["real"]
     if not ok:

@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from .common import Vec3, app, console, out, reports_errors
+from .common import Vec3, app, console, out, reports_errors, resolve_input
 
 
 @app.command("workbench")
@@ -37,6 +37,7 @@ def workbench_cmd(
     from ..workbench.server import free_port, is_loopback, serve
     from .common import resolve_scene
 
+    rig_file = resolve_input(rig_file) if rig_file is not None else None  # examples/... from any folder
     if port < 0 or port > 65535:
         raise ValueError(f"--port: expected 0-65535, got {port}")
     if not is_loopback(host) and not allow_remote:
