@@ -84,7 +84,8 @@ def _builtin_scenes():
 
 def simulate_pair(scene, water="thesis", noise_floor_db="default", seed=0):
     """One rig pair of ``scene`` from its view: (sonar frame, optical frame, rig)."""
-    from ..optical import Water, simulate_rig
+    from ..optical import Water
+    from ..simulation import simulate_rig
     from ..sonar import NoiseModel
 
     rig, sp = _rig_for(scene.view.eye, scene.view.target)
@@ -103,7 +104,8 @@ def second_view(scene, seed=0, water="thesis", shift=(0.3, 0.25, 0.0)):
 
     ``motion`` is ``(R_o, t_o)`` with ``P_camera2 = R_o P_camera1 + t_o``, from the true poses.
     """
-    from ..optical import Water, simulate_rig
+    from ..optical import Water
+    from ..simulation import simulate_rig
 
     rig, sp1 = _rig_for(scene.view.eye, scene.view.target)
     eye2 = np.asarray(scene.view.eye, float) + np.asarray(shift, float)
