@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import functools
 import threading
-import weakref
 from dataclasses import dataclass
 from typing import Literal
 
@@ -27,7 +26,7 @@ import numpy as np
 
 from .._validate import as_rng, check_memory
 from ..frames import Pose
-from ..raycast import RayCaster
+from ..raycast import RayCaster, caster_for
 from ..scene import Scene
 from .frame import SonarFrame, SonarGroundTruth, SonarRays
 from .propagation import Seawater, two_way_gain
@@ -79,20 +78,6 @@ class SonarOptions:
             raise ValueError(f"SonarOptions.range_oversample: expected an integer in [1, 16], got {self.range_oversample!r}")
         if not isinstance(self.water, Seawater):
             raise ValueError("SonarOptions.water: expected a Seawater")
-
-
-# --------------------------------------------------------------------------- caching
-_CASTERS: "weakref.WeakKeyDictionary[Scene, RayCaster]" = weakref.WeakKeyDictionary()
-
-
-def caster_for(scene: Scene) -> RayCaster:
-    """The ray caster of ``scene``, built on first use and kept while the scene lives."""
-    if not isinstance(scene, Scene):
-        raise TypeError(f"scene: expected a Scene, got {type(scene).__name__}")
-    c = _CASTERS.get(scene)
-    if c is None:
-        c = _CASTERS[scene] = RayCaster(scene)
-    return c
 
 
 @functools.lru_cache(maxsize=16)
