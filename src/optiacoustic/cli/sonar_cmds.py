@@ -6,7 +6,6 @@ import time
 from pathlib import Path
 from typing import Optional
 
-import numpy as np
 import typer
 from rich.table import Table
 
@@ -48,6 +47,8 @@ def scene_cmd(
 @app.command("presets")
 def presets_cmd():
     """List the sonar presets with their sources and unverified values."""
+    import numpy as np  # here, not at the top: `oas --help` must not pay for numpy
+
     from ..sonar import SonarSpec
 
     t = Table(title="sonar presets", show_lines=True)
@@ -86,6 +87,8 @@ def sonar_cmd(
     figures: bool = typer.Option(True, "--figures/--no-figures", help="Write the stage figures."),
 ):
     """Simulate a sonar frame: NPZ (intensity, image, ranges, azimuths, ground truth) and PNGs."""
+    import numpy as np  # here, not at the top: `oas --help` must not pay for numpy
+
     import dataclasses
 
     from rich.progress import Progress
