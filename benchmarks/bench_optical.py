@@ -20,7 +20,7 @@ DESCRIPTION = (
 def run(reps: int = 9) -> list[dict]:
     from optiacoustic import PinholeCamera, Pose, scenes
     from optiacoustic.optical import OpticalOptions, simulate_optical
-    from optiacoustic.sonar import caster_for
+    from optiacoustic.raycast import caster_for
 
     scene = scenes.get("thesis_scene1")
     camera = PinholeCamera.from_sensor()

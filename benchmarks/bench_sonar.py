@@ -22,7 +22,7 @@ DESCRIPTION = (
 
 def run() -> list[dict]:
     from optiacoustic import Pose, SonarSpec, scenes, simulate_sonar
-    from optiacoustic.sonar import caster_for
+    from optiacoustic.raycast import caster_for
     from optiacoustic.sonar.formation import _ray_grid
 
     scene = scenes.get("thesis_scene1")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import threading
+import weakref
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -17,7 +18,7 @@ import numpy as np
 from ._validate import as_array
 from .scene import Scene, SceneError
 
-__all__ = ["RayCaster", "Hits", "default_threads"]
+__all__ = ["RayCaster", "Hits", "caster_for", "default_threads"]
 
 _MISS_DIST = np.float32(1e30)
 MAX_COORDINATE = 1e6  # m: float32 resolves 6 cm there; beyond, hits would be wrong by metres
@@ -246,3 +247,23 @@ class RayCaster:
         outs = self._run_chunks(o32, d32, dists, "DISTANCE", False)
         t = np.concatenate(outs).astype(float)
         return np.where(t >= np.minimum(dists, _MISS_DIST) * (1 - 1e-7), np.inf, t).reshape(shape)
+
+
+# --------------------------------------------------------------------------- per-scene cache
+_CASTERS: "weakref.WeakKeyDictionary[Scene, RayCaster]" = weakref.WeakKeyDictionary()
+_CASTERS_LOCK = threading.Lock()
+
+
+def caster_for(scene: Scene) -> RayCaster:
+    """The ray caster of ``scene``, built on first use and kept while the scene lives.
+
+    Every simulator (sonar, camera, a rig of both) takes its caster from here, so one
+    scene's acceleration structure is built once per process.
+    """
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene: expected a Scene, got {type(scene).__name__}")
+    with _CASTERS_LOCK:
+        c = _CASTERS.get(scene)
+        if c is None:
+            c = _CASTERS[scene] = RayCaster(scene)
+    return c

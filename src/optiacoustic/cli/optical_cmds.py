@@ -83,7 +83,8 @@ def render_cmd(
 ):
     """Render a synchronised sonar + camera pair from a rig, with ground truth and both poses."""
     from ..frames import Pose
-    from ..optical import Water, simulate_rig
+    from ..optical import Water
+    from ..simulation import simulate_rig
     from ..rig import Rig
 
     scene = resolve_scene(scene_name)

@@ -6,7 +6,6 @@ import time
 from pathlib import Path
 from typing import Optional
 
-import numpy as np
 import typer
 from rich.table import Table
 
@@ -48,6 +47,8 @@ def scene_cmd(
 @app.command("presets")
 def presets_cmd():
     """List the sonar presets with their sources and unverified values."""
+    import numpy as np  # here, not at the top: `oas --help` must not pay for numpy
+
     from ..sonar import SonarSpec
 
     t = Table(title="sonar presets", show_lines=True)
@@ -87,6 +88,8 @@ def sonar_cmd(
     profile_path: Optional[str] = typer.Option(None, "--profile", help="Sensor profile YAML (oas sensor-fit) or a shipped profile's name: renders as that device."),
 ):
     """Simulate a sonar frame: NPZ (intensity, image, ranges, azimuths, ground truth) and PNGs."""
+    import numpy as np  # here, not at the top: `oas --help` must not pay for numpy
+
     import dataclasses
 
     from rich.progress import Progress

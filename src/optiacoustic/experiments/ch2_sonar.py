@@ -22,7 +22,8 @@ SUMMARY = ("Scene 1 seen by a simulated BlueView P900-90 from (0, -6, 2): per-ra
 def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     from .. import scenes
     from ..frames import Pose
-    from ..sonar import SonarOptions, SonarSpec, caster_for, simulate_sonar
+    from ..raycast import caster_for
+    from ..sonar import SonarOptions, SonarSpec, simulate_sonar
     from ..sonar.figures import plot_scene_overview, save_stage_figures
 
     out = Path(out_dir)

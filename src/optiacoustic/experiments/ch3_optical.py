@@ -70,9 +70,11 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
 
     from .. import scenes
     from ..frames import Pose
-    from ..optical import Water, simulate_optical, simulate_rig
-    from ..optical.figures import save_ground_truth_figure, save_pair_figure, save_stage_figures
-    from ..sonar import caster_for
+    from ..optical import Water, simulate_optical
+    from ..optical.figures import save_ground_truth_figure, save_stage_figures
+    from ..raycast import caster_for
+    from ..simulation import simulate_rig
+    from ..simulation.figures import save_pair_figure
 
     out = Path(out_dir)
     ensure_dir(out)

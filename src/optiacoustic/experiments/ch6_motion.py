@@ -196,7 +196,7 @@ def _fig_geometry(rig, s1, s2, path):
 
 
 def _fig_views(scene, rig, s1, s2, D, res, path):
-    from ..optical import simulate_rig
+    from ..simulation import simulate_rig
     from ..sonar.display import to_display
 
     plt = _plt()

@@ -11,15 +11,19 @@ import importlib
 
 _EXPORTS = {
     "MeasuredSonarFrame": "optiacoustic.sonar.frame",
+    "DatasetError": "optiacoustic.io.dataset",
     "ReadError": "optiacoustic.io.errors",
     "open_aris": "optiacoustic.io.aris",
     "open_camera": "optiacoustic.io.camera",
+    "open_dataset": "optiacoustic.io.dataset",
     "open_oculus": "optiacoustic.io.oculus",
     "open_sonar": "optiacoustic.io.sonar",
     "pair_frames": "optiacoustic.io.pairing",
     "read_camera_info": "optiacoustic.io.camera_info",
     "read_rig": "optiacoustic.io.rig",
     "typestore": "optiacoustic.io.rosmsg",
+    "write_dataset": "optiacoustic.io.dataset",
+    "write_mcap": "optiacoustic.io.mcap_writer",
 }
 
 __all__ = sorted(_EXPORTS)

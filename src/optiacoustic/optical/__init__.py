@@ -8,7 +8,6 @@ every formula: docs/derivations.md (ch. 3).
 
 from .frame import STAGES, OpticalFrame, auto_exposure, save_png, to_srgb8
 from .lights import Light, default_lights
-from .pair import RigFrame, simulate_rig
 from .render import OpticalOptions, SensorNoise, backscatter, forward_scatter, simulate_optical
 from .water import JERLOV_KD, PhaseFunction, Water, jerlov_iops
 
@@ -18,7 +17,6 @@ __all__ = [
     "OpticalFrame",
     "OpticalOptions",
     "PhaseFunction",
-    "RigFrame",
     "STAGES",
     "SensorNoise",
     "Water",
@@ -29,6 +27,5 @@ __all__ = [
     "jerlov_iops",
     "save_png",
     "simulate_optical",
-    "simulate_rig",
     "to_srgb8",
 ]

@@ -1,4 +1,4 @@
-"""Figures of the optical simulation stages (thesis Figs. 3.7-3.8) and of a sonar + camera pair."""
+"""Figures of the optical simulation stages (thesis Figs. 3.7-3.8)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 from .frame import OpticalFrame, auto_exposure, to_srgb8
 from .._atomic import ensure_dir, savefig
 
-__all__ = ["save_stage_figures", "save_pair_figure", "save_ground_truth_figure"]
+__all__ = ["save_stage_figures", "save_ground_truth_figure"]
 
 
 def _plt():
@@ -95,30 +95,6 @@ def save_ground_truth_figure(frame: OpticalFrame, path) -> Path:
     for a in axes:
         a.set_xlabel("u (px)")
         a.set_ylabel("v (px)")
-    fig.tight_layout()
-    savefig(fig, path, dpi=80)
-    plt.close(fig)
-    return Path(path)
-
-
-def save_pair_figure(sonar_frame, optical_frame: OpticalFrame, path, *, title: str | None = None) -> Path:
-    """A synchronised sonar fan image and camera image side by side."""
-    from ..sonar.display import to_display
-
-    plt = _plt()
-    fan = sonar_frame.fan("image", width=700)
-    ref = np.percentile(sonar_frame.intensity[sonar_frame.intensity > 0], 99.5) if np.any(sonar_frame.intensity > 0) else 1.0
-    fig, axes = plt.subplots(1, 2, figsize=(14, 5.2), gridspec_kw={"width_ratios": [1, 1.25]})
-    axes[0].imshow(to_display(fan.data, reference=ref), extent=fan.extent, cmap="copper")
-    axes[0].set_facecolor("black")
-    axes[0].set_xlabel("x_s (m)")
-    axes[0].set_ylabel("y_s (m)")
-    axes[0].set_title(f"sonar ({sonar_frame.spec.name}) at {np.round(sonar_frame.pose.t, 2).tolist()}")
-    axes[1].imshow(optical_frame.to_srgb8("image"))
-    axes[1].set_title(f"camera at {np.round(optical_frame.pose.t, 2).tolist()}, {optical_frame.water.name} water")
-    axes[1].axis("off")
-    if title:
-        fig.suptitle(title)
     fig.tight_layout()
     savefig(fig, path, dpi=80)
     plt.close(fig)

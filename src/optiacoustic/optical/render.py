@@ -550,7 +550,7 @@ def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=N
     the slice spacing (a lamp in view) is undersampled by the slices.
     """
     t_start = time.perf_counter()
-    from ..sonar import caster_for
+    from ..raycast import caster_for
 
     if not isinstance(scene, Scene):
         raise ValueError(f"scene: expected a Scene, got {type(scene).__name__}")

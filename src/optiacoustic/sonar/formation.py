@@ -20,7 +20,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import threading
-import weakref
 from dataclasses import dataclass
 from typing import Literal
 
@@ -28,7 +27,7 @@ import numpy as np
 
 from .._validate import as_rng, check_memory
 from ..frames import Pose
-from ..raycast import RayCaster
+from ..raycast import RayCaster, caster_for
 from ..scene import Scene
 from .frame import SonarFrame, SonarGroundTruth, SonarRays
 from .propagation import Seawater, two_way_gain
@@ -153,20 +152,6 @@ def azimuth_kernel(spec: SonarSpec) -> np.ndarray:
     k = pat.cell_average_two_way(np.arange(-m, m + 1) * spec.beam_spacing, spec.beam_spacing)
     k.setflags(write=False)
     return k
-
-
-# --------------------------------------------------------------------------- caching
-_CASTERS: "weakref.WeakKeyDictionary[Scene, RayCaster]" = weakref.WeakKeyDictionary()
-
-
-def caster_for(scene: Scene) -> RayCaster:
-    """The ray caster of ``scene``, built on first use and kept while the scene lives."""
-    if not isinstance(scene, Scene):
-        raise TypeError(f"scene: expected a Scene, got {type(scene).__name__}")
-    c = _CASTERS.get(scene)
-    if c is None:
-        c = _CASTERS[scene] = RayCaster(scene)
-    return c
 
 
 @functools.lru_cache(maxsize=16)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -10,10 +9,10 @@ import numpy as np
 
 from .._atomic import ensure_dir, write_json
 from ..frames import Pose
+from ..optical import OpticalFrame, OpticalOptions, simulate_optical
 from ..rig import Rig
 from ..scene import Scene
-from .frame import OpticalFrame
-from .render import OpticalOptions, simulate_optical
+from ..sonar import SonarFrame, simulate_sonar
 
 __all__ = ["RigFrame", "simulate_rig"]
 
@@ -37,7 +36,7 @@ class RigFrame:
     scene_name : str
     """
 
-    sonar: object
+    sonar: SonarFrame
     optical: OpticalFrame
     rig: Rig
     scene_name: str = ""
@@ -118,8 +117,6 @@ def simulate_rig(scene: Scene, rig: Rig, sonar_pose: Pose, *, water=None, lights
         Passed to :func:`~optiacoustic.simulate_sonar` (``None``: its default model).
     optical_options : OpticalOptions, optional
     """
-    from ..sonar import simulate_sonar
-
     if not isinstance(rig, Rig):
         raise ValueError(f"rig: expected a Rig, got {type(rig).__name__}")
     if rig.sonar is None:

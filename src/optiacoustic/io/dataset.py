@@ -1,0 +1,407 @@
+"""Datasets: synchronised sonar + camera sequences with ground truth, in Zarr v3, on Dask.
+
+Layout (docs/datasets.md): groups ``sonar`` and ``camera``, one chunk per frame,
+zstd-compressed, each array with named dimensions (Zarr v3 ``dimension_names``), so that
+plain ``zarr`` and ``xarray`` both read it. Times and poses are known before any frame is
+rendered and are written when the store is created; a frame's arrays are written by the
+worker that rendered it, then its flag in ``done`` (written last). A rerun of the same
+command renders only the frames whose flag is not set, so a run killed at any moment
+(SIGKILL included) resumes without a missing, duplicated or half-written frame: Zarr's
+local store writes every chunk to a temporary file and renames it.
+
+A frame's noise depends only on ``(seed, sensor, frame index)``: the output is the same
+whatever the number of workers and the order they finish in.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["write_dataset", "open_dataset", "DatasetReport", "DatasetError", "FORMAT", "FORMAT_VERSION"]
+
+FORMAT = "optiacoustic-dataset"
+FORMAT_VERSION = 1
+_ATTR = "optiacoustic"
+
+
+class DatasetError(ValueError):
+    """A dataset cannot be written or read (names the path and the reason)."""
+
+
+# --------------------------------------------------------------------------- layout
+def _layout(seq, ground_truth: bool) -> dict:
+    """``{group: {array: (frame shape, dims, dtype, fill)}}`` of the per-frame arrays."""
+    out = {}
+    if len(seq.sonar):
+        s = seq.rig.sonar
+        img = (s.n_bins, s.n_beams)
+        dims = ("bin", "beam")
+        out["sonar"] = {"image": (img, dims, "float32", np.nan), "intensity": (img, dims, "float32", np.nan)}
+        if ground_truth:
+            out["sonar"].update(body=(img, dims, "int16", -1), elevation_min=(img, dims, "float32", np.nan),
+                                elevation_max=(img, dims, "float32", np.nan), shadow=(img, dims, "bool", False))
+    if len(seq.camera):
+        c = seq.rig.camera
+        hw, dims = (c.height, c.width), ("row", "col")
+        out["camera"] = {"image": (hw + (3,), dims + ("channel",), "float32", np.nan)}
+        if ground_truth:
+            out["camera"].update(depth=(hw, dims, "float32", np.nan), body=(hw, dims, "int16", -1),
+                                 normal=(hw + (3,), dims + ("xyz",), "float32", np.nan))
+    return out
+
+
+def _frame_arrays(seq, sensor: str, k: int, ground_truth: bool) -> dict:
+    if sensor == "sonar":
+        f = seq.render_sonar(k)
+        a = {"image": f.image, "intensity": f.intensity}
+        if ground_truth:
+            gt = f.ground_truth
+            a.update(body=gt.body, elevation_min=gt.elevation_min, elevation_max=gt.elevation_max, shadow=gt.shadow)
+    else:
+        f = seq.render_camera(k)
+        a = {"image": f.image}
+        if ground_truth:
+            a.update(depth=f.depth, body=f.body, normal=f.normal)
+    return a
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, (np.floating, float)):
+        return float(x) if np.isfinite(x) else str(float(x))
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    return x
+
+
+def _metadata(seq) -> dict:
+    from .. import __version__
+    from ..sonar.frame import spec_to_dict
+
+    rig, cam, w = seq.rig, seq.rig.camera, seq.water
+    canonical = seq.canonical()
+    return _jsonable({
+        "format": FORMAT, "format_version": FORMAT_VERSION, "package_version": __version__,
+        "fingerprint": seq.fingerprint(), "seed": seq.config.seed,
+        "config": canonical["config"], "scene": canonical["scene"], "body_names": list(seq.scene.body_names()),
+        "sonar_spec": spec_to_dict(rig.sonar) if rig.sonar is not None else None,
+        "camera": {"fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy, "width": cam.width, "height": cam.height,
+                   "dist": list(cam.dist), "K": cam.K},
+        "rig": {"R_sonar_from_camera": rig.R, "t_camera_in_sonar": rig.t},
+        "water": {"name": w.name, "a": list(w.a), "b": list(w.b), "c": w.c, "source": w.source},
+        "conventions": "metres, radians, seconds; poses map sensor to world (P_world = R P_sensor + t) as 4x4; "
+                       "sonar axes X right, Y forward, Z up; camera axes OpenCV (X right, Y down, Z forward); "
+                       "rig P_sonar = R P_camera + t; sonar images (n_bins, n_beams), near to far, left to right",
+    })
+
+
+def _compressors():
+    from zarr.codecs import ZstdCodec
+
+    return [ZstdCodec(level=3)]
+
+
+def _create(path: Path, seq, ground_truth: bool):
+    import zarr
+
+    root = zarr.open_group(str(path), mode="w", zarr_format=3)
+    for sensor, arrays in _layout(seq, ground_truth).items():
+        g = root.create_group(sensor)
+        sched = seq.schedule(sensor)
+        n = len(sched)
+        for name, (shape, dims, dtype, fill) in arrays.items():
+            g.create_array(name, shape=(n,) + shape, chunks=(1,) + shape, dtype=dtype, fill_value=fill,
+                           compressors=_compressors(), dimension_names=("frame",) + dims)
+        g.create_array("time", data=sched.times.astype("float64"), chunks=(max(n, 1),),
+                       dimension_names=("frame",), attributes={"units": "s"})
+        g.create_array("pose", data=sched.poses.astype("float64"), chunks=(max(n, 1), 4, 4),
+                       dimension_names=("frame", "pose_row", "pose_col"),
+                       attributes={"description": f"{sensor} to world, P_world = T[:3,:3] P_{sensor} + T[:3,3]"})
+        g.create_array("done", shape=(n,), chunks=(1,), dtype="bool", fill_value=False, dimension_names=("frame",),
+                       attributes={"description": "frame k is complete (written after all its arrays)"})
+        if sensor == "sonar":
+            g.create_array("ranges", data=seq.rig.sonar.ranges.astype("float64"), dimension_names=("bin",),
+                           attributes={"units": "m", "description": "range-bin centres"})
+            g.create_array("azimuths", data=seq.rig.sonar.azimuths.astype("float64"), dimension_names=("beam",),
+                           attributes={"units": "rad", "description": "beam centres, positive to starboard"})
+        else:
+            g.create_array("K", data=seq.rig.camera.K.astype("float64"), dimension_names=("k_row", "k_col"))
+    meta = _metadata(seq)
+    meta["layout_complete"] = True
+    root.attrs[_ATTR] = meta  # last: a store without it is an interrupted creation
+    return root
+
+
+def _config_difference(old: dict, new: dict, prefix: str = "") -> str:
+    for k in sorted(set(old) | set(new)):
+        a, b = old.get(k, "<absent>"), new.get(k, "<absent>")
+        if isinstance(a, dict) and isinstance(b, dict):
+            d = _config_difference(a, b, f"{prefix}{k}.")
+            if d:
+                return d
+        elif a != b:
+            return f"field '{prefix}{k}' was {a!r}, now {b!r}"
+    return ""
+
+
+def _open_or_create(path: Path, seq, ground_truth: bool):
+    import zarr
+
+    if path.exists() and not path.is_dir():
+        raise DatasetError(f"{path}: exists and is not a folder")
+    if not path.exists() or not any(path.iterdir()):
+        return _create(path, seq, ground_truth), False
+    if not (path / "zarr.json").is_file():
+        raise DatasetError(f"{path}: exists and is not a Zarr store; refusing to write into it")
+    try:
+        root = zarr.open_group(str(path), mode="r+")
+        meta = dict(root.attrs).get(_ATTR)
+    except Exception as exc:  # noqa: BLE001 - any unreadable root means the same to the user
+        raise DatasetError(f"{path}: cannot open as a Zarr group: {exc}") from None
+    if meta is None:
+        if any(root.group_keys()) or any(root.array_keys()):
+            # our creation writes the attribute last: groups without it were an interrupted creation
+            if set(root.group_keys()) <= {"sonar", "camera"} and not any(root.array_keys()):
+                return _create(path, seq, ground_truth), False
+            raise DatasetError(f"{path}: is a Zarr store but not an optiacoustic dataset; refusing to write into it")
+        return _create(path, seq, ground_truth), False
+    if meta.get("fingerprint") != seq.fingerprint():
+        new = _jsonable(seq.canonical())
+        diff = _config_difference({"config": meta.get("config", {}), "scene": meta.get("scene", {})}, new)
+        raise DatasetError(f"{path}: was written from a different configuration ({diff or 'scene differs'}); "
+                           "use a new output path or delete it")
+    return root, True
+
+
+def _remove_partials(path: Path) -> int:
+    """Delete temporary chunk files left by a killed writer (``*.partial``, never read)."""
+    n = 0
+    for p in path.rglob("*.partial"):
+        try:
+            p.unlink()
+            n += 1
+        except OSError:
+            pass
+    return n
+
+
+# --------------------------------------------------------------------------- one frame (runs on a worker)
+_SEQUENCES: dict = {}  # fingerprint -> Sequence, per worker process
+_STORES: dict = {}  # (output path, fingerprint) -> open Zarr group, per worker process
+BUILDS = {"sequences": 0}  # how many times this process resolved a configuration (tests read it)
+_CONTEXT_LOCK = threading.Lock()  # workers of an external cluster may run several threads
+
+
+def _context(path: str, fingerprint: str, config: dict, base_dir: str):
+    """This process's Sequence (keyed by the configuration's fingerprint) and open store.
+
+    The Sequence holds the scene, so the scene's ray caster (its BVH) is built on the
+    first frame a worker renders and reused for every later frame, of this output or of
+    another output of the same configuration and scene.
+    """
+    with _CONTEXT_LOCK:
+        return _context_locked(path, fingerprint, config, base_dir)
+
+
+def _context_locked(path: str, fingerprint: str, config: dict, base_dir: str):
+    import zarr
+
+    from ..simulation.sequence import Sequence
+
+    seq = _SEQUENCES.get(fingerprint)
+    if seq is None:
+        seq = Sequence(config, base_dir=base_dir)
+        if seq.fingerprint() != fingerprint:
+            raise DatasetError(f"{path}: the worker resolved a different scene or config than the client "
+                               "(a relative path that differs between machines?)")
+        if len(_SEQUENCES) >= 2:  # a worker keeps the latest two configurations: memory stays flat
+            _SEQUENCES.pop(next(iter(_SEQUENCES)))
+        _SEQUENCES[fingerprint] = seq
+        BUILDS["sequences"] += 1
+    root = _STORES.get((path, fingerprint))
+    if root is None:
+        if len(_STORES) >= 4:
+            _STORES.pop(next(iter(_STORES)))
+        root = _STORES[(path, fingerprint)] = zarr.open_group(path, mode="r+")
+    return seq, root
+
+
+def write_frame(path: str, fingerprint: str, config: dict, base_dir: str, sensor: str, k: int,
+                ground_truth: bool) -> tuple[str, int, float, float]:
+    """Render frame ``k`` of ``sensor`` and write it; the ``done`` flag last.
+
+    Returns ``(sensor, k, render_seconds, write_seconds)``.
+    """
+    seq, root = _context(path, fingerprint, config, base_dir)
+    t0 = time.perf_counter()
+    arrays = _frame_arrays(seq, sensor, k, ground_truth)
+    t1 = time.perf_counter()
+    g = root[sensor]
+    for name, a in arrays.items():
+        g[name][k] = a
+    g["done"][k] = True
+    return sensor, k, t1 - t0, time.perf_counter() - t1
+
+
+# --------------------------------------------------------------------------- the run
+@dataclass(frozen=True)
+class DatasetReport:
+    """What a run of :func:`write_dataset` did.
+
+    ``written`` frames rendered now per sensor, ``skipped`` frames found done,
+    ``elapsed`` wall time (s), ``render_s`` / ``write_s`` summed over frames (s),
+    ``workers`` the number of Dask workers (0: in this process).
+    """
+
+    path: Path
+    written: dict
+    skipped: dict
+    elapsed: float
+    render_s: float
+    write_s: float
+    workers: int
+
+    @property
+    def frames_written(self) -> int:
+        return sum(self.written.values())
+
+
+def _local_cluster(n: int):
+    from distributed import LocalCluster
+
+    env = {"OAS_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                        env=env, silence_logs=40)
+
+
+def _default_workers() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def write_dataset(config, out, *, workers: int | None = None, scheduler: str | None = None, progress=None,
+                  base_dir=None) -> DatasetReport:
+    """Render a configured sequence into a Zarr v3 dataset, resuming an interrupted one.
+
+    Parameters
+    ----------
+    config : path of a YAML/JSON config, mapping, or SequenceConfig
+        See docs/datasets.md.
+    out : path
+        The ``.zarr`` folder. If it holds a dataset of the same configuration, only the
+        frames not yet done are rendered; of another configuration, a
+        :class:`DatasetError` is raised and nothing is written.
+    workers : int, optional
+        Processes of a local Dask cluster (default: all usable cores); 0 renders in
+        this process without Dask.
+    scheduler : str, optional
+        Address of an existing Dask scheduler (``tcp://host:8786``); ``workers`` is then
+        ignored. Its workers must see ``out`` and any scene or rig files at the same paths.
+    progress : callable, optional
+        Called as ``progress(done, total)`` after each frame; the CLI draws a bar with it.
+    base_dir : path, optional
+        Folder for relative paths of a mapping config.
+
+    Returns
+    -------
+    DatasetReport
+    """
+    from ..simulation.sequence import SENSORS, Sequence
+
+    t_start = time.perf_counter()
+    seq = Sequence(config, base_dir=base_dir)
+    path = Path(out).resolve()
+    gt = seq.config.ground_truth
+    root, resumed = _open_or_create(path, seq, gt)
+    if resumed:
+        _remove_partials(path)
+    todo, skipped = [], {}
+    for sensor in SENSORS:
+        n = len(seq.schedule(sensor))
+        if not n:
+            continue
+        done = root[sensor]["done"][:] if resumed else np.zeros(n, bool)
+        skipped[sensor] = int(done.sum())
+        todo += [(float(seq.schedule(sensor).times[k]), sensor, int(k)) for k in np.flatnonzero(~done)]
+    todo.sort()  # in time order, sensors interleaved
+    total = len(todo)
+    written = {s: 0 for s in skipped}
+    args = (str(path), seq.fingerprint(), seq.config.model_dump(mode="json"), str(seq.base_dir))
+    render_s = write_s = 0.0
+    n_workers = 0
+
+    def _done(res, i):
+        nonlocal render_s, write_s
+        sensor, _, r, w = res
+        written[sensor] += 1
+        render_s += r
+        write_s += w
+        if progress is not None:
+            progress(i, total)
+
+    if progress is not None:
+        progress(0, total)
+    if total and workers == 0 and scheduler is None:
+        for i, (_, sensor, k) in enumerate(todo, 1):
+            _done(write_frame(*args, sensor, k, gt), i)
+    elif total:
+        from distributed import Client, as_completed
+
+        cluster = None
+        if scheduler is None:
+            cluster = _local_cluster(workers or _default_workers())
+        try:
+            with Client(scheduler if scheduler else cluster) as client:
+                n_workers = len(client.scheduler_info().get("workers", {})) or (workers or 0)
+                futs = [client.submit(write_frame, *args, sensor, k, gt, key=f"oas-{sensor}-{k}-{args[1][:12]}",
+                                      pure=False) for _, sensor, k in todo]
+                for i, fut in enumerate(as_completed(futs), 1):
+                    res = fut.result()
+                    fut.release()
+                    _done(res, i)
+                del futs
+        finally:
+            if cluster is not None:
+                cluster.close()
+    return DatasetReport(path, written, skipped, time.perf_counter() - t_start, render_s, write_s, n_workers)
+
+
+# --------------------------------------------------------------------------- reading
+def open_dataset(path):
+    """A dataset as an :class:`xarray.DataTree` with named dimensions (lazy, nothing loaded).
+
+    Children ``sonar`` (dims ``frame``, ``bin``, ``beam``; coordinates ``time``,
+    ``ranges``, ``azimuths``) and ``camera`` (dims ``frame``, ``row``, ``col``,
+    ``channel``; coordinate ``time``); the metadata is in ``tree.attrs["optiacoustic"]``.
+    Frames whose ``done`` flag is False hold fill values (NaN, -1).
+    """
+    import xarray as xr
+    import zarr
+
+    p = Path(path)
+    if not (p / "zarr.json").is_file():
+        raise DatasetError(f"{p}: not a Zarr store (no zarr.json)")
+    root = zarr.open_group(str(p), mode="r")
+    if _ATTR not in root.attrs:
+        raise DatasetError(f"{p}: not an optiacoustic dataset (no '{_ATTR}' attribute)")
+    tree = xr.open_datatree(str(p), engine="zarr", consolidated=False, mask_and_scale=False, decode_times=False,
+                            chunks={})
+    for name in ("sonar", "camera"):
+        if name in tree.children:
+            ds = tree[name].to_dataset()
+            coords = [c for c in ("time", "ranges", "azimuths") if c in ds]
+            tree[name] = xr.DataTree(ds.set_coords(coords))
+    return tree

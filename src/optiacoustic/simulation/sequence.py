@@ -1,0 +1,330 @@
+"""A synchronised sequence of a rig along a trajectory: its configuration, its schedule and its frames.
+
+:class:`SequenceConfig` is the validated form of a dataset configuration file (YAML or
+JSON; see docs/datasets.md). :class:`Sequence` resolves it once (scene, rig, sonar spec,
+water, trajectory) and renders frame ``k`` of either sensor on demand. A frame's noise
+depends only on ``(seed, sensor, k)``, so a sequence renders identically whatever the
+order or the process its frames are rendered in.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Literal, Optional, Union
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from ..frames import Pose
+from ..rig import Rig
+from ..scene import Scene
+from .trajectory import Orbit, Trajectory, WaypointTrajectory, frame_times, lawnmower, load_csv
+
+__all__ = ["SequenceConfig", "Sequence", "SENSORS", "BUILTIN_RIGS", "load_config", "frame_seed"]
+
+SENSORS = ("sonar", "camera")
+
+# Built-in rigs (rig-file mappings, see Rig.load). "thesis" is examples/rig_thesis.yaml:
+# the BlueView P900-90 and the thesis's 600 x 400 camera 0.25 m to its left, toed in to
+# meet the boresight 6.32 m ahead.
+BUILTIN_RIGS = {
+    "thesis": {
+        "sonar": "blueview-p900-90",
+        "camera": {"width_px": 600, "height_px": 400, "sensor_mm": [36, 24], "focal_mm": 50},
+        "camera_in_sonar": {"position": [-0.25, 0.0, 0.0], "rotation_deg": [0.0, 0.7543055, -2.2636361]},
+    },
+}
+
+_STRICT = ConfigDict(extra="forbid", frozen=True)
+Vec3 = tuple[float, float, float]
+
+
+class OrbitConfig(BaseModel):
+    model_config = _STRICT
+    kind: Literal["orbit"]
+    center: Vec3 = (0.0, 0.0, 0.0)
+    radius: float = Field(6.0, gt=0, description="m")
+    height: float = Field(2.0, description="sonar height above the centre (m)")
+    period: float = Field(60.0, description="s per revolution; negative turns clockwise")
+    phase_deg: float = Field(-90.0, description="angle of the start position about the centre (deg)")
+    target_height: float = Field(0.0, description="height of the looked-at point above the centre (m)")
+
+    @field_validator("period")
+    @classmethod
+    def _period(cls, v):
+        if not np.isfinite(v) or v == 0:
+            raise ValueError("must be finite and non-zero")
+        return v
+
+    def build(self, base: Path) -> Trajectory:
+        return Orbit(self.center, self.radius, self.height, self.period, float(np.deg2rad(self.phase_deg)),
+                     self.target_height)
+
+
+class LawnmowerConfig(BaseModel):
+    model_config = _STRICT
+    kind: Literal["lawnmower"]
+    area: tuple[float, float, float, float] = Field(description="x_min, x_max, y_min, y_max (m)")
+    height: float
+    spacing: float = Field(gt=0)
+    speed: float = Field(gt=0)
+    tilt_deg: float = Field(30.0, gt=0, lt=90)
+    turn_time: float = Field(2.0, gt=0)
+
+    @field_validator("area")
+    @classmethod
+    def _area(cls, v):
+        if not (v[1] > v[0] and v[3] >= v[2]):
+            raise ValueError("expected x_min < x_max and y_min <= y_max")
+        return v
+
+    def build(self, base: Path) -> Trajectory:
+        return lawnmower(self.area, self.height, self.spacing, self.speed, tilt=float(np.deg2rad(self.tilt_deg)),
+                         turn_time=self.turn_time)
+
+
+class WaypointConfig(BaseModel):
+    model_config = _STRICT
+    time: float
+    position: Vec3
+    target: Optional[Vec3] = Field(None, description="world point the sonar looks at")
+    quaternion: Optional[tuple[float, float, float, float]] = Field(None, description="x, y, z, w; sonar to world")
+
+    @model_validator(mode="after")
+    def _one_orientation(self):
+        if (self.target is None) == (self.quaternion is None):
+            raise ValueError("give exactly one of 'target' or 'quaternion'")
+        if self.quaternion is not None and abs(np.linalg.norm(self.quaternion) - 1) > 1e-3:
+            raise ValueError(f"quaternion: norm {np.linalg.norm(self.quaternion):.6g}, expected 1")
+        return self
+
+
+class WaypointsConfig(BaseModel):
+    model_config = _STRICT
+    kind: Literal["waypoints"]
+    interpolation: Literal["cubic", "linear"] = "cubic"
+    points: list[WaypointConfig] = Field(min_length=2)
+
+    def build(self, base: Path) -> Trajectory:
+        from scipy.spatial.transform import Rotation
+
+        from .trajectory import look_rotations
+
+        t = np.array([p.time for p in self.points])
+        pos = np.array([p.position for p in self.points])
+        R = np.empty((len(t), 3, 3))
+        for i, p in enumerate(self.points):
+            R[i] = (look_rotations(np.subtract(p.target, p.position)) if p.target is not None
+                    else Rotation.from_quat(p.quaternion).as_matrix())
+        return WaypointTrajectory(t, pos, R, interpolation=self.interpolation)
+
+
+class CsvConfig(BaseModel):
+    model_config = _STRICT
+    kind: Literal["csv"]
+    path: str = Field(description="CSV of time,x,y,z,qx,qy,qz,qw (relative to the config file)")
+
+    def build(self, base: Path) -> Trajectory:
+        return load_csv(base / self.path)
+
+
+class Rates(BaseModel):
+    model_config = _STRICT
+    sonar: float = Field(5.0, ge=0, description="Hz; 0 leaves the sonar out")
+    camera: float = Field(1.0, ge=0, description="Hz; 0 leaves the camera out")
+
+    @model_validator(mode="after")
+    def _some_sensor(self):
+        if self.sonar == 0 and self.camera == 0:
+            raise ValueError("both rates are 0; nothing to simulate")
+        return self
+
+
+class NoiseConfig(BaseModel):
+    model_config = _STRICT
+    sonar: bool = True
+    camera: bool = True
+
+
+class OpticalConfig(BaseModel):
+    model_config = _STRICT
+    slices: int = Field(32, ge=1, le=512)
+    backscatter_step: int = Field(16, ge=1)
+    shadows: bool = True
+
+
+class SequenceConfig(BaseModel):
+    """A dataset configuration (docs/datasets.md). Unknown fields are errors."""
+
+    model_config = _STRICT
+    scene: str = Field(description="built-in scene name or scene file (relative to the config file)")
+    rig: Union[str, dict] = Field("thesis", description="built-in rig name, rig file, or an inline rig mapping")
+    sonar: Union[str, dict, None] = Field(None, description="overrides the rig's sonar: preset or mapping")
+    water: str = "thesis"
+    seed: int = Field(0, ge=0)
+    duration: float = Field(gt=0, description="s")
+    start: float = Field(0.0, description="time of the first frame on the trajectory (s)")
+    rates: Rates = Rates()
+    trajectory: Annotated[Union[OrbitConfig, LawnmowerConfig, WaypointsConfig, CsvConfig], Field(discriminator="kind")]
+    noise: NoiseConfig = NoiseConfig()
+    optical: OpticalConfig = OpticalConfig()
+    ground_truth: bool = True
+
+
+def _fmt_error(exc: ValidationError, source: str) -> str:
+    err = exc.errors()[0]
+    loc = [str(p) for p in err.get("loc", ()) if p not in ("orbit", "lawnmower", "waypoints", "csv")]
+    fld = ".".join(loc)
+    msg = err.get("msg", "invalid").removeprefix("Value error, ")
+    if "input" in err and err.get("type") not in ("missing",) and not isinstance(err["input"], dict):
+        msg += f" (got {err['input']!r})"
+    more = len(exc.errors()) - 1
+    return f"{source}: field '{fld}': {msg}" + (f"; and {more} more error(s)" if more else "")
+
+
+def load_config(source, *, base_dir=None) -> tuple[SequenceConfig, Path]:
+    """Validate a dataset configuration from a YAML/JSON file or a mapping.
+
+    Returns ``(config, base_dir)``; relative paths in it are relative to ``base_dir``
+    (the file's folder). Raises ``ValueError`` naming the file and the field.
+    """
+    if isinstance(source, SequenceConfig):
+        return source, Path(base_dir or ".").resolve()
+    if isinstance(source, dict):
+        data, name, base = source, "<config>", Path(base_dir or ".")
+    else:
+        from .._config import load_config as read_config_file
+
+        path = Path(source)
+        # the project's one YAML reader: size limit, duplicate keys, alias bombs, depth; names the file
+        data = read_config_file(path, what="config file")
+        name, base = str(path), path.parent
+    if not isinstance(data, dict):
+        raise ValueError(f"{name}: expected a mapping at the top level, got {type(data).__name__}")
+    try:
+        return SequenceConfig.model_validate(data), base.resolve()
+    except ValidationError as exc:
+        raise ValueError(_fmt_error(exc, name)) from None
+
+
+def frame_seed(seed: int, sensor: str, index: int) -> np.random.Generator:
+    """The noise generator of frame ``index`` of ``sensor``: a function of these three alone."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed), SENSORS.index(sensor), int(index)]))
+
+
+@dataclass(frozen=True, eq=False)
+class SensorSchedule:
+    """Frame times ``(n,)`` (s) and sensor-to-world poses ``(n, 4, 4)`` of one sensor."""
+
+    times: np.ndarray
+    poses: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.times)
+
+    def pose(self, k: int) -> Pose:
+        return Pose(self.poses[k, :3, :3], self.poses[k, :3, 3])
+
+
+class Sequence:
+    """A configuration resolved: scene, rig, sonar spec, water, trajectory and both schedules.
+
+    Parameters
+    ----------
+    config : SequenceConfig, mapping, or path of a YAML/JSON file
+    base_dir : path, optional
+        Folder that relative paths in a mapping config are relative to.
+    """
+
+    def __init__(self, config, *, base_dir=None):
+        self.config, self.base_dir = load_config(config, base_dir=base_dir)
+        source = str(config) if isinstance(config, (str, Path)) else "<config>"
+        try:
+            self._resolve()
+        except ValueError as exc:
+            msg = str(exc)
+            raise ValueError(msg if msg.startswith(source) else f"{source}: {msg}") from None
+
+    def _resolve(self):
+        from .. import scenes
+        from ..optical import Water
+        from ..sonar import SonarSpec
+
+        c = self.config
+        # scene: a file (relative to the config) or a built-in
+        p = self.base_dir / c.scene
+        if p.suffix.lower() in (".yaml", ".yml", ".json") or p.is_file():
+            self.scene = Scene.load(p)
+        elif c.scene in scenes.names():
+            self.scene = scenes.get(c.scene)
+        else:
+            raise ValueError(f"field 'scene': {c.scene!r} is neither a scene file nor a built-in scene {scenes.names()}")
+        if isinstance(c.rig, dict):
+            rig = Rig.from_dict(dict(c.rig), "field 'rig'")
+        elif c.rig in BUILTIN_RIGS:
+            rig = Rig.from_dict(BUILTIN_RIGS[c.rig], f"rig '{c.rig}'")
+        else:
+            rp = self.base_dir / c.rig
+            if not rp.is_file():
+                raise ValueError(f"field 'rig': {c.rig!r} is neither a rig file nor a built-in rig {sorted(BUILTIN_RIGS)}")
+            rig = Rig.load(rp)
+        if c.sonar is not None:
+            rig = rig.with_sonar(SonarSpec.from_dict(c.sonar if isinstance(c.sonar, str) else dict(c.sonar),
+                                                     "field 'sonar'"))
+        self.rig = rig
+        try:
+            self.water = Water.preset(c.water)
+        except (KeyError, ValueError) as exc:
+            raise ValueError(f"field 'water': {exc.args[0] if exc.args else exc}") from None
+        try:
+            self.trajectory = c.trajectory.build(self.base_dir)
+        except ValueError as exc:
+            raise ValueError(f"field 'trajectory': {exc}") from None
+        t_rig = np.eye(4)
+        t_rig[:3, :3], t_rig[:3, 3] = rig.R, rig.t
+        sched = {}
+        for sensor in SENSORS:
+            times = frame_times(getattr(c.rates, sensor), c.duration, c.start)
+            try:
+                T = self.trajectory.matrices(times) if len(times) else np.zeros((0, 4, 4))
+            except ValueError as exc:
+                raise ValueError(f"field 'duration': the {sensor}'s frames at {times[0]:g}..{times[-1]:g} s: {exc}") from None
+            # the rig moves as one body: camera_to_world = sonar_to_world @ camera_to_sonar
+            sched[sensor] = SensorSchedule(times, T if sensor == "sonar" else T @ t_rig)
+        self.sonar, self.camera = sched["sonar"], sched["camera"]
+
+    # ------------------------------------------------------------------ identity
+    def canonical(self) -> dict:
+        """The configuration as plain data, with the resolved scene, for comparing runs."""
+        from ..scene.io import scene_to_dict
+
+        return {"config": self.config.model_dump(mode="json"), "scene": scene_to_dict(self.scene, str(self.base_dir))}
+
+    def fingerprint(self) -> str:
+        """SHA-256 of :meth:`canonical` (what must match for a run to resume an output)."""
+        return hashlib.sha256(json.dumps(self.canonical(), sort_keys=True).encode()).hexdigest()
+
+    def schedule(self, sensor: str) -> SensorSchedule:
+        return {"sonar": self.sonar, "camera": self.camera}[sensor]
+
+    # ------------------------------------------------------------------ frames
+    def render_sonar(self, k: int):
+        """Sonar frame ``k``: a :class:`~optiacoustic.SonarFrame` (noise from :func:`frame_seed`)."""
+        from ..sonar import simulate_sonar
+
+        noise = None if self.config.noise.sonar else False
+        return simulate_sonar(self.scene, self.rig.sonar, self.sonar.pose(k), noise=noise,
+                              seed=frame_seed(self.config.seed, "sonar", k))
+
+    def render_camera(self, k: int):
+        """Camera frame ``k``: an :class:`~optiacoustic.OpticalFrame` (noise from :func:`frame_seed`)."""
+        from ..optical import OpticalOptions, simulate_optical
+
+        o = self.config.optical
+        opts = OpticalOptions(slices=o.slices, backscatter_step=o.backscatter_step, shadows=o.shadows,
+                              noise=None if self.config.noise.camera else False)
+        return simulate_optical(self.scene, self.rig.camera, self.camera.pose(k), water=self.water,
+                                seed=frame_seed(self.config.seed, "camera", k), options=opts)
