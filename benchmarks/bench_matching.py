@@ -1,0 +1,50 @@
+"""Speed of automatic opti-acoustic matching: one rig pair (thesis scene, thesis water)."""
+
+from __future__ import annotations
+
+from _timing import median_ms
+
+TITLE = "Automatic opti-acoustic matching"
+DESCRIPTION = ("`matching.match` on one simulated pair of `thesis_scene1` (BlueView P900-90 750 x 512 polar "
+               "image, 600 x 400 camera, thesis water, default sonar noise), target <= 1 s per pair; against "
+               "simulating that pair (`simulate_rig`: both sensors) and against its stages (OpenCV corners, "
+               "CFAR sonar features, the epipolar gate).")
+
+
+def run() -> list[dict]:
+    from optiacoustic import scenes
+    from optiacoustic.experiments.matching import _rig_for, simulate_pair
+    from optiacoustic.matching import detect_camera_features, detect_sonar_features, match
+    from optiacoustic.matching.gating import mahalanobis_sq
+    from optiacoustic.optical import Water, simulate_rig
+
+    scene = scenes.get("thesis_scene1")
+    s, o, rig = simulate_pair(scene)
+    spec = s.spec
+    t_match = median_ms(lambda: match(s, o.image, rig), repeat=7, warmup=1)
+    _, sp = _rig_for(scene.view.eye, scene.view.target)
+    water = Water.preset("thesis")
+    t_sim = median_ms(lambda: simulate_rig(scene, rig, sp, water=water, seed=0), repeat=5, warmup=1)
+    t_cam = median_ms(lambda: detect_camera_features(o.image), repeat=7, warmup=1)
+    t_son = median_ms(lambda: detect_sonar_features(s.image, s.ranges, s.azimuths,
+                                                    range_resolution=spec.range_resolution,
+                                                    beamwidth=spec.beamwidth_azimuth), repeat=7, warmup=1)
+    cf = detect_camera_features(o.image)
+    sf = detect_sonar_features(s.image, s.ranges, s.azimuths, range_resolution=spec.range_resolution,
+                               beamwidth=spec.beamwidth_azimuth)
+    t_gate = median_ms(lambda: mahalanobis_sq(rig, cf.pixels, cf.sigma_pixel, sf.ranges, sf.azimuths,
+                                              sf.sigma_range, sf.sigma_azimuth), repeat=7, warmup=1)
+    m = match(s, o.image, rig, min_score=0.0)
+    note = f"{len(sf)} sonar x {len(cf)} camera features, {len(m)} matches"
+    return [
+        dict(name="match one pair", value=t_match / 1e3, unit="s", reference="target 1 s", ratio=t_match / 1e3,
+             note=note),
+        dict(name="match / simulate the pair", value=t_match, unit="ms", reference="simulate_rig (both sensors)",
+             ratio=t_match / t_sim, note=f"simulate_rig {t_sim:.0f} ms"),
+        dict(name="camera corners (OpenCV)", value=t_cam, unit="ms", reference="match", ratio=t_cam / t_match,
+             note="CLAHE + goodFeaturesToTrack + cornerSubPix"),
+        dict(name="sonar CFAR features", value=t_son, unit="ms", reference="match", ratio=t_son / t_match,
+             note="peaks and onsets"),
+        dict(name="epipolar gate (all pairs)", value=t_gate, unit="ms", reference="match", ratio=t_gate / t_match,
+             note=f"{len(sf) * len(cf)} pairs"),
+    ]

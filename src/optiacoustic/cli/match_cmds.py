@@ -1,0 +1,70 @@
+"""``oas match``: automatic opti-acoustic matches of a rig pair, drawn on both images."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from .common import app, out, reports_errors
+
+
+@app.command("match")
+@reports_errors
+def match_cmd(
+    pair_dir: Path = typer.Argument(..., metavar="PAIR", help="A rig pair folder written by 'oas render' "
+                                    "(sonar.npz, optical.npz, pair.json)."),
+    out_dir: Path = typer.Option(Path("out/match"), "--out", help="Output folder."),
+    min_score: float = typer.Option(0.0, "--min-score", help="Keep matches with at least this score (0..1)."),
+    truth: bool = typer.Option(True, "--truth/--no-truth", help="Mark wrong matches when the pair has a depth map."),
+):
+    """Match sonar and camera features of a pair; writes matches.png (colour = score) and matches.json."""
+    import numpy as np
+
+    from .._atomic import write_json
+    from ..matching import match
+    from ..matching.figures import draw_matches
+    from ..matching.pairdir import read_pair
+
+    if not 0.0 <= min_score <= 1.0:
+        raise ValueError(f"--min-score: must be in [0, 1], got {min_score}")
+    res, bw = _preset_resolution(pair_dir)
+    sonar, image, rig, depth = read_pair(pair_dir, range_resolution=res, beamwidth_azimuth=bw)
+    m = match(sonar, image, rig, min_score=min_score)
+    correct = None
+    if truth and depth is not None and m:
+        from ..matching.truth import correct as is_correct
+
+        correct = is_correct(rig, depth, m.pixels, m.ranges, m.azimuths,
+                             bin_width=float(np.median(np.diff(sonar.ranges))),
+                             beam_width=float(np.median(np.diff(sonar.azimuths))))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    fig = draw_matches(out_dir / "matches.png", sonar.image, sonar.ranges, sonar.azimuths, image, m,
+                       title=pair_dir.name, correct=correct)
+    data = {
+        "pair": str(pair_dir), "message": m.message, "n_matches": len(m),
+        "columns": ["u_px", "v_px", "range_m", "azimuth_rad", "X_cam_m", "Y_cam_m", "Z_cam_m", "score"],
+        "matches": np.column_stack([m.pixels, m.ranges, m.azimuths, m.points, m.score]).tolist() if m else [],
+    }
+    if correct is not None:
+        data["correct_by_depth_map"] = np.asarray(correct).tolist()
+        data["precision_by_depth_map"] = float(np.mean(correct))
+    js = write_json(out_dir / "matches.json", data)
+    out.print(f"{pair_dir}: {m.message}")
+    if correct is not None:
+        out.print(f"  correct by the pair's depth map: {int(np.sum(correct))} of {len(m)}")
+    out.print(f"  {fig}\n  {js}")
+
+
+def _preset_resolution(pair_dir: Path):
+    """Range resolution and beamwidth of the sonar preset named in pair.json, if it is one."""
+    import json
+
+    try:
+        name = json.loads((pair_dir / "pair.json").read_text())["sonar"]["preset"]
+        from ..sonar import SonarSpec
+
+        spec = SonarSpec.preset(name)
+        return float(spec.range_resolution), float(spec.beamwidth_azimuth)
+    except Exception:  # noqa: BLE001 - no preset: read_pair falls back to the bin and beam spacing
+        return None, None

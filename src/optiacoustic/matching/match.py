@@ -1,0 +1,454 @@
+"""Automatic opti-acoustic correspondence: features, epipolar gating, evidence, global assignment.
+
+Pipeline of :func:`match` (docs/matching.md):
+
+1. features in each image (:mod:`.sonar_features`, :mod:`.camera_features`), each with its
+   measurement uncertainty;
+2. candidates: camera features within a chi-square gate of a sonar feature's epipolar conic
+   (:mod:`.gating`; the distance is symmetric, so it is also the test on the pixel's curve
+   in the sonar image), reconstructed by maximum likelihood
+   (:func:`optiacoustic.geometry.reconstruct.refine`) and kept only in front of the camera,
+   on the sonar's half-plane and inside its elevation aperture;
+3. evidence that survives the change of modality (:mod:`.acoustic`): the point must not be
+   under the seabed the sonar sees (the seabed would hide it from the camera: no closer
+   occluder), and its elevation must agree with what the sonar's seabed and acoustic shadows
+   allow (an echo with no shadow behind it is on the seabed; one with a shadow lies below
+   the ray grazing the shadow's end); neighbouring matches must agree on a locally smooth
+   surface;
+4. one global assignment (``scipy.optimize.linear_sum_assignment``) with a "no match" option
+   for every sonar feature; each match's score is a calibrated probability of being right
+   given its evidence (epipolar chi-square, how many candidates competed, corner strength:
+   strong corners sit on silhouettes where depth jumps, elevation interval width, SNR).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..frames import spherical_from_sonar
+from ..geometry import epipolar as ep
+from ..geometry import reconstruct as rc
+from ..rig import Rig
+from .acoustic import SEABED_LIT, SEABED_SHADOWED, SeabedPlane, elevation_maps, fit_seabed, occluded, seabed_view
+from .camera_features import CameraFeatures, KeypointOptions, detect_camera_features
+from .gating import mahalanobis_sq
+from .sonar_features import CfarOptions, SonarFeatures, cfar_map, detect_sonar_features
+
+__all__ = ["MatchNoise", "MatchOptions", "Matches", "match"]
+
+
+@dataclass(frozen=True)
+class MatchNoise:
+    """Measurement noise of the features (1 sigma). ``None``: the detectors' own estimates.
+
+    Attributes
+    ----------
+    sigma_pixel : float, optional
+        Camera feature localisation (px).
+    sigma_range : float, optional
+        Sonar feature range (m).
+    sigma_azimuth : float, optional
+        Sonar feature azimuth (rad).
+    """
+
+    sigma_pixel: float | None = None
+    sigma_range: float | None = None
+    sigma_azimuth: float | None = None
+
+    def __post_init__(self):
+        for name in ("sigma_pixel", "sigma_range", "sigma_azimuth"):
+            v = getattr(self, name)
+            if v is not None and not (np.isfinite(v) and v > 0):
+                raise ValueError(f"MatchNoise.{name}: must be a finite number > 0, got {v!r}")
+
+
+@dataclass(frozen=True)
+class MatchOptions:
+    """Tuning of :func:`match` (defaults are the ones the ``matching`` experiment reports).
+
+    Attributes
+    ----------
+    gate : float
+        Chi-square (1 dof) gate on the epipolar distance; 9 keeps 99.7% of true pairs.
+    null_cost : float
+        Cost of leaving a sonar feature unmatched (same units as the chi-square).
+    elevation_sigma : float
+        Softness (rad) of the elevation interval from the seabed and shadows.
+    seabed_clearance : float
+        A point more than this (m) under the fitted seabed is rejected.
+    occluder_margin : float
+        Echoes on the pixel's ray nearer than the point by more than this (m) occlude it.
+    occupancy_factor : float
+        An echo this many times its CFAR background counts as a possible occluder (lower
+        than the detection factor: a weak echo still hides what is behind it).
+    corner_weight : float
+        Cost per unit of log corner strength (relative to the image's median); the ratio of
+        the score model's weights of log corner strength and epipolar chi-square, so the
+        assignment weighs them as the calibration found them to predict correctness.
+    smoothness : bool
+        Second assignment pass with the neighbours' depth agreement in the cost.
+    use_acoustic : bool
+        Use the seabed and shadow evidence (off: epipolar distance and uniqueness only).
+    cfar, keypoints : detector options.
+    """
+
+    gate: float = 9.0
+    null_cost: float = 9.0
+    elevation_sigma: float = float(np.deg2rad(1.5))
+    seabed_clearance: float = 0.10
+    occluder_margin: float = 0.5
+    occupancy_factor: float = 3.0
+    corner_weight: float = 0.46
+    smoothness: bool = False
+    use_acoustic: bool = True
+    cfar: CfarOptions = field(default_factory=CfarOptions)
+    keypoints: KeypointOptions = field(default_factory=KeypointOptions)
+
+
+@dataclass(frozen=True, eq=False)
+class Matches:
+    """Opti-acoustic matches, best first. Falsy (with ``message``) when there are none.
+
+    Attributes
+    ----------
+    pixels : ndarray, shape (N, 2)
+        Camera feature pixels ``(u, v)``.
+    ranges, azimuths : ndarray, shape (N,)
+        Sonar feature range (m) and azimuth (rad).
+    points : ndarray, shape (N, 3)
+        Maximum-likelihood reconstruction, camera frame (m).
+    score : ndarray, shape (N,)
+        In (0, 1): the probability that the match is correct given its evidence, from a
+        logistic model (:data:`SCORE_MODEL`) calibrated on simulated scenes.
+    cost : ndarray, shape (N,)
+        Total cost (epipolar chi-square + evidence terms).
+    sonar_index, camera_index : ndarray of int, shape (N,)
+        Rows of ``sonar_features`` and ``camera_features``.
+    sonar_features : SonarFeatures
+    camera_features : CameraFeatures
+    seabed : SeabedPlane or None
+    message : str
+    features : dict of str -> ndarray (N,)
+        Per-match evidence behind the score (candidates of the sonar feature, elevation
+        interval width, ...), for diagnostics.
+    """
+
+    pixels: np.ndarray
+    ranges: np.ndarray
+    azimuths: np.ndarray
+    points: np.ndarray
+    score: np.ndarray
+    cost: np.ndarray
+    sonar_index: np.ndarray
+    camera_index: np.ndarray
+    sonar_features: SonarFeatures | None = None
+    camera_features: CameraFeatures | None = None
+    seabed: SeabedPlane | None = None
+    message: str = ""
+    features: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return int(self.score.size)
+
+    def __bool__(self) -> bool:
+        return self.score.size > 0
+
+    def select(self, keep) -> "Matches":
+        """The matches where ``keep`` (bool mask or indices) holds."""
+        k = np.asarray(keep)
+        arrays = [getattr(self, f)[k] for f in ("pixels", "ranges", "azimuths", "points", "score", "cost",
+                                                "sonar_index", "camera_index")]
+        n = int(arrays[-1].size)
+        msg = self.message if n else "no match above the score threshold"
+        feats = {key: np.asarray(v)[k] for key, v in self.features.items()}
+        return Matches(*arrays, self.sonar_features, self.camera_features, self.seabed, msg, feats)
+
+    def above(self, min_score: float) -> "Matches":
+        """The matches with ``score >= min_score``."""
+        return self.select(self.score >= min_score)
+
+
+def _empty(message, sf=None, cf=None, seabed=None) -> Matches:
+    z = np.zeros(0)
+    zi = np.zeros(0, int)
+    return Matches(np.zeros((0, 2)), z, z, np.zeros((0, 3)), z, z, zi, zi, sf, cf, seabed, message)
+
+
+def _check_sonar(sonar):
+    for attr in ("image", "ranges", "azimuths", "spec"):
+        if not hasattr(sonar, attr):
+            raise ValueError(f"sonar: expected a sonar frame with .image, .ranges, .azimuths and .spec; "
+                             f"{type(sonar).__name__} has no .{attr}")
+    img = np.asarray(sonar.image, float)
+    r, th = np.asarray(sonar.ranges, float), np.asarray(sonar.azimuths, float)
+    if img.shape != (r.size, th.size):
+        raise ValueError(f"sonar.image: expected shape (n_bins, n_beams) = ({r.size}, {th.size}), got {img.shape}")
+    if not np.all(np.isfinite(img)):
+        raise ValueError("sonar.image: contains NaN or infinite values")
+    if r.size < 3 or th.size < 3:
+        raise ValueError(f"sonar.image: expected at least 3 bins and 3 beams, got {img.shape}")
+    if np.any(np.diff(r) <= 0) or np.any(np.diff(th) <= 0):
+        raise ValueError("sonar.ranges and sonar.azimuths: must be strictly increasing")
+    return img, r, th
+
+
+def _camera_sees_fan(rig: Rig, r, th) -> bool:
+    """Whether any part of the fan (a coarse grid of arcs) projects into the image."""
+    rr = np.linspace(r.min(), r.max(), 7)
+    tt = np.linspace(th.min(), th.max(), 9)
+    R, T = np.meshgrid(rr, tt, indexing="ij")
+    curves = ep.sonar_to_optical_curves(rig, R.ravel(), T.ravel(), n_samples=25)
+    return any(len(c) for c in curves)
+
+
+#: Logistic model of P(match correct | evidence): intercept and weights of the standardised
+#: features (epipolar chi-square, log candidates of the sonar feature, log corner strength
+#: relative to the image's median, elevation interval width in degrees, onset or peak, log
+#: SNR). Fitted by ``experiments.matching.calibrate_score`` on random scenes seeded
+#: 5000-5023 (thesis water, default sonar noise), disjoint from every scene the experiment
+#: and the tests evaluate on.
+SCORE_MODEL = dict(
+    weights=(-1.143, -0.876, -0.279, -0.439, 0.217, -0.137, 0.046),
+    mean=(0.3097, 2.6044, 0.3779, 5.9196, 0.4632, 2.8958),
+    std=(0.9129, 0.9114, 0.9869, 3.0306, 0.4986, 0.6208),
+)
+
+
+def score_features(feats: dict) -> np.ndarray:
+    """The score model's inputs ``(N, 6)`` from a :attr:`Matches.features` mapping."""
+    return np.column_stack([feats["epipolar_chi2"], np.log(np.maximum(feats["n_candidates"], 1)),
+                            np.log(np.maximum(feats["corner_relative"], 1e-6)), np.rad2deg(feats["elevation_span"]),
+                            feats["kind"], np.log(np.maximum(feats["snr"], 1e-6))])
+
+
+def calibrated_score(feats: dict, model: dict = SCORE_MODEL) -> np.ndarray:
+    """P(correct) of each match from its evidence (logistic model), shape (N,)."""
+    X = score_features(feats)
+    w = np.asarray(model["weights"], float)
+    z = w[0] + ((X - np.asarray(model["mean"])) / np.asarray(model["std"])) @ w[1:]
+    return 1.0 / (1.0 + np.exp(-z))
+
+
+def _posterior(cost, rows, cols, shape, null_cost):
+    """Each pair's share of ``exp(-cost/2)`` among its row's and its column's candidates (and "none")."""
+    w = np.exp(-0.5 * (cost - null_cost))  # relative to the null option, which weighs 1
+    row_sum = np.bincount(rows, w, minlength=shape[0]) + 1.0
+    col_sum = np.bincount(cols, w, minlength=shape[1]) + 1.0
+    return np.minimum(w / row_sum[rows], w / col_sum[cols])
+
+
+def _assign(cost, rows, cols, n_rows, null_cost):
+    """Global assignment with a "no match" column per row; returns the chosen pair indices."""
+    from scipy.optimize import linear_sum_assignment
+
+    ucols, cinv = np.unique(cols, return_inverse=True)
+    big = 1e6
+    M = np.full((n_rows, ucols.size + n_rows), big)
+    M[rows, cinv] = cost
+    M[np.arange(n_rows), ucols.size + np.arange(n_rows)] = null_cost
+    ri, ci = linear_sum_assignment(M)
+    real = ci < ucols.size
+    ri, ci = ri[real], ci[real]
+    # Map back to pair indices.
+    key = {(int(a), int(b)): k for k, (a, b) in enumerate(zip(rows, cinv))}
+    chosen = np.array([key[(int(a), int(b))] for a, b in zip(ri, ci) if (int(a), int(b)) in key], int)
+    return chosen[M[ri, ci][: chosen.size] < big] if chosen.size else chosen
+
+
+def _two_view(out: Matches, second, motion, rig, noise, opt) -> Matches:
+    from .two_view import consistent, motion_arrays
+
+    if motion is None:
+        raise ValueError("motion: required with 'second' (P_camera2 = R_o P_camera1 + t_o)")
+    motion_arrays(motion)  # validates
+    if not (isinstance(second, (tuple, list)) and len(second) == 2):
+        raise ValueError("second: expected (sonar, camera_image) of the second view")
+    m2 = match(second[0], second[1], rig, noise=noise, options=opt, min_score=0.0)
+    ok = consistent(out.points, m2.points, motion) if m2 else np.zeros(len(out), bool)
+    if not ok.any():
+        return _empty(f"no match of {len(out)} is consistent with the second view ({len(m2)} matches there)",
+                      out.sonar_features, out.camera_features, out.seabed)
+    feats = dict(out.features, two_view=ok)
+    kept = Matches(out.pixels, out.ranges, out.azimuths, out.points, out.score, out.cost, out.sonar_index,
+                   out.camera_index, out.sonar_features, out.camera_features, out.seabed,
+                   f"{int(ok.sum())} of {len(out)} matches consistent with the second view ({len(m2)} matches there)",
+                   feats)
+    return kept.select(ok)
+
+
+def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, options: MatchOptions | None = None,
+          min_score: float = 0.25, second=None, motion=None) -> Matches:
+    """Match sonar features to camera features of one synchronised pair.
+
+    Parameters
+    ----------
+    sonar : sonar frame
+        Simulated or measured: only ``.image`` (linear ``(n_bins, n_beams)``), ``.ranges``,
+        ``.azimuths`` and ``.spec`` (``fov_elevation``, ``range_resolution``,
+        ``beamwidth_azimuth``) are used.
+    camera_image : array_like, shape (H, W, 3)
+        The camera image (linear radiance or 8-bit), of ``rig.camera``'s size.
+    rig : Rig
+        The calibrated rig; when it carries no sonar, ``sonar.spec`` is attached.
+    noise : MatchNoise, optional
+        Feature noise; default the detectors' estimates.
+    options : MatchOptions, optional
+    min_score : float
+        Only matches with at least this score are returned (0 returns the whole assignment,
+        for precision-recall curves). The score is a calibrated probability of being
+        correct (:data:`SCORE_MODEL`).
+    second : (sonar, camera_image), optional
+        A second pair of the same rig after it moved by ``motion``: only matches whose
+        reconstructed point is also reconstructed from the second pair's matches are kept
+        (:func:`.two_view.consistent`); ``features["two_view"]`` says so.
+    motion : MotionResult, Pose or (R_o, t_o), optional
+        ``P_camera2 = R_o P_camera1 + t_o``; required with ``second``.
+
+    Returns
+    -------
+    Matches
+        Best first; falsy with a ``message`` when nothing reliable was found (no features,
+        a camera that sees nothing of the fan, no candidate passing the gates).
+    """
+    if not isinstance(rig, Rig):
+        raise ValueError(f"rig: expected an optiacoustic.Rig, got {type(rig).__name__}")
+    opt = options or MatchOptions()
+    noise = noise or MatchNoise()
+    if not isinstance(noise, MatchNoise):
+        raise ValueError(f"noise: expected a MatchNoise, got {type(noise).__name__}")
+    img_s, r_bins, th_beams = _check_sonar(sonar)
+    spec = sonar.spec
+    if rig.sonar is None:
+        if not hasattr(spec, "fov_elevation"):
+            raise ValueError("sonar.spec: has no fov_elevation and the rig carries no sonar; "
+                             "attach one with rig.with_sonar(spec)")
+        rig = rig.with_sonar(spec)
+    # Measured frames may not state these: fall back to one bin and one beam spacing.
+    range_res = float(getattr(spec, "range_resolution", None) or np.median(np.diff(r_bins)))
+    beamwidth = float(getattr(spec, "beamwidth_azimuth", None) or np.median(np.diff(th_beams)))
+    cam_img = np.asarray(camera_image)
+    cam = rig.camera
+    if cam_img.ndim != 3 or cam_img.shape[:2] != (cam.height, cam.width):
+        raise ValueError(f"camera_image: expected shape ({cam.height}, {cam.width}, 3) for the rig's camera, "
+                         f"got {cam_img.shape}")
+    if not _camera_sees_fan(rig, r_bins, th_beams):
+        return _empty("the camera sees nothing of the sonar's fan: no epipolar curve enters the image")
+
+    sf = detect_sonar_features(img_s, r_bins, th_beams, range_resolution=range_res, beamwidth=beamwidth,
+                               options=opt.cfar)
+    if len(sf) == 0:
+        return _empty("no sonar features: CFAR found no echo standing out of its background")
+    cf = detect_camera_features(cam_img, opt.keypoints)
+    if len(cf) == 0:
+        return _empty("no camera features: the image has no corners (blank or too turbid)", sf)
+    s_px = np.full(len(cf), noise.sigma_pixel) if noise.sigma_pixel else cf.sigma_pixel
+    s_r = np.full(len(sf), noise.sigma_range) if noise.sigma_range else sf.sigma_range
+    s_a = np.full(len(sf), noise.sigma_azimuth) if noise.sigma_azimuth else sf.sigma_azimuth
+
+    d2 = mahalanobis_sq(rig, cf.pixels, s_px, sf.ranges, sf.azimuths, s_r, s_a)
+    rows, cols = np.nonzero(d2 < opt.gate)
+    if rows.size == 0:
+        return _empty(f"no candidates: none of {len(cf)} camera features lies within the epipolar gate of "
+                      f"any of {len(sf)} sonar features", sf, cf)
+    ref = rc.refine(rig, cf.pixels[cols], sf.ranges[rows], sf.azimuths[rows], sigma_pixel=float(np.median(s_px)),
+                    sigma_range=float(np.median(s_r)), sigma_azimuth=float(np.median(s_a)), max_iter=10)
+    P = ref.points
+    P_s = rig.sonar_from_camera(np.where(np.isfinite(P), P, 0.0))
+    _, _, phi = spherical_from_sonar(P_s)
+    half = rig.fov_elevation / 2
+    ok = ref.valid & (np.abs(phi) <= half + 2 * opt.elevation_sigma)
+    cost = np.where(ok, ref.cost, np.inf)
+
+    seabed = None
+    if opt.use_acoustic:
+        seabed = fit_seabed(img_s, r_bins, th_beams, rig.fov_elevation)
+        if seabed:
+            smooth, background = cfar_map(img_s, opt.cfar)
+            detected = smooth > opt.occupancy_factor * background
+            cells = detected.copy()
+            cells[sf.bins, sf.beams] = True
+            low_map, high_map, shadow_map = elevation_maps(img_s, r_bins, th_beams, seabed, rig.fov_elevation,
+                                                           cells=cells)
+            lo, hi = low_map[sf.bins, sf.beams][rows], high_map[sf.bins, sf.beams][rows]
+            shadowed = shadow_map[sf.bins, sf.beams]
+            e = np.maximum(0.0, np.maximum(lo - phi, phi - hi)) / opt.elevation_sigma
+            cost = cost + e ** 2
+            height = seabed.height(P_s)
+            cost = np.where(height < -opt.seabed_clearance, np.inf, cost)
+            # The camera sees the seabed at this pixel: the point must be on the seabed. The
+            # seabed there is in an acoustic shadow: the pixel shows an occluder, so the point
+            # cannot be a seabed echo (a feature with no shadow behind it).
+            state, _ = seabed_view(rig, seabed, cf.pixels, img_s, r_bins, th_beams)
+            st = state[cols]
+            on_bed = np.abs(height) <= opt.seabed_clearance
+            cost = np.where((st == SEABED_LIT) & ~on_bed, np.inf, cost)
+            cost = np.where((st == SEABED_SHADOWED) & ~shadowed[rows], np.inf, cost)
+            # No closer occluder: no echo the sonar sees lies on the pixel's ray well before the point.
+            alive = np.nonzero(np.isfinite(cost) & (cost < opt.null_cost))[0]
+            occ = occluded(rig, cf.pixels[cols[alive]], P[alive, 2], detected, low_map, high_map, r_bins, th_beams,
+                           margin=opt.occluder_margin)
+            cost[alive[occ]] = np.inf
+
+    if opt.corner_weight:
+        # Strong corners sit on silhouettes, where the depth jumps and a pixel's neighbour
+        # sees another surface: prefer the weaker, interior corners among competitors.
+        rel = cf.response / max(float(np.median(cf.response)), 1e-12)
+        cost = cost + opt.corner_weight * np.log(np.maximum(rel[cols], 1e-3))
+    keep = np.isfinite(cost) & (cost < opt.null_cost)
+    if not keep.any():
+        return _empty(f"no candidates: the {rows.size} epipolar candidates all fail the reconstruction, "
+                      f"elevation or seabed tests", sf, cf, seabed)
+    rows, cols, cost, P = rows[keep], cols[keep], cost[keep], P[keep]
+    epi = ref.cost[keep]
+
+    chosen = _assign(cost, rows, cols, len(sf), opt.null_cost)
+    if opt.smoothness and chosen.size >= 3:
+        # Second pass: every candidate pays its disagreement with the first pass's matches
+        # around it (its own first-pass match excluded by construction of the median).
+        pix_c = cf.pixels[cols[chosen]]
+        z_c = P[chosen, 2]
+        from scipy.spatial import cKDTree
+
+        tree = cKDTree(pix_c)
+        d, idx = tree.query(cf.pixels[cols], k=min(7, chosen.size), distance_upper_bound=60.0)
+        idx = np.atleast_2d(idx)
+        valid_nb = idx < chosen.size
+        # Leave out the candidate's own first-pass match.
+        self_hit = valid_nb & (chosen[np.minimum(idx, chosen.size - 1)] == np.arange(rows.size)[:, None])
+        use = valid_nb & ~self_hit
+        nbz = np.where(use, z_c[np.minimum(idx, chosen.size - 1)], np.nan)
+        enough = use.sum(1) >= 2
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med = np.nanmedian(np.where(enough[:, None], nbz, np.nan), axis=1)
+        e = np.where(enough, (P[:, 2] - med) / (0.05 * P[:, 2]), 0.0)
+        cost = cost + np.minimum(np.nan_to_num(e) ** 2, 25.0) * 0.25
+        chosen = _assign(cost, rows, cols, len(sf), opt.null_cost)
+    if chosen.size == 0:
+        return _empty("no match: leaving every sonar feature unmatched costs less than any assignment", sf, cf, seabed)
+    n_cand_row = np.bincount(rows, minlength=len(sf))
+    n_cand_col = np.bincount(cols, minlength=len(cf))
+    span = (hi - lo)[keep] if (opt.use_acoustic and seabed) else np.full(rows.size, rig.fov_elevation)
+    med_resp = max(float(np.median(cf.response)), 1e-12)
+    feats = dict(n_candidates=n_cand_row[rows[chosen]], n_candidates_camera=n_cand_col[cols[chosen]],
+                 elevation_span=span[chosen], snr=sf.snr[rows[chosen]], kind=sf.kind[rows[chosen]],
+                 corner_response=cf.response[cols[chosen]], corner_relative=cf.response[cols[chosen]] / med_resp,
+                 epipolar_chi2=epi[chosen],
+                 share=_posterior(cost, rows, cols, (len(sf), len(cf)), opt.null_cost)[chosen])
+    score = calibrated_score(feats)
+    order = np.argsort(-score, kind="stable")
+    ch = chosen[order]
+    feats = {k: np.asarray(v)[order] for k, v in feats.items()}
+    out = Matches(cf.pixels[cols[ch]], sf.ranges[rows[ch]], sf.azimuths[rows[ch]], P[ch], score[order], cost[ch],
+                  rows[ch], cols[ch], sf, cf, seabed,
+                  f"{ch.size} matches of {len(sf)} sonar and {len(cf)} camera features", feats)
+    if second is not None:
+        out = _two_view(out, second, motion, rig, noise, opt)
+    res = out.above(min_score)
+    if not res:
+        return _empty(f"nothing reliable: {ch.size} tentative matches, none with score >= {min_score}",
+                      sf, cf, seabed)
+    return res

@@ -1,0 +1,24 @@
+"""The matching experiment runs (quick mode), writes its figures and reports consistent numbers."""
+
+import json
+
+import numpy as np
+
+from optiacoustic import experiments
+
+
+def test_matching_experiment(tmp_path):
+    res = experiments.run("matching", tmp_path, quick=True)
+    data = json.loads((tmp_path / "results.json").read_text())
+    assert data["name"] == "matching" and len(res.figures) == 3
+    for path, caption in res.figures:
+        assert path.is_file() and path.stat().st_size > 10_000 and caption
+    n = res.numbers
+    prec, rec = np.asarray(n["precision"], float), np.asarray(n["recall"], float)
+    assert n["n_visible"] > 0 and prec.size == rec.size == len(n["thresholds"])
+    # Recall can only fall as the score threshold rises; everything is a fraction.
+    assert np.all(np.diff(rec) <= 1e-12) and np.all((rec >= 0) & (rec <= 1))
+    assert 0 < n["precision_all_assigned"] <= 1 and 0 <= n["baseline_precision"] <= 1
+    assert n["precision_all_assigned"] > n["baseline_precision"]
+    assert n["median_error_true_matches_m"] < n["median_error_auto_m"]
+    assert n["target_met"] == bool(np.any((prec >= 0.95) & (rec >= 0.5)))

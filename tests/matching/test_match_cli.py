@@ -1,0 +1,35 @@
+"""``oas match PAIR --out DIR`` on a folder written by ``oas render``."""
+
+import json
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from optiacoustic.cli import app
+
+runner = CliRunner()
+RIG = Path(__file__).resolve().parents[2] / "examples" / "rig_thesis.yaml"
+
+
+def test_match_command_on_a_rendered_pair(tmp_path):
+    pair = tmp_path / "pair"
+    r = runner.invoke(app, ["render", "thesis_scene1", "--rig", str(RIG), "--out", str(pair)])
+    assert r.exit_code == 0, r.output
+    out = tmp_path / "m"
+    r = runner.invoke(app, ["match", str(pair), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    data = json.loads((out / "matches.json").read_text())
+    assert (out / "matches.png").stat().st_size > 10_000
+    assert data["n_matches"] == len(data["matches"]) > 0
+    assert len(data["matches"][0]) == len(data["columns"]) == 8
+    assert len(data["correct_by_depth_map"]) == data["n_matches"]
+
+
+def test_match_command_reports_bad_input(tmp_path):
+    r = runner.invoke(app, ["match", str(tmp_path / "missing")])
+    assert r.exit_code == 2 and "not a folder" in r.output
+    (tmp_path / "p").mkdir()
+    r = runner.invoke(app, ["match", str(tmp_path / "p")])
+    assert r.exit_code == 2 and "pair.json" in r.output
+    r = runner.invoke(app, ["match", str(tmp_path / "p"), "--min-score", "2"])
+    assert r.exit_code == 2 and "--min-score" in r.output
