@@ -366,9 +366,7 @@ def simulate_sonar(
     if not isinstance(pose, Pose):
         raise TypeError(f"pose: expected a Pose (e.g. Pose.look_at(eye, target)), got {type(pose).__name__}")
     if profile is not None:
-        from .profile import SensorProfile
-
-        if not isinstance(profile, SensorProfile):
+        if not callable(getattr(profile, "apply_to", None)):  # a SensorProfile (sonar.profile imports us)
             raise TypeError(f"profile: expected a SensorProfile, got {type(profile).__name__}")
         spec, options, noise = profile.apply_to(spec, options, noise)
     options = options or SonarOptions()

@@ -365,26 +365,19 @@ def _fit_geometry(stats, spec, alpha):
                        10 * np.log10(max(bg, 1e-30)), 10 * np.log10(max(bg, 1e-30)) - 10])
         x0 = np.clip(x0, np.array(lo) + 1e-6, np.array(hi) - 1e-6)
         try:
-            sol = least_squares(resid, x0, bounds=(lo, hi), loss="soft_l1", f_scale=3.0, x_scale="jac", max_nfev=1000)
+            sol = least_squares(resid, x0, bounds=(lo, hi), loss="soft_l1", f_scale=3.0, x_scale="jac", max_nfev=120)
         except ValueError:
             continue
         if best is None or sol.cost < best.cost:
             best = sol
-    # polish on relative residuals of the linear profiles (plain least squares): a group's mean intensity is an
-    # unbiased estimate of the model, its dB is not (the log of a speckle mean is biased low,
-    # more where fewer scatterers share a cell), and that bias would bend the fitted geometry
-    extra = resid(best.x)[data_db.size:]
+    # (a polish on relative residuals of the linear profiles, unbiased for pure speckle, was
+    # tried: on the real Oculus ping its asymmetry lifted the background by 30 dB; the dB fit stays)
+    n_r = r.size
 
-    def resid_rel(x, cols=slice(None)):
-        rel = (prof[:, cols] / 10 ** (model(x)[:, cols] / 10) - 1.0).ravel()
-        return np.append(rel, resid(x)[data_db.size:] / 4.343) if extra.size else rel
+    def resid_cols(x, cols=slice(None)):
+        res = (model(x)[:, cols] - data_db[:, cols]).ravel()
+        return np.append(res, resid(x)[data_db.size:]) if not has_onset else res
 
-    try:
-        # plain least squares: a robust loss would down-weight the long right tail of
-        # K-distributed means and bias the fit low where few scatterers share a cell
-        best = least_squares(resid_rel, best.x, bounds=(lo, hi), x_scale="jac", max_nfev=1000)
-    except ValueError:
-        pass
     # delete-one-group jackknife: the groups' profiles carry speckle and texture fluctuations
     # correlated along range that the least-squares covariance, which takes residuals as
     # independent, does not see
@@ -393,7 +386,7 @@ def _fit_geometry(stats, spec, alpha):
     for g in range(G):
         cols = np.arange(G) != g
         try:
-            jk.append(least_squares(resid_rel, best.x, bounds=(lo, hi), x_scale="jac",
+            jk.append(least_squares(resid_cols, best.x, bounds=(lo, hi), loss="soft_l1", f_scale=3.0, x_scale="jac",
                                     max_nfev=40, kwargs={"cols": cols}).x)
         except ValueError:
             continue
