@@ -17,3 +17,48 @@ def median_ms(fn, repeat: int = 15, warmup: int = 2) -> float:
         fn()
         ts.append(time.perf_counter() - t0)
     return 1e3 * float(np.median(ts))
+
+
+class busy_core:
+    """Context manager: one other process spins on a core while the block runs.
+
+    Measures what a frame costs when the second core is taken (a ROS node, a viewer).
+    """
+
+    def __enter__(self):
+        import subprocess
+        import sys
+
+        self._p = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+        time.sleep(0.2)  # let it start spinning
+        return self
+
+    def __exit__(self, *exc):
+        self._p.kill()
+        self._p.wait()
+        return False
+
+
+class caster_threads:
+    """Context manager: a :class:`~optiacoustic.raycast.RayCaster` limited to ``n`` threads."""
+
+    def __init__(self, caster, n: int):
+        self.caster, self.n = caster, n
+
+    def __enter__(self):
+        self._old = self.caster.threads
+        self.caster.threads = self.n
+        return self.caster
+
+    def __exit__(self, *exc):
+        self.caster.threads = self._old
+        return False
+
+
+def linear_fit(sizes, times_ms):
+    """Least-squares ``t = a + b n``: returns ``(a_ms, b_ms_per_unit, max relative residual)``."""
+    n = np.asarray(sizes, float)
+    t = np.asarray(times_ms, float)
+    A = np.stack([np.ones_like(n), n], -1)
+    (a, b), *_ = np.linalg.lstsq(A, t, rcond=None)
+    return float(a), float(b), float(np.max(np.abs(A @ [a, b] - t) / t))

@@ -64,6 +64,9 @@ def main(argv=None) -> int:
             text += (f"| {r['name']} | {r['value']:.4g} | {r['unit']} | {r.get('reference', '')} | "
                      f"{'' if ratio is None else f'{ratio:.3g}'} | {r.get('note', '')} |\n")
         text += f"\n(`benchmarks/{stem}.py`, {dt:.0f} s)\n\n"
+    notes = HERE / "notes.md"  # hand-written sections kept across regenerations
+    if notes.exists() and not args.only:
+        text += notes.read_text()
     from optiacoustic._atomic import write_text
 
     write_text(args.out, text)

@@ -31,6 +31,7 @@ FORBIDDEN = {
     "optiacoustic.matching": ["optiacoustic.sonar", "optiacoustic.optical", "optiacoustic.simulation", "optiacoustic.raycast",
                               "optiacoustic.fusion", "optiacoustic.experiments", "optiacoustic.scene", "embreex"],
     "optiacoustic.experiments": ["optiacoustic.cli"],
+    "optiacoustic.workbench": ["optiacoustic.cli", "optiacoustic.experiments", "optiacoustic.raycast", "embreex"],
     # exporting and converting read stored frames: no simulator (io.dataset, the dataset writer, sits above the
     # rig simulation layer and may import it)
     "optiacoustic.io.mcap_writer": ["optiacoustic.simulation", "optiacoustic.sonar.formation", "optiacoustic.optical.render"],

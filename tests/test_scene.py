@@ -181,3 +181,25 @@ def test_mesh_formats(tmp_path, ext):
     # smooth shading on a smooth mesh: vertex normals close to radial
     radial = (surf.vertices - [1, 2, 3]) / 0.8
     assert np.min(np.einsum("ij,ij->i", surf.normals, radial)) > 0.98
+
+
+def test_smooth_shading_splits_creases_and_keeps_smooth_parts_smooth():
+    import trimesh
+
+    from optiacoustic.scene.normals import smooth_shading
+
+    box = trimesh.creation.box((1.0, 2.0, 3.0))  # 8 shared vertices, 12 faces, 90 deg edges
+    v, f, n = smooth_shading(box.vertices, box.faces, np.deg2rad(30))
+    assert len(v) == 24  # every corner split three ways: flat faces
+    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    fn /= np.linalg.norm(fn, axis=1, keepdims=True)
+    assert np.allclose(n[f], fn[:, None, :], atol=1e-12)  # each corner carries its face's normal
+    assert np.allclose(v[f], box.vertices[box.faces])  # the same triangles
+    v2, f2, n2 = smooth_shading(box.vertices, box.faces, np.deg2rad(100))
+    assert len(v2) == 8  # nothing split: one smooth patch
+    assert np.all(np.einsum("ij,ij->i", n2, v2) > 0)  # outward
+    # a sphere: one patch, normals radial
+    ball = trimesh.creation.icosphere(subdivisions=3)
+    v3, f3, n3 = smooth_shading(ball.vertices, ball.faces, np.deg2rad(30))
+    assert len(v3) == len(ball.vertices)
+    assert np.min(np.einsum("ij,ij->i", n3, v3 / np.linalg.norm(v3, axis=1, keepdims=True))) > 0.999

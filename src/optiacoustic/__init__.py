@@ -19,10 +19,10 @@ _LAZY = {
     "Rig": ".rig",
     "SonarFrame": ".sonar", "SonarOptions": ".sonar", "SonarSpec": ".sonar", "simulate_sonar": ".sonar",
 }
-_SUBMODULES = ("fusion", "geometry", "matching", "scenes")
+_SUBMODULES = ("fusion", "geometry", "io", "matching", "scenes")
 
 if TYPE_CHECKING:  # for type checkers and IDEs only
-    from . import fusion, geometry, matching, scenes
+    from . import fusion, geometry, io, matching, scenes
     from .camera import PinholeCamera
     from .frames import Pose
     from .optical import Light, OpticalFrame, OpticalOptions, Water, simulate_optical
@@ -67,6 +67,7 @@ __all__ = [
     "SonarSpec",
     "fusion",
     "geometry",
+    "io",
     "matching",
     "scenes",
     "simulate_sonar",

@@ -125,19 +125,35 @@ class RayCaster:
             TriangleMesh(self._embree, s.vertices.astype(np.float32), s.faces.astype(np.int32))
         # per-triangle corner normals of all bodies, concatenated; geomID i is body i
         self._tri_offset = np.cumsum([0] + [s.n_faces for s in surfaces]).astype(np.int64)
-        self._corner_normals = np.concatenate([s.normals[s.faces] for s in surfaces]).astype(np.float32)
+        self._corner_normals_f32 = None  # built on the first smooth cast (36 bytes per triangle)
+        self._lock = threading.Lock()
         # commit now, single-threaded, so that concurrent casts never race on it
         self._embree.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
 
     # ------------------------------------------------------------------ internals
-    def _run_chunks(self, origins: np.ndarray, directions: np.ndarray, dists: np.ndarray, query: str, output: bool):
+    @property
+    def _corner_normals(self) -> np.ndarray:
+        """Per-triangle corner normals of all bodies, ``(n_triangles, 3, 3)`` float32 (lazy)."""
+        if self._corner_normals_f32 is None:
+            with self._lock:
+                if self._corner_normals_f32 is None:
+                    surfaces = self.scene.surfaces()
+                    out = np.empty((int(self._tri_offset[-1]), 3, 3), np.float32)
+                    for s, a, b in zip(surfaces, self._tri_offset[:-1], self._tri_offset[1:]):
+                        out[a:b] = s.normals[s.faces]
+                    self._corner_normals_f32 = out
+        return self._corner_normals_f32
+
+    def _run_chunks(self, origins: np.ndarray, directions: np.ndarray, dists: np.ndarray, query: str, output: bool,
+                    copy: bool = True):
         n = len(origins)
         n_chunks = 1 if n < 20000 or self.threads == 1 else 2 * self.threads
         bounds = np.linspace(0, n, n_chunks + 1).astype(int)
 
         def job(k):
             a, b = bounds[k], bounds[k + 1]
-            return self._embree.run(origins[a:b], directions[a:b], dists=dists[a:b].copy(), query=query, output=output)
+            dd = dists[a:b].copy() if copy else dists[a:b]  # Embree writes its hits' distances there
+            return self._embree.run(origins[a:b], directions[a:b], dists=dd, query=query, output=output)
 
         if n_chunks == 1:
             return [job(0)]
@@ -195,25 +211,10 @@ class RayCaster:
         Hits
         """
         shape, o32, d32, d64, o64, dists = self._prepare(origins, directions, max_distance)
-        outs = self._run_chunks(o32, d32, dists, "INTERSECT", True)
-        cat = (lambda k: outs[0][k]) if len(outs) == 1 else (lambda k: np.concatenate([r[k] for r in outs]))
-        geom = cat("geomID")
-        prim = cat("primID")
+        tfar, geom, prim, nrm = self.cast_raw(o32, d32, dists, smooth=smooth)
         miss = geom < 0
-        distance = cat("tfar").astype(np.float64)
+        distance = tfar.astype(np.float64)
         distance[miss] = np.inf
-        if smooth:
-            gi = self._tri_offset[np.maximum(geom, 0)] + np.maximum(prim, 0)
-            cn = self._corner_normals[gi]  # (n, 3, 3) float32
-            u, v = cat("u"), cat("v")
-            w = np.empty((len(u), 3), np.float32)  # barycentric weights of the three corners
-            w[:, 1] = u
-            w[:, 2] = v
-            w[:, 0] = 1.0 - u - v
-            nrm = np.einsum("nk,nkj->nj", w, cn)
-        else:
-            nrm = cat("Ng")
-        nrm /= np.sqrt(np.einsum("ij,ij->i", nrm, nrm))[:, None] + np.float32(1e-30)  # in float32, then widen once
         nrm = nrm.astype(np.float64)
         nrm[miss] = np.nan
         prim = np.where(miss, -1, prim).astype(np.int32)
@@ -225,6 +226,55 @@ class RayCaster:
             np.broadcast_to(o64, (len(geom), 3)).reshape(shape + (3,)),
             d64.reshape(shape + (3,)),
         )
+
+    def cast_raw(self, origins32: np.ndarray, directions32: np.ndarray, max_distance32: np.ndarray | None = None,
+                 *, smooth: bool = True):
+        """Closest hit with no validation and no widening: the simulators' inner path.
+
+        Parameters
+        ----------
+        origins32, directions32 : ndarray (N, 3) float32, C-contiguous
+            World origins (m) and *unit* directions.
+        max_distance32 : ndarray (N,) float32, optional
+            Far limit of each ray (m); default unlimited. Overwritten.
+        smooth : bool
+            Interpolated vertex normals, else the triangle's geometric normal.
+
+        Returns
+        -------
+        distance : ndarray (N,) float32
+            ``>= max_distance`` (or 1e30) on a miss.
+        body : ndarray (N,) int32
+            ``-1`` on a miss.
+        triangle : ndarray (N,) int32
+            Undefined on a miss.
+        normal : ndarray (N, 3) float32
+            Unit normal (world); undefined on a miss. :meth:`cast` is this, validated
+            and widened to float64, bit for bit.
+        """
+        n = len(origins32)
+        dists = np.full(n, _MISS_DIST, np.float32) if max_distance32 is None else max_distance32
+        outs = self._run_chunks(origins32, directions32, dists, "INTERSECT", True, copy=False)
+        cat = (lambda k: outs[0][k]) if len(outs) == 1 else (lambda k: np.concatenate([r[k] for r in outs]))
+        geom, prim, tfar = cat("geomID"), cat("primID"), cat("tfar")
+        if smooth:
+            gi = self._tri_offset[np.maximum(geom, 0)] + np.maximum(prim, 0)
+            cn = self._corner_normals[gi]  # (n, 3, 3) float32
+            u, v = cat("u"), cat("v")
+            w = np.empty((len(u), 3), np.float32)  # barycentric weights of the three corners
+            w[:, 1] = u
+            w[:, 2] = v
+            w[:, 0] = 1.0 - u - v
+            nrm = np.einsum("nk,nkj->nj", w, cn)
+        else:
+            nrm = cat("Ng")
+        nrm /= np.sqrt(np.einsum("ij,ij->i", nrm, nrm))[:, None] + np.float32(1e-30)
+        return tfar, geom, prim, nrm
+
+    def occluded_raw(self, origins32: np.ndarray, directions32: np.ndarray, max_distance32: np.ndarray) -> np.ndarray:
+        """:meth:`occluded` with no validation: float32 ``(N, 3)`` unit directions, ``(N,)`` limits."""
+        outs = self._run_chunks(origins32, directions32, max_distance32, "OCCLUDED", False, copy=False)
+        return (outs[0] if len(outs) == 1 else np.concatenate(outs)) != -1
 
     def bare_intersect(self, origins32: np.ndarray, directions32: np.ndarray) -> None:
         """Raw closest-hit query over the worker threads, with no conversion or post-processing.

@@ -363,3 +363,93 @@ def test_caller_mistakes_raise_value_error_naming_the_argument(kw, match):
     args.update(kw)
     with pytest.raises(ValueError, match=match):
         motion.estimate(**args)
+
+
+# --------------------------------------------------------------------------- dual interpretation
+def _random_plane_draw(rng, rig, n_opt=100, n_son=30, sp=1.0, sr=0.01, sa=np.deg2rad(0.3), forward=0.2):
+    """A random plane 1.5-3 m ahead, a random motion (2-6 deg, 0.2-0.35 m), noisy matches.
+
+    The translation is mostly across the boresight: moving straight at the plane brings
+    the homography's two interpretations together, where at this noise the maximum
+    likelihood itself (not only its start) is not yet at the Cramer-Rao bound.
+    """
+    cam, spec = rig.camera, rig.sonar
+    s1 = Pose.look_at([0, 0, 0], [0, 1, 0])
+    kw = dict(fov_azimuth=spec.fov_azimuth, fov_elevation=spec.fov_elevation, range_min=spec.range_min,
+              range_max=spec.range_max)
+    while True:
+        c = np.array([rng.uniform(-0.3, 0.3), rng.uniform(1.5, 3.0), rng.uniform(-0.2, 0.2)])
+        n = np.array([rng.normal(0, 0.4), -1, rng.normal(0, 0.4)])
+        pts = plane_points(rng, 6000, c, n, 4.0)
+        ax = rng.normal(size=3)
+        psi = rng.uniform(0, 2 * np.pi)  # sideways and vertical, little along the boresight
+        tv = np.array([np.cos(psi), rng.normal(0, forward), np.sin(psi)])
+        R2 = B.exp_so3(ax / np.linalg.norm(ax) * np.deg2rad(rng.uniform(2, 6)))
+        s2 = Pose(R2 @ s1.R, s1.t + tv * rng.uniform(0.2, 0.35) / np.linalg.norm(tv))
+        c1, c2 = rig.camera_pose(s1), rig.camera_pose(s2)
+        u1, u2 = cam.project(c1.to_body(pts)), cam.project(c2.to_body(pts))
+        vis = np.flatnonzero(cam.in_image(u1) & cam.in_image(u2))
+        a1, a2 = project_to_sonar(s1.to_body(pts), **kw), project_to_sonar(s2.to_body(pts), **kw)
+        son = np.flatnonzero(a1.in_fan & a2.in_fan)
+        if vis.size >= n_opt and son.size >= n_son:
+            break
+    io, is_ = rng.choice(vis, n_opt, replace=False), rng.choice(son, n_son, replace=False)
+    p1 = u1[io] + rng.normal(0, sp, (n_opt, 2))
+    p2 = u2[io] + rng.normal(0, sp, (n_opt, 2))
+    m1 = (a1.ranges[is_] + rng.normal(0, sr, n_son), a1.azimuths[is_] + rng.normal(0, sa, n_son))
+    m2 = (a2.ranges[is_] + rng.normal(0, sr, n_son), a2.azimuths[is_] + rng.normal(0, sa, n_son))
+    rel = c2.inverse() @ c1
+    n_c, d_c = plane_truth(c1, c, n)
+    return p1, p2, m1, m2, rel.R, rel.t, n_c / d_c
+
+
+def _rotation_crb(rig, p1, p2, m1, m2, R_o, t_o, m, sig):
+    """sqrt(trace) of the rotation block of the Cramer-Rao bound, at the truth (rad)."""
+    d = motion._data(rig, p1, p2, m1, m2, *sig)
+    prob, *_ = motion._problem(d, np.zeros(d.n_o, int), np.zeros(d.n_s, int), "plane", R_o, m[None])
+    cov, _ = B.covariance_from_jacobian(prob.jacobian(motion._theta(t_o, m[None])))
+    return float(np.sqrt(np.trace(cov[:3, :3])))
+
+
+def test_monte_carlo_random_planes_rotation_within_three_times_the_crb():
+    # issue 13: with the camera 0.2 m ahead of the sonar the homography's dual interpretation
+    # can explain about as many sonar matches as the true one; both are refined and the
+    # likelihood decides (a single-plane scene, 100 optical + 30 sonar matches, 1 px / 1 cm /
+    # 0.3 deg)
+    spec = SonarSpec.preset("blueview-p900-90", range_min=0.5, range_max=4.0)
+    rig = Rig(rot_z(np.deg2rad(2.3)) @ np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]), [-0.1, 0.2, 0.0], CAM, spec)
+    sig = (1.0, 0.01, np.deg2rad(0.3))
+    rng = np.random.default_rng(0)
+    ratios = []
+    for _ in range(100):
+        p1, p2, m1, m2, R_o, t_o, m = _random_plane_draw(rng, rig)
+        res = motion.estimate(rig, p1, p2, m1, m2, sigma_pixel=sig[0], sigma_range=sig[1], sigma_azimuth=sig[2],
+                              planes=1)
+        err = rot_err(res.R_o, R_o) if res else np.inf
+        ratios.append(err / _rotation_crb(rig, p1, p2, m1, m2, R_o, t_o, m, sig))
+    ratios = np.array(ratios)
+    assert np.mean(ratios <= 3) >= 0.99, np.sort(ratios)[-5:]
+    assert 0.3 < np.median(ratios) < 2.0  # the noise shows, and the estimate is at the bound
+
+
+def test_draws_where_the_dual_interpretation_won_now_end_in_the_true_one():
+    # Two recorded draws (random plane, random motion including forward motion, 100 + 30
+    # matches, 1 px / 1 cm / 0.3 deg, the rig of the Monte Carlo above) on which the dual
+    # interpretation used to win: the estimate ended 5.2 and 4.6 deg off in rotation, with
+    # sonar support 20 vs 5 and 23 vs 23. The true interpretation's maximum likelihood,
+    # started with a loose relabelling threshold, has the better likelihood.
+    from pathlib import Path
+
+    spec = SonarSpec.preset("blueview-p900-90", range_min=0.5, range_max=4.0)
+    rig = Rig(rot_z(np.deg2rad(2.3)) @ np.array([[1.0, 0, 0], [0, 0, 1], [0, -1, 0]]), [-0.1, 0.2, 0.0], CAM, spec)
+    sig = (1.0, 0.01, np.deg2rad(0.3))
+    z = np.load(Path(__file__).parent / "data" / "motion_dual_draws.npz")
+    for k in (42, 86):
+        g = {name: z[f"draw{k}_{name}"] for name in ("p1", "p2", "r1", "a1", "r2", "a2", "R_o", "t_o", "m")}
+        m1, m2 = (g["r1"], g["a1"]), (g["r2"], g["a2"])
+        res = motion.estimate(rig, g["p1"], g["p2"], m1, m2, sigma_pixel=sig[0], sigma_range=sig[1],
+                              sigma_azimuth=sig[2], planes=1)
+        bound = _rotation_crb(rig, g["p1"], g["p2"], m1, m2, g["R_o"], g["t_o"], g["m"], sig)
+        duals = [rot_err(s.R_o, g["R_o"]) for s in res.monocular]
+        assert max(duals) > 10 * bound  # a dual interpretation far from the truth was there
+        assert 0 < rot_err(res.R_o, g["R_o"]) < 4 * bound, k

@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Optional
 
-import numpy as np
 import typer
 from rich.table import Table
 
@@ -25,6 +24,8 @@ def calibrate_cmd(
     json_file: Optional[Path] = typer.Option(None, "--json", help="Write the full result (JSON) here."),
 ):
     """Calibrate the rig from matched grid corners: R, t, their uncertainty and the weak directions."""
+    import numpy as np  # here, not at the top: `oas --help` must not pay for numpy
+
     import yaml
 
     from .._atomic import write_json, write_text

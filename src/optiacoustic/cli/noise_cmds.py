@@ -94,7 +94,7 @@ def noise_fit(
     model: Optional[str] = typer.Option(
         None, "--model", help="Model to draw the --bottom samples from: rayleigh, weibull, k or mixture (default mixture)."
     ),
-    n: int = typer.Option(100_000, "--n", min=1, help="Number of samples drawn with --bottom."),
+    n: int = typer.Option(100_000, "--n", min=3, max=10_000_000, help="Number of samples drawn with --bottom (3 to 10 million)."),
     seed: int = typer.Option(0, "--seed", min=0, help="Random seed of the draw."),
     input_file: Optional[Path] = typer.Option(
         None, "--input", help="Real sonar data: a sonar log (.aris, Oculus pings, bag, .mcap; polar, linearised "

@@ -6,7 +6,6 @@ import time
 from pathlib import Path
 from typing import Optional
 
-import numpy as np
 import typer
 from rich.table import Table
 
@@ -48,6 +47,8 @@ def scene_cmd(
 @app.command("presets")
 def presets_cmd():
     """List the sonar presets with their sources and unverified values."""
+    import numpy as np  # here, not at the top: `oas --help` must not pay for numpy
+
     from ..sonar import SonarSpec
 
     t = Table(title="sonar presets", show_lines=True)
@@ -84,8 +85,11 @@ def sonar_cmd(
     azimuth_pattern: bool = typer.Option(False, "--azimuth-pattern", help="Cross-beam leakage from the azimuth beam pattern."),
     frames: int = typer.Option(1, "--frames", min=1, help="Render this many frames (different noise seeds)."),
     figures: bool = typer.Option(True, "--figures/--no-figures", help="Write the stage figures."),
+    profile_path: Optional[str] = typer.Option(None, "--profile", help="Sensor profile YAML (oas sensor-fit) or a shipped profile's name: renders as that device."),
 ):
     """Simulate a sonar frame: NPZ (intensity, image, ranges, azimuths, ground truth) and PNGs."""
+    import numpy as np  # here, not at the top: `oas --help` must not pay for numpy
+
     import dataclasses
 
     from rich.progress import Progress
@@ -102,13 +106,23 @@ def sonar_cmd(
     if elevation_samples is not None:
         spec = dataclasses.replace(spec, elevation_samples=elevation_samples)
     options = SonarOptions(propagation="spreading" if spreading else "tvg", azimuth_pattern=azimuth_pattern)
+    profile = None
+    if profile_path is not None:
+        from ..sonar.profile import SensorProfile
+
+        if Path(profile_path).suffix.lower() in (".yaml", ".yml") or Path(profile_path).exists():
+            profile = SensorProfile.load(profile_path)
+        else:
+            profile = SensorProfile.preset(profile_path)
+        options = None  # the profile's image model
     pose = Pose.look_at(e, t)
     ensure_dir(out_dir)
     with Progress(console=console, transient=True) as progress:
         task = progress.add_task("simulating", total=frames)
         for k in range(frames):
             t0 = time.perf_counter()
-            frame = simulate_sonar(scene, spec, pose, noise=False if no_noise else None, seed=seed + k, options=options)
+            frame = simulate_sonar(scene, spec, pose, noise=False if no_noise else None, seed=seed + k, options=options,
+                                   profile=profile)
             dt = time.perf_counter() - t0
             stem = "frame" if frames == 1 else f"frame_{k:04d}"
             frame.save_npz(out_dir / f"{stem}.npz")
@@ -130,6 +144,7 @@ def sonar_cmd(
         "pose_t": pose.t.tolist(),
         "seed": seed,
         "noise": not no_noise,
+        "profile": profile_path,
         "seconds_last_frame": dt,
         "body_names": list(frame.body_names),
     }

@@ -129,11 +129,17 @@ def point_from_params(p, m):
     if m is None:
         N = p.shape[0]
         return p.copy(), np.broadcast_to(np.eye(3), (N, 3, 3)), None
-    q = np.concatenate([p, np.ones((p.shape[0], 1))], -1)
-    s = np.einsum("ni,ni->n", m, q)
+    s = m[:, 0] * p[:, 0] + m[:, 1] * p[:, 1] + m[:, 2]
+    N = p.shape[0]
     with np.errstate(divide="ignore", invalid="ignore"):
-        X = q / s[:, None]
-        dXdp = (np.eye(3)[None, :, :2] - X[:, :, None] * m[:, None, :2]) / s[:, None, None]
+        inv = 1.0 / s
+        X = np.empty((N, 3))
+        X[:, :2] = p * inv[:, None]
+        X[:, 2] = inv
+        # (I - X m^T)[:, :2] / s
+        dXdp = X[:, :, None] * (-m[:, None, :2] * inv[:, None, None])
+        dXdp[:, 0, 0] += inv
+        dXdp[:, 1, 1] += inv
     dXdm = -X[:, :, None] * X[:, None, :]
     return X, dXdp, dXdm
 
@@ -185,49 +191,58 @@ class Problem:
         N = X.shape[0]
         C = len(block.channels)
         e = np.empty((N, 2 * C))
-        JX = np.empty((N, 2 * C, 3))
+        Jc = np.empty((N, 2 * C, 3))  # d e / d Y, times the channel's A (or L)
         if want_theta:
             Jt = np.zeros((N, 2 * C, self.n_theta))
             Jl = left_jacobian(w)
+            RX = X @ Rv.T  # (N, 3)
         fx, fy = self.K[0], self.K[1]
         with np.errstate(divide="ignore", invalid="ignore"):
             for i, ch in enumerate(block.channels):
                 A = ch.A @ Rv if ch.moving else ch.A
                 Y = X @ A.T + ((ch.A @ cv + ch.b) if ch.moving else ch.b)
                 s0, s1 = block.sigma[i]
-                J = np.zeros((N, 2, 3))
+                # rows of d e / d Y, contracted with ch.A directly (outer products, no
+                # batched 2x3 @ 3x3 products)
+                L = ch.A
                 if ch.kind == "camera":
                     iz = 1.0 / Y[:, 2]
                     x, y = Y[:, 0] * iz, Y[:, 1] * iz
-                    e[:, 2 * i] = (fx * x + self.K[2] - meas[:, i, 0]) / s0
-                    e[:, 2 * i + 1] = (fy * y + self.K[3] - meas[:, i, 1]) / s1
-                    J[:, 0, 0] = fx * iz / s0
-                    J[:, 0, 2] = -fx * x * iz / s0
-                    J[:, 1, 1] = fy * iz / s1
-                    J[:, 1, 2] = -fy * y * iz / s1
+                    e[:, 2 * i] = (fx * x + (self.K[2] - meas[:, i, 0])) / s0
+                    e[:, 2 * i + 1] = (fy * y + (self.K[3] - meas[:, i, 1])) / s1
+                    a0, a1 = (fx / s0) * iz, (fy / s1) * iz
+                    Jc[:, 2 * i] = a0[:, None] * (L[0] - x[:, None] * L[2])
+                    Jc[:, 2 * i + 1] = a1[:, None] * (L[1] - y[:, None] * L[2])
                 else:
                     rho2 = Y[:, 0] ** 2 + Y[:, 1] ** 2
                     r = np.sqrt(rho2 + Y[:, 2] ** 2)
                     e[:, 2 * i] = (r - meas[:, i, 0]) / s0
                     e[:, 2 * i + 1] = wrap(np.arctan2(Y[:, 0], Y[:, 1]) - meas[:, i, 1]) / s1
-                    J[:, 0, :] = Y / (r * s0)[:, None]
-                    J[:, 1, 0] = Y[:, 1] / (rho2 * s1)
-                    J[:, 1, 1] = -Y[:, 0] / (rho2 * s1)
-                JX[:, 2 * i:2 * i + 2] = J @ A
+                    Jc[:, 2 * i] = (Y / (r * s0)[:, None]) @ L
+                    k = 1.0 / (rho2 * s1)
+                    Jc[:, 2 * i + 1] = (Y[:, 1] * k)[:, None] * L[0] - (Y[:, 0] * k)[:, None] * L[1]
                 if want_theta and ch.moving:
-                    RX = X @ Rv.T  # (N, 3)
-                    dYdw = -(ch.A[None] @ skew(RX)) @ Jl  # (N, 3, 3)
-                    Jt[:, 2 * i:2 * i + 2, 0:3] = J @ dYdw
-                    Jt[:, 2 * i:2 * i + 2, 3:6] = J @ ch.A
-        Jp = JX @ dXdp
+                    Jci = Jc[:, 2 * i:2 * i + 2]
+                    # d Y / d w = -L [R X]_x J_l, and a^T [v]_x = (a x v)^T
+                    Jt[:, 2 * i:2 * i + 2, 0:3] = np.cross(RX[:, None, :], Jci) @ Jl
+                    Jt[:, 2 * i:2 * i + 2, 3:6] = Jci
+            # d e / d X: moving channels see X through R_var
+            JX = Jc.copy() if want_theta else Jc
+            for i, ch in enumerate(block.channels):
+                if ch.moving:
+                    JX[:, 2 * i:2 * i + 2] = JX[:, 2 * i:2 * i + 2] @ Rv
+            Jp = JX @ dXdp
         if not want_theta:
             return e, Jp, None
         plane = block.plane if plane is None else plane
         if dXdm is not None:
             Jm = JX @ dXdm  # (N, 2C, 3)
-            cols = 6 + 3 * plane[:, None] + np.arange(3)[None, :]  # (N, 3)
-            rows = np.arange(2 * C)
-            Jt[np.arange(N)[:, None, None], rows[None, :, None], cols[:, None, :]] = Jm
+            if self.k == 1:
+                Jt[:, :, 6:9] = Jm
+            else:
+                cols = 6 + 3 * plane[:, None] + np.arange(3)[None, :]  # (N, 3)
+                rows = np.arange(2 * C)
+                Jt[np.arange(N)[:, None, None], rows[None, :, None], cols[:, None, :]] = Jm
         return e, Jp, Jt
 
     def _lm(self, block, p, m, Rv, cv, w, meas):

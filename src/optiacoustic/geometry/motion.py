@@ -801,14 +801,19 @@ def _relabel(co, cs, thr):
     return lo.astype(int), ls.astype(int)
 
 
-def _ml_loop(d: _Data, model, R_o, t_o, planes_m, lo, ls, thr, max_iterations):
-    """Maximum likelihood with relabelling until the labels settle; returns the new state."""
+def _ml_loop(d: _Data, model, R_o, t_o, planes_m, lo, ls, thr, max_iterations, info=None, max_nfev=100):
+    """Maximum likelihood with relabelling until the labels settle; returns the new state.
+
+    ``info`` (a dict), when given, receives ``"chi2"``: the per-match chi-squares
+    ``(co, cs)`` of :func:`_chi2_all` at the returned state, when they were computed there.
+    """
     planes_m = np.asarray(planes_m, float).reshape(-1, 3)
     it = 0
     res = None
+    co = cs = None
     for it in range(1, max_iterations + 1):
         prob, _, _, _, _ = _problem(d, lo, ls, model, R_o, planes_m)
-        sol = prob.solve(_theta(t_o, planes_m if model == "plane" else np.zeros((0, 3))))
+        sol = prob.solve(_theta(t_o, planes_m if model == "plane" else np.zeros((0, 3))), max_nfev=max_nfev)
         R_new, t_new, pm = prob.unpack(sol.x)
         if not (np.all(np.isfinite(R_new)) and np.all(np.isfinite(t_new)) and np.all(np.isfinite(pm))):
             break
@@ -828,6 +833,9 @@ def _ml_loop(d: _Data, model, R_o, t_o, planes_m, lo, ls, thr, max_iterations):
         if changed <= max(0, int(0.005 * (lo.size + ls.size))):
             break
         lo, ls = nlo, nls
+        co = cs = None  # the state returned is that of the last fit, with the old labels
+    if info is not None and co is not None:
+        info["chi2"] = (co, cs)
     return R_o, t_o, planes_m, lo, ls, it, res
 
 
@@ -1000,10 +1008,23 @@ def _estimate_homography(d, thr_px, conf, iters, p_in, max_it, planes, rng):
     # few matches: when other interpretations explain at least 40% as many sonar matches,
     # let the maximum likelihood decide, by the truncated cost of all matches at each
     # one's optimum.
-    runs = []
-    close = [t for t in trials if t[0] >= 0.4 * trials[0][0]]
-    for t in close[:4]:
-        runs.append(_start_planar(d, t, thr2, max_it))
+    # Both interpretations of the best-supported homography are screened by their
+    # loose-threshold fit (the support alone misleads: the true one may explain fewer sonar
+    # matches from its start); the best by that likelihood, and any within a chi-square of
+    # 10 of it, get the full fit.
+    # Interpretations of another homography (another plane) compete only with enough
+    # support, as before.
+    cand = [t for t in trials[:4] if t[6] == trials[0][6] or t[0] >= 0.4 * trials[0][0]]
+    screens = [None] * len(cand)
+    if len(cand) > 1:
+        screens = [_start_planar(d, t, thr2, max_it, screen=True) for t in cand]
+        best_screen = min(sc["score"] for sc in screens)
+        keep = [k for k, sc in enumerate(screens) if sc["score"] <= best_screen + 10.0]
+        cand, screens = [cand[k] for k in keep], [screens[k] for k in keep]
+    if len(cand) == 1 and screens[0] is None:  # nothing to choose between: one plain fit
+        runs = [_start_planar(d, cand[0], thr2, max_it, graduated=False)]
+    else:
+        runs = [_start_planar(d, t, thr2, max_it, loose=sc) for t, sc in zip(cand, screens)]
     best = min(runs, key=lambda r: r["score"])
     sol, inl, cands, pick = best["trial"][2], best["trial"][3], best["trial"][4], best["trial"][5]
     h_best = best["trial"][6]
@@ -1031,8 +1052,19 @@ def _estimate_homography(d, thr_px, conf, iters, p_in, max_it, planes, rng):
     return _finish(d, "homography", R_o, t_o, pm, lo, ls, stages, sols, cands, j, supports)
 
 
-def _start_planar(d: _Data, trial, thr2, max_it):
-    """Initial estimate of one interpretation and its planar maximum likelihood, with a score."""
+_LOOSE = 4.0  # the first relabelling's threshold, in units of the final one
+_LOOSE_NFEV = 15  # evaluations per solve of the loose pass
+
+
+def _start_planar(d: _Data, trial, thr2, max_it, screen=False, loose=None, graduated=True):
+    """Initial estimate of one interpretation and its planar maximum likelihood, with a score.
+
+    Graduated threshold: a first maximum likelihood with a loose one, so that matches a
+    few-degrees-off start misfits are not locked out, then one with the final threshold.
+    ``screen``: stop after the loose fit (its score and state come back, for comparing
+    interpretations); ``loose``: such a screened result, to continue from;
+    ``graduated=False``: the final threshold from the start.
+    """
     _, _, sol, inl, cands, pick, _ = trial
     j, _, son_inl, _ = pick
     d_o = float(cands[j])
@@ -1041,8 +1073,33 @@ def _start_planar(d: _Data, trial, thr2, max_it):
     ls = np.where(son_inl, 0, -1)
     ls[j] = 0
     initial = _stage(d, "initial", R_o, t_o, m0[None], lo, ls, 0, np.nan)
-    planar = _ml_loop(d, "plane", R_o, t_o, m0[None], lo, ls, thr2, max_it)
-    co, cs = _chi2_all(d, "plane", planar[0], planar[1], planar[2])
+    if not graduated:
+        info = {}
+        planar = _ml_loop(d, "plane", R_o, t_o, m0[None], lo, ls, thr2, max_it, info)
+        co, cs = info["chi2"] if "chi2" in info else _chi2_all(d, "plane", planar[0], planar[1], planar[2])
+        score = float(np.minimum(co.min(0), thr2).sum() + np.minimum(cs.min(0), thr2).sum())
+        return dict(trial=trial, initial=initial, planar=planar, score=score)
+    if loose is None:
+        info = {}
+        # (a capped number of evaluations: an interpretation that needs more is not the one)
+        state = _ml_loop(d, "plane", R_o, t_o, m0[None], lo, ls, _LOOSE * thr2, max_it, info, max_nfev=_LOOSE_NFEV)
+        chi = info["chi2"] if "chi2" in info else _chi2_all(d, "plane", state[0], state[1], state[2])
+        loose = dict(state=state, chi2=chi, exact="chi2" in info,
+                     score=float(np.minimum(chi[0].min(0), thr2).sum() + np.minimum(chi[1].min(0), thr2).sum()))
+    if screen:
+        return loose
+    state = loose["state"]
+    R_o, t_o, pm, lo, ls = state[:5]
+    same = False
+    if loose["exact"]:
+        lo2, ls2 = _relabel(*loose["chi2"], thr2)
+        same = np.array_equal(lo2, lo) and (np.array_equal(ls2, ls) or (ls2 >= 0).sum() == 0)
+    if same:  # the final threshold keeps the loose pass's labels: its fit is the answer
+        planar, (co, cs) = state, loose["chi2"]
+    else:
+        info = {}
+        planar = _ml_loop(d, "plane", R_o, t_o, pm, lo, ls, thr2, max_it, info)
+        co, cs = info["chi2"] if "chi2" in info else _chi2_all(d, "plane", planar[0], planar[1], planar[2])
     score = float(np.minimum(co.min(0), thr2).sum() + np.minimum(cs.min(0), thr2).sum())
     return dict(trial=trial, initial=initial, planar=planar, score=score)
 

@@ -84,10 +84,12 @@ def read_camera_info(path) -> PinholeCamera:
         return _read_opencv(p)
     import yaml
 
-    try:
-        data = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as exc:
-        raise ReadError(p, f"not valid YAML: {exc}") from None
+    from .._config import ConfigError, parse_config
+
+    try:  # the project's one YAML reader: duplicate keys, alias bombs and deep nesting are refused
+        data = parse_config(p.read_text())
+    except (ConfigError, yaml.YAMLError) as exc:
+        raise ReadError(p, str(exc)) from None
     if not isinstance(data, dict):
         raise ReadError(p, "expected a mapping of camera_info fields")
     K = _field(p, data, _K_NAMES)

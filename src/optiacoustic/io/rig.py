@@ -100,10 +100,12 @@ def _rig_yaml(p, camera, sonar_axes, camera_axes):
 
     from .camera_info import read_camera_info
 
-    try:
-        d = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as exc:
-        raise ReadError(p, f"not valid YAML: {exc}") from None
+    from .._config import ConfigError, parse_config
+
+    try:  # the project's one YAML reader: duplicate keys, alias bombs and deep nesting are refused
+        d = parse_config(p.read_text())
+    except (ConfigError, yaml.YAMLError) as exc:
+        raise ReadError(p, str(exc)) from None
     if not isinstance(d, dict):
         raise ReadError(p, "expected a mapping with translation and rotation")
     allowed = {"parent", "child", "translation", "rotation", "quaternion", "sonar_axes", "camera_axes", "camera_info"}

@@ -450,6 +450,24 @@ def _enclosing_body(caster, point) -> int:
     return int(ids[np.argmax(counts)]) if counts.max() >= 10 else -1
 
 
+@functools.lru_cache(maxsize=1)
+def _side_pool():
+    """One worker thread for the backscatter veil, computed while the main thread shades."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    return ThreadPoolExecutor(max_workers=1, thread_name_prefix="oas-veil")
+
+
+class _inline:
+    """A finished 'future': runs the call now (single-threaded casters)."""
+
+    def __init__(self, fn, *args, **kw):
+        self._value = fn(*args, **kw)
+
+    def result(self):
+        return self._value
+
+
 def _direct_light(caster, p, nrm, rho_pi, lights, c, G, shadows: bool):
     """Radiance leaving lit Lambertian surface points (eq. 3.8), per pixel ``(n, 3)``.
 
@@ -474,12 +492,12 @@ def _direct_light(caster, p, nrm, rho_pi, lights, c, G, shadows: bool):
         ldir = v / np.maximum(Rs, np.float32(1e-12))[:, None]
         cosg = np.einsum("ij,ij->i", nrm, ldir)
         lit = cosg > 0
-        if shadows and lit.all():  # no gather when every point faces the lamp
-            lit &= ~caster.occluded(p + eps * nrm, ldir, np.maximum(Rs - 2 * eps, 1e-6))
-        elif shadows and np.any(lit):
-            li = np.flatnonzero(lit)
-            occ = caster.occluded(p[li] + eps * nrm[li], ldir[li], np.maximum(Rs[li] - 2 * eps, 1e-6))
-            lit[li[occ]] = False
+        if shadows and np.any(lit):
+            # every point is cast, lit or not (a gather costs more than the rays it saves);
+            # the points facing away get a zero-length ray that Embree rejects at once
+            o = p + eps * nrm
+            lim = np.where(lit, np.maximum(Rs - 2 * eps, np.float32(1e-6)), np.float32(0))
+            lit &= ~caster.occluded_raw(o, np.ascontiguousarray(ldir, np.float32), lim)
         e = np.where(lit, cosg / np.maximum(Rs * Rs, np.float32(1e-12)), np.float32(0))
         if lt.direction is not None and lt.cone_deg is not None:
             ca = -np.einsum("ij,j->i", ldir, np.asarray(lt.direction, np.float32))  # cos from the spot axis
@@ -576,21 +594,30 @@ def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=N
     # ---- primary rays
     d_cam = _pixel_rays(camera)
     # einsum, not @: a BLAS call on (n, 3) x (3, 3) can stall on busy cores
-    d_world = np.einsum("ij,kj->ik", d_cam.reshape(-1, 3), pose.R)
-    hits = caster.cast(pose.t, d_world)
-    depth = hits.distance
-    hit = hits.body >= 0
+    # straight into float32 for Embree: the pixel rays are unit vectors by construction
+    d32 = np.einsum("ij,kj->ik", d_cam.reshape(-1, 3).astype(np.float32), pose.R.astype(np.float32))
+    o32 = np.empty_like(d32)
+    o32[...] = pose.t
+    dist_all, body_all, _, nrm_all = caster.cast_raw(o32, d32)
+    hit = body_all >= 0
     warn_if_blind(hit, pose, scene)
     full = bool(hit.all())
     sel = slice(None) if full else np.flatnonzero(hit)   # scenes with a seabed hit everywhere
-    dist = depth[sel].astype(np.float32)
-    dv = d_world[sel].astype(np.float32)
-    p = pose.t.astype(np.float32) + dv * dist[:, None]
-    nrm = hits.normal[sel].astype(np.float32)
+    depth = np.where(hit, dist_all.astype(np.float64), np.inf)
+    dist = dist_all[sel]
+    dv = d32[sel]
+    p = o32[sel] + dv * dist[:, None]
+    nrm = nrm_all[sel]
     # shade the side facing the camera (planes are two-sided)
     nrm *= np.where(np.einsum("ij,ij->i", nrm, dv) > 0, np.float32(-1), np.float32(1))[:, None]
-    rho_pi = surface_albedo(scene, hits.body[sel], p, nrm) * np.float32(1 / np.pi)
+    body_all = np.where(hit, body_all, -1).astype(np.int32)
+    rho_pi = surface_albedo(scene, body_all[sel], p, nrm) * np.float32(1 / np.pi)
 
+    # the backscatter veil needs only the depth map: it runs beside the shading (numpy and
+    # OpenCV release the GIL), so the second core works while this one shades
+    depth2 = depth.reshape(H, W)
+    bs_job = (_side_pool().submit if caster.threads > 1 else _inline)(backscatter, camera, pose, depth2, water,
+                                                                       lights, options=options, G=G)
     clear_v, surf, surf_fwd = _direct_light(caster, p, nrm, rho_pi, lights, c, G, options.shadows)
     lamp_fs = surf_fwd is not surf
     Rc = dist[:, None]
@@ -606,7 +633,6 @@ def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=N
 
     clear = scatter(clear_v)
     attenuated = scatter(att)
-    depth2 = depth.reshape(H, W)
 
     # ---- forward scatter (eq. 3.9): the lamp's forward-scattered light lights the surface
     # (smooth, not blurred), and of what leaves the surface e^{-G R_c} - e^{-c R_c} arrives
@@ -620,7 +646,7 @@ def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=N
         fwd = attenuated.copy()
 
     # ---- backscatter (eqs. 3.10-3.13)
-    bs = backscatter(camera, pose, depth2, water, lights, options=options, G=G)
+    bs = bs_job.result()
     image = fwd + bs
     noise = options.noise
     if noise is None and seed is not None:
@@ -632,7 +658,7 @@ def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=N
     normal = scatter(nrm) if full else np.full((H * W, 3), np.nan, np.float32)
     if not full:
         normal[sel] = nrm
-    body = hits.body.reshape(H, W).astype(np.int32)
+    body = body_all.reshape(H, W)
     arrays = dict(clear=clear, attenuated=attenuated, forward_scatter=fwd, backscatter=bs, image=image,
                   depth=depth2.astype(np.float32), body=body, normal=normal.reshape(H, W, 3))
     for a in arrays.values():

@@ -24,7 +24,7 @@ import numpy as np
 import yaml
 from pydantic import ValidationError
 
-from .._atomic import write_json, write_text
+from .._atomic import ensure_dir, write_json, write_text
 from ..frames import Pose, euler_xyz_from_rotation
 from .parts import Body, Material, SceneError, Texture, View
 from .shapes import SHAPES, Mesh
@@ -236,6 +236,7 @@ def scene_to_dict(scene, base_dir: str | None = None) -> dict:
 def save_scene(scene, path) -> None:
     path = Path(path)
     data = scene_to_dict(scene, str(path.parent))
+    ensure_dir(path.parent)  # mesh paths like "../rock.obj" resolve only through an existing folder
     try:  # what is written must load again: check before writing, not when a user next reads it
         scene_parts_from_dict(data, str(path), str(path.parent.resolve()))
     except SceneError as exc:

@@ -18,6 +18,7 @@ from pydantic import ConfigDict, Field, PositiveFloat
 from pydantic.dataclasses import dataclass
 from typing_extensions import Annotated
 
+from .normals import smooth_shading
 from .surface import Surface, parametric_grid
 
 __all__ = ["Plane", "Box", "Sphere", "Ellipsoid", "Cylinder", "Mesh", "KleinBottle", "SHAPES", "Shape"]
@@ -145,11 +146,12 @@ def _load_mesh_file(path: str, mtime: float, smooth_angle_deg: float) -> Surface
         raise ValueError(f"cannot read mesh {path!r}: {type(exc).__name__}: {exc}") from None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
         raise ValueError(f"cannot read mesh {path!r}: no triangles found")
-    mesh = trimesh.graph.smooth_shade(loaded, angle=np.deg2rad(smooth_angle_deg)) if smooth_angle_deg > 0 else loaded
-    v = np.asarray(mesh.vertices, float)
+    v = np.asarray(loaded.vertices, float)
     if not np.all(np.isfinite(v)):
         raise ValueError(f"cannot read mesh {path!r}: non-finite vertex coordinates")
-    return Surface(v, np.asarray(mesh.faces), np.asarray(mesh.vertex_normals, float))
+    # vectorised crease splitting and vertex normals (trimesh's smooth_shade costs ~7 us/triangle)
+    v, f, n = smooth_shading(v, np.asarray(loaded.faces), np.deg2rad(smooth_angle_deg))
+    return Surface(v, f, n)
 
 
 @dataclass(frozen=True, config=_CONFIG)

@@ -191,20 +191,16 @@ def load_config(source, *, base_dir=None) -> tuple[SequenceConfig, Path]:
     Returns ``(config, base_dir)``; relative paths in it are relative to ``base_dir``
     (the file's folder). Raises ``ValueError`` naming the file and the field.
     """
-    import yaml
-
     if isinstance(source, SequenceConfig):
         return source, Path(base_dir or ".").resolve()
     if isinstance(source, dict):
         data, name, base = source, "<config>", Path(base_dir or ".")
     else:
+        from .._config import load_config as read_config_file
+
         path = Path(source)
-        if not path.is_file():
-            raise ValueError(f"{path}: config file not found")
-        try:
-            data = yaml.safe_load(path.read_text())
-        except (OSError, yaml.YAMLError) as exc:
-            raise ValueError(f"{path}: cannot parse config: {exc}") from None
+        # the project's one YAML reader: size limit, duplicate keys, alias bombs, depth; names the file
+        data = read_config_file(path, what="config file")
         name, base = str(path), path.parent
     if not isinstance(data, dict):
         raise ValueError(f"{name}: expected a mapping at the top level, got {type(data).__name__}")

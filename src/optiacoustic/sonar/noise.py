@@ -15,6 +15,7 @@ power, reverberation and speckle only redistribute it (docs/physics.md).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Optional
 
@@ -173,3 +174,111 @@ class NoiseDraws:
     z: np.ndarray
     x: dict
     phase: Optional[np.ndarray]
+
+
+@dataclass(frozen=True)
+class ScattererNoise:
+    """A device-like image: speckle from scatterer counts, background and gain before the device TVG.
+
+    ``image = TVG(r) | sqrt(g I) f_s + sqrt(B(r)) f_n |^2`` with ``I`` the raw echo
+    (simulate with ``SonarOptions(propagation="spreading")`` so that it carries the
+    water's losses), ``g`` the source level and receiver gain, ``B`` the receiver noise
+    and volume reverberation before the TVG (:class:`~optiacoustic.sonar.gain.DeviceGain`),
+    ``f_s`` the unit-power speckle field of the seabed's scatterer counts
+    (``sonar.speckle``: Poisson counts of mean ``density x cell area``, filtered by the
+    pulse and the two-way azimuth amplitude pattern) and ``f_n`` the background's
+    Gaussian field filtered the same way (docs/physics.md, "Speckle from scatterers").
+
+    Attributes
+    ----------
+    density : float
+        Seabed scatterers per square metre; ``inf``: fully developed (Rayleigh) speckle.
+    gain : DeviceGain
+        Source level, receiver noise, volume reverberation and the device's TVG.
+    bottom_type : str, optional
+        A Table 2.2 bottom type instead of scatterer counts: its reverberation amplitude
+        (thesis, i.i.d. per cell) takes the place of ``f_s``.
+    """
+
+    density: float = float("inf")
+    gain: "DeviceGain" = None  # type: ignore[assignment]
+    bottom_type: Optional[str] = None
+    needs_cell_area = True
+
+    def __post_init__(self):
+        from .gain import DeviceGain
+
+        if self.gain is None:
+            object.__setattr__(self, "gain", DeviceGain())
+        if not isinstance(self.gain, DeviceGain):
+            raise ValueError(f"ScattererNoise.gain: expected a DeviceGain, got {type(self.gain).__name__}")
+        if not (self.density > 0):
+            raise ValueError(f"ScattererNoise.density: must be > 0 scatterers/m^2 (or inf), got {self.density!r}")
+        if self.bottom_type is not None:
+            from .distributions import BOTTOM_TYPES
+
+            if self.bottom_type not in BOTTOM_TYPES:
+                raise ValueError(f"ScattererNoise.bottom_type: unknown {self.bottom_type!r}; expected one of {sorted(BOTTOM_TYPES)}")
+
+    def draw(self, shape: tuple, bottom_types, rng: np.random.Generator):
+        """The complex normals (drawn while the scene is scanned) and the generator for the
+        counts, which depend on the cell areas known only after the scan."""
+        return rng.standard_normal(tuple(shape) + (2,), dtype=np.float32), rng
+
+    def kernels(self, spec):
+        """Amplitude kernels along range (the pulse) and across beams (two-way ``F^2``)."""
+        return _kernels(spec)
+
+    def apply(self, intensity: np.ndarray, *, spec, seabed_share: dict, options, draws=None, rng=None,
+              cell_area=None) -> np.ndarray:
+        """The image ``(n_bins, n_beams)`` float32, linear intensity after the device's TVG.
+
+        One complex white field carries both parts, ``w = sqrt(g I n / mu + B) z`` (``n``
+        the Poisson counts of mean ``mu``, ``z ~ CN(0, 1)``): given the counts the two
+        are independent circular Gaussians, so their sum is one with the summed power.
+        It is filtered by the pulse and beam kernels and normalised by ``S2 = sum h^2``,
+        so a uniform region has mean ``g I + B`` and the moments of :mod:`.speckle`.
+        """
+        from .propagation import absorption_db_per_m
+        from .speckle import filter_complex
+
+        I = np.asarray(intensity, np.float32)
+        z, rng = draws if draws is not None else self.draw(I.shape, (), np.random.default_rng(rng))
+        h_r, h_b = self.kernels(spec)
+        g = self.gain
+        alpha = absorption_db_per_m(spec.frequency, options.water) if options.propagation == "spreading" else 0.0
+        back = g.background_raw(spec.ranges, alpha).astype(np.float32)[:, None]
+        echo = I * np.float32(10.0 ** (g.gain_db / 10.0))
+        if self.bottom_type is not None:
+            from .distributions import bottom_model
+
+            x = bottom_model(self.bottom_type, "mixture").sample(I.shape, rng, dtype=np.float32)
+            power = echo * x * x + back  # Table 2.2 reverberation: i.i.d. amplitudes, as the thesis
+            h_r, h_b = np.ones(1), np.ones(1)
+        elif cell_area is None or not np.isfinite(self.density):
+            power = echo + back
+        else:
+            mu = self.density * np.asarray(cell_area, np.float64)
+            seabed = mu > 0
+            n = rng.poisson(np.where(seabed, mu, 0.0)).astype(np.float32)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                ratio = np.where(seabed, n / np.where(seabed, mu, 1.0), 1.0).astype(np.float32)
+            power = echo * ratio + back
+        z = z * np.sqrt(power * np.float32(0.5))[..., None]
+        f = filter_complex(z, h_r, h_b)
+        s2 = float((np.asarray(h_r) ** 2).sum() * (np.asarray(h_b) ** 2).sum())
+        out = f[..., 0] * f[..., 0]
+        out += f[..., 1] * f[..., 1]
+        out *= (g.tvg(spec.ranges) / s2).astype(np.float32)[:, None]
+        return out
+
+
+@functools.lru_cache(maxsize=32)
+def _kernels(spec):
+    from .speckle import beam_kernel, gaussian_pulse_kernel
+
+    h_r = gaussian_pulse_kernel(spec.pulse_width / spec.bin_width)
+    h_b = beam_kernel(spec.azimuth_pattern(), spec.beam_spacing)
+    h_r.setflags(write=False)
+    h_b.setflags(write=False)
+    return h_r, h_b

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
+
+from .beampattern import BeamPattern
 
 from ..frames import project_to_sonar, SonarProjection
 
@@ -61,6 +64,10 @@ class SonarSpec:
         Explicit range-bin centres (m), strictly increasing (a ROS ``ProjectedSonarImage``
         may carry uneven ranges). ``None`` (default): ``n_bins`` equal bins over
         ``[range_min, range_max]``. Measured data only; the simulator needs equal bins.
+    elevation_beam, azimuth_beam : BeamPattern, optional
+        One-way beam patterns of the array (``sonar.beampattern``), used by the
+        ``beam_model="aperture"`` image model. ``None``: the uniform aperture whose -3 dB
+        width is ``fov_elevation`` (resp. ``beamwidth_azimuth``) at ``frequency``.
     """
 
     n_beams: int = 512
@@ -79,6 +86,8 @@ class SonarSpec:
     unverified: tuple[str, ...] = field(default=())
     beam_azimuths: tuple[float, ...] | None = None
     bin_ranges: tuple[float, ...] | None = None
+    elevation_beam: Optional["BeamPattern"] = None
+    azimuth_beam: Optional["BeamPattern"] = None
 
     def __post_init__(self):
         def bad(fld, msg):
@@ -222,6 +231,8 @@ class SonarSpec:
                     kw[k[:-4]] = float(np.deg2rad(float(v)))
                 except (TypeError, ValueError):
                     raise ValueError(f"{source}: field '{k}': expected a number, got {v!r}") from None
+            elif k in ("elevation_beam", "azimuth_beam"):
+                kw[k] = None if v is None else BeamPattern.from_dict(v, f"{source}: field '{k}'")
             elif k in fields and k not in ("fov_azimuth", "fov_elevation", "beamwidth_azimuth", "beam_azimuths"):
                 kw[k] = tuple(v) if k in ("unverified", "bin_ranges") else v
             else:
@@ -239,6 +250,21 @@ class SonarSpec:
             return spec.with_range_table(ranges) if ranges is not None else spec
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{source}: {exc}") from None
+
+    # ------------------------------------------------------------------ beam patterns
+    def elevation_pattern(self) -> BeamPattern:
+        """One-way elevation pattern: ``elevation_beam`` or the aperture of -3 dB width ``fov_elevation``."""
+        if self.elevation_beam is not None:
+            return self.elevation_beam
+        return BeamPattern.from_beamwidth(self.fov_elevation, self.frequency, self.sound_speed)
+
+    def azimuth_pattern(self) -> BeamPattern:
+        """One-way azimuth pattern of one beam: ``azimuth_beam`` or the aperture of -3 dB width
+        ``beamwidth_azimuth`` (one beam spacing when that is 0)."""
+        if self.azimuth_beam is not None:
+            return self.azimuth_beam
+        width = self.beamwidth_azimuth if self.beamwidth_azimuth > 0 else self.beam_spacing
+        return BeamPattern.from_beamwidth(width, self.frequency, self.sound_speed)
 
     # ------------------------------------------------------------------ sampling grids
     @property

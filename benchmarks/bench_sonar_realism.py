@@ -1,0 +1,48 @@
+"""Cost of the realistic (device-profile) sonar model against the thesis model, per frame, in one run."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from _timing import median_ms
+
+TITLE = "Realistic sonar model (aperture beams, scatterer speckle, device gain) vs the thesis model"
+DESCRIPTION = (
+    "Thesis scene 1 with the BlueView P900-90 preset (512 beams x 750 bins, 128 elevation rays per beam). "
+    "Reference: the thesis model (hard elevation cut, ideal TVG, Table 2.2 reverberation). Realistic: "
+    "beam_model='aperture' (rays to the elevation pattern's second null weighted by F^4, sub-cells along "
+    "long footprints, F^4 across beams), spreading and absorption, ScattererNoise (Poisson counts per cell "
+    "from cell areas, pulse- and beam-filtered complex fields, receiver noise before the device TVG). "
+    "Issue 10's target: ratio <= 1.5."
+)
+
+
+def run() -> list[dict]:
+    from optiacoustic import Pose, SonarSpec, scenes, simulate_sonar
+    from optiacoustic.sonar import SonarOptions
+    from optiacoustic.sonar.gain import DeviceGain
+    from optiacoustic.sonar.noise import ScattererNoise
+
+    scene = scenes.get("thesis_scene1")
+    spec = SonarSpec.preset("blueview-p900-90")
+    pose = Pose.look_at(scene.view.eye, scene.view.target)
+    real_opts = SonarOptions(beam_model="aperture", propagation="spreading")
+    noise = ScattererNoise(density=500.0, gain=DeviceGain(noise_db=-60.0, volume_db=-50.0, spreading_db=30.0))
+    seeds = iter(range(10_000))
+    thesis_ms = median_ms(lambda: simulate_sonar(scene, spec, pose, seed=next(seeds)), repeat=9)
+    real_ms = median_ms(lambda: simulate_sonar(scene, spec, pose, seed=next(seeds), noise=noise, options=real_opts), repeat=9)
+    clean_thesis = median_ms(lambda: simulate_sonar(scene, spec, pose, noise=False), repeat=7)
+    clean_real = median_ms(lambda: simulate_sonar(scene, spec, pose, noise=False, options=real_opts), repeat=7)
+    small = dataclasses.replace(spec, elevation_samples=64)
+    small_ms = median_ms(lambda: simulate_sonar(scene, small, pose, seed=next(seeds), noise=noise, options=real_opts), repeat=7)
+    return [
+        dict(name="thesis model frame (noise on)", value=thesis_ms, unit="ms", reference="itself", ratio=1.0, note=""),
+        dict(name="realistic model frame (noise on)", value=real_ms, unit="ms", reference="thesis model frame",
+             ratio=real_ms / thesis_ms, note="requirement: ratio <= 1.5"),
+        dict(name="thesis model, no noise", value=clean_thesis, unit="ms", reference="thesis model frame",
+             ratio=clean_thesis / thesis_ms, note=""),
+        dict(name="aperture beams, no noise", value=clean_real, unit="ms", reference="thesis model, no noise",
+             ratio=clean_real / clean_thesis, note="beam patterns and sub-cells alone"),
+        dict(name="realistic model, 64 elevation rays per beam", value=small_ms, unit="ms", reference="thesis model frame",
+             ratio=small_ms / thesis_ms, note="half the rays: the aperture model's samples span a wider elevation"),
+    ]

@@ -1,0 +1,69 @@
+"""``oas workbench``: the local web page for matching, reconstruction, calibration and fusion."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from .common import Vec3, app, console, out, reports_errors, resolve_input
+
+
+@app.command("workbench")
+@reports_errors
+def workbench_cmd(
+    source: Optional[str] = typer.Argument(None, metavar="[SOURCE]",
+                                           help="Built-in scene or scene file to simulate (default: the thesis's "
+                                                "scene 1), or a dataset folder."),
+    rig_file: Optional[Path] = typer.Option(None, "--rig", help="Rig file (YAML/JSON); default: the thesis's rig."),
+    eye: Optional[Vec3] = typer.Option(None, "--eye", help="Sonar position X Y Z (m); default: the scene's view."),
+    target: Optional[Vec3] = typer.Option(None, "--target", help="Point the sonar looks at X Y Z (m)."),
+    water: str = typer.Option("thesis", "--water", help="Water type (oas waters)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the simulated noise."),
+    sonar_log: Optional[Path] = typer.Option(None, "--sonar-log", help="Real pair: the sonar log (with --camera-log, --rig)."),
+    camera_log: Optional[Path] = typer.Option(None, "--camera-log", help="Real pair: the camera log or image folder."),
+    frame: int = typer.Option(0, "--frame", help="Frame index of a real pair or dataset."),
+    host: str = typer.Option("127.0.0.1", "--host", help="Address to serve on (loopback unless --allow-remote)."),
+    port: int = typer.Option(8765, "--port", help="Port (0: any free port)."),
+    allow_remote: bool = typer.Option(False, "--allow-remote",
+                                      help="Allow a non-loopback --host; the page then needs a per-run token."),
+    no_browser: bool = typer.Option(False, "--no-browser", help="Do not open the page in a browser."),
+):
+    """Serve the opti-acoustic workbench: epipolar-guided matching, reconstruction, calibration, fusion."""
+    from ..rig import Rig
+    from ..workbench import Session
+    from ..workbench import sources as src
+    from ..workbench.server import free_port, is_loopback, serve
+    from .common import resolve_scene
+
+    rig_file = resolve_input(rig_file) if rig_file is not None else None  # examples/... from any folder
+    if port < 0 or port > 65535:
+        raise ValueError(f"--port: expected 0-65535, got {port}")
+    if not is_loopback(host) and not allow_remote:
+        raise ValueError(f"--host {host}: not a loopback address; add --allow-remote to serve beyond this machine "
+                         "(every request then needs the per-run token printed here)")
+    if sonar_log is not None or camera_log is not None:
+        if sonar_log is None or camera_log is None or rig_file is None:
+            raise ValueError("a real pair needs --sonar-log, --camera-log and --rig")
+        make = lambda k=None: src.real_pair(sonar_log, camera_log, rig_file, index=frame if k is None else k)  # noqa: E731
+    elif source is not None and Path(source).is_dir():
+        make = lambda k=None: src.dataset_pair(Path(source), index=frame if k is None else k)  # noqa: E731
+    else:
+        rig = Rig.load(rig_file) if rig_file is not None else Rig.from_dict(src.THESIS_RIG, "thesis rig")
+        scene = resolve_scene(source or "thesis_scene1")
+        make = lambda k=None: src.simulated_pair(scene, rig, eye=eye, target=target, water=water, seed=seed)  # noqa: E731
+    console.print("preparing the pair ...")
+    pair = make()
+    session = Session(pair)
+    if port == 0:
+        port = free_port(host)
+    if not is_loopback(host):
+        console.print(f"[bold yellow]warning:[/] serving on {host}: anyone who can reach this address and has the "
+                      "token URL can use the workbench (and see your data)", highlight=False)
+
+    def ready(url):
+        out.print(f"optiacoustic workbench: {url}  (Ctrl+C stops it)", soft_wrap=True, highlight=False)
+
+    serve(session, host=host, port=port, allow_remote=allow_remote, open_browser=not no_browser, on_ready=ready,
+          sources={f"{pair.kind}: {pair.name} (as started)": make})

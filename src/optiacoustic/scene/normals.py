@@ -1,0 +1,106 @@
+"""Vertex shading normals of a triangle mesh, with sharp edges kept sharp (vectorised).
+
+Faces that share an edge are smoothed together when their normals differ by less than a
+crease angle; vertices are duplicated where patches meet at a sharper edge, so that
+interpolating vertex normals across a triangle shades curved parts smoothly and flat
+parts flatly. This replaces ``trimesh.graph.smooth_shade`` + ``vertex_normals`` (about
+7 us per triangle) with a few sorts and ``bincount`` s (well under 1 us per triangle).
+Unlike trimesh, large coplanar facets get no special treatment: they are smoothed with
+neighbours across edges under the crease angle, like any other faces.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["smooth_shading"]
+
+
+def _face_adjacency(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs of faces ``(a, b)`` sharing an edge (consecutive ones around non-manifold edges)."""
+    f = faces.astype(np.int64, copy=False)
+    g = np.roll(f, -1, axis=1)
+    lo = np.minimum(f, g).ravel()
+    span = np.maximum(f, g).ravel() - lo
+    n = lo.size
+    D = int(span.max()) + 1 if n else 1
+    if n_vertices * D * n < 2**62:
+        # edge key and corner index packed in one int64: a plain sort (SIMD) instead of
+        # an argsort, about 8x cheaper; meshes with vertex locality (grids, scans) fit
+        packed = np.sort((lo * D + span) * n + np.arange(n))
+        ks, order = packed // n, packed % n
+    else:
+        key = lo * D + span
+        order = np.argsort(key)
+        ks = key[order]
+    same = np.flatnonzero(ks[1:] == ks[:-1])
+    return order[same] // 3, order[same + 1] // 3
+
+
+def smooth_shading(vertices, faces, crease_angle: float):
+    """Split vertices along creases and give each an area-weighted normal.
+
+    Parameters
+    ----------
+    vertices : ndarray (V, 3)
+        Vertex positions (m), any frame.
+    faces : ndarray (F, 3) of int
+        Vertex indices of each triangle (counter-clockwise seen from outside).
+    crease_angle : float
+        Faces sharing an edge are smoothed together when their normals differ by less
+        than this angle (rad); 0 gives flat shading (every triangle its own normal).
+
+    Returns
+    -------
+    vertices : ndarray (V', 3)
+        The input vertices followed by the duplicates made along creases.
+    faces : ndarray (F, 3) of int32
+        Re-indexed faces.
+    normals : ndarray (V', 3)
+        Unit vertex normals, each the area-weighted mean of the normals of the faces of
+        its smoothing patch around that vertex.
+    """
+    V = np.asarray(vertices, float)
+    F = np.asarray(faces, np.int64)
+    nv, nf = len(V), len(F)
+    a = V[F[:, 0]]
+    e1, e2 = V[F[:, 1]] - a, V[F[:, 2]] - a
+    fn = np.empty_like(e1)  # area-weighted face normals (np.cross is 3x slower)
+    fn[:, 0] = e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1]
+    fn[:, 1] = e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2]
+    fn[:, 2] = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    area2 = np.sqrt(np.einsum("ij,ij->i", fn, fn))
+    unit = fn / np.where(area2 > 0, area2, 1.0)[:, None]
+    if crease_angle > 0:
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import connected_components
+
+        fa, fb = _face_adjacency(F, nv)
+        smooth = np.einsum("ij,ij->i", unit[fa], unit[fb]) > np.cos(crease_angle)
+        g = coo_matrix((np.ones(int(smooth.sum()), np.int8), (fa[smooth], fb[smooth])), shape=(nf, nf))
+        _, patch = connected_components(g, directed=False)
+    else:
+        patch = np.arange(nf)
+    # a corner keeps its vertex when its patch is the one that vertex's first user set;
+    # the other corners (along creases only) get one new vertex per (patch, vertex)
+    corner_patch = np.repeat(patch, 3)
+    corner_v = F.ravel()
+    owner = np.full(nv, -1, np.int64)
+    owner[corner_v[::-1]] = corner_patch[::-1]  # the first corner's patch wins
+    other = np.flatnonzero(corner_patch != owner[corner_v])
+    new_f = corner_v.copy()
+    if other.size:
+        key = corner_patch[other] * nv + corner_v[other]
+        uniq, inv = np.unique(key, return_inverse=True)
+        new_f[other] = nv + inv
+        V = np.concatenate([V, V[uniq % nv]])
+    n_out = len(V)
+    new_f = new_f.reshape(nf, 3)
+    N = np.empty((n_out, 3))
+    for j in range(3):
+        w = np.ascontiguousarray(fn[:, j])
+        N[:, j] = sum(np.bincount(new_f[:, k], weights=w, minlength=n_out) for k in range(3))
+    ln = np.sqrt(np.einsum("ij,ij->i", N, N))
+    # unused vertices (and degenerate patches) get an arbitrary unit normal
+    N = np.where(ln[:, None] > 0, N / np.where(ln > 0, ln, 1.0)[:, None], [0.0, 0.0, 1.0])
+    return V, new_f.astype(np.int32), N

@@ -1,0 +1,624 @@
+"""Sensor profiles: what the simulator needs to look like a real device, fitted from its frames.
+
+``fit_profile(frames)`` estimates (docs/physics.md, "Fitting a sensor profile"):
+
+* the **output encoding** of the stored values (``db``, ``amplitude``, ``root-amplitude``,
+  ``linear``): the reading under which the seabed's normalised intensity is single-look
+  speckle (contrast >= 1) and closest to a K distribution;
+* the **seabed geometry and gain**: height, pitch and roll over a flat seabed, the
+  elevation beam width, the echo scale, the range exponent left after the device's TVG,
+  the receiver noise and the volume reverberation, by least squares of the analytic
+  flat-seabed echo (:mod:`.seabed_echo`) on the range profiles of beam groups (in dB);
+* the **speckle**: range resolution and azimuth beam width from the autocorrelation
+  lengths, and the seabed's scatterer density from the speckle contrast (matched by
+  simulating the statistic with :mod:`.speckle` on the device's grid).
+
+Uncertainties are one standard deviation: from the least-squares Jacobian (residual
+variance inflated by the residuals' correlation length) for the geometry and gain, from
+blocks of beams for the speckle.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .beampattern import BeamPattern
+from .gain import ENCODINGS, DeviceGain, decode, encode
+from .realism import beam_groups, frame_statistics
+from .seabed_echo import flat_seabed_echo, seabed_pose
+from .spec import SonarSpec
+
+__all__ = ["SensorProfile", "fit_profile", "PROFILE_VERSION"]
+
+PROFILE_VERSION = 1
+
+
+@dataclass(frozen=True, eq=False)
+class SensorProfile:
+    """A device as the simulator should render it. Angles in rad inside, ``*_deg`` in YAML.
+
+    Attributes
+    ----------
+    spec : SonarSpec
+        The device's grid (beam table, range window), frequency, fitted beam patterns
+        (``elevation_beam``, ``azimuth_beam``) and range resolution.
+    encoding : str
+        How the device stores intensity (:data:`gain.ENCODINGS`); ``full_scale`` the
+        largest stored value (255 for 8-bit), ``db_range`` the dB span of ``db``.
+    gain : DeviceGain
+        Gain, receiver noise, volume reverberation and the device's TVG.
+    density : float
+        Seabed scatterers per m^2 (``inf``: fully developed speckle).
+    height, pitch, roll : float
+        The sonar over the flat seabed z = 0 that explains the frames (m, rad); NaN
+        when the frames do not show a seabed onset.
+    uncertainty : dict
+        One-sigma uncertainties of the fitted numbers (same units as the YAML).
+    stats : dict
+        The fitted frames' statistics (``realism.FrameStatistics.summary``).
+    notes : tuple of str
+        What the fit assumed.
+    """
+
+    spec: SonarSpec
+    encoding: str = "linear"
+    gain: DeviceGain = field(default_factory=DeviceGain)
+    density: float = float("inf")
+    height: float = float("nan")
+    pitch: float = float("nan")
+    roll: float = 0.0
+    full_scale: float = 255.0
+    db_range: float = 80.0
+    uncertainty: dict = field(default_factory=dict)
+    stats: dict = field(default_factory=dict)
+    notes: tuple = ()
+    device: str = ""
+
+    def __post_init__(self):
+        if self.encoding not in ENCODINGS:
+            raise ValueError(f"SensorProfile.encoding: expected one of {ENCODINGS}, got {self.encoding!r}")
+        if not (self.density > 0):
+            raise ValueError(f"SensorProfile.density: must be > 0 (or inf), got {self.density!r}")
+
+    # ------------------------------------------------------------------ use
+    @property
+    def seabed_pose(self):
+        """The sonar's ``Pose`` over the seabed z = 0 (``None`` when the frames show no seabed onset)."""
+        if not (np.isfinite(self.height) and np.isfinite(self.pitch)):
+            return None
+        return seabed_pose(self.height, self.pitch, self.roll)
+
+    def options(self, water=None):
+        from .formation import SonarOptions
+        from .propagation import Seawater
+
+        return SonarOptions(propagation="spreading", beam_model="aperture", water=water or Seawater())
+
+    def noise(self):
+        from .noise import ScattererNoise
+
+        return ScattererNoise(density=self.density, gain=self.gain)
+
+    def apply_to(self, spec: SonarSpec, options=None, noise=None):
+        """``(spec, options, noise)`` for ``simulate_sonar``: the profile's beam patterns and
+        range resolution on ``spec`` (its own grid kept); ``options`` / ``noise`` given win."""
+        if not isinstance(spec, SonarSpec):
+            raise TypeError(f"spec: expected a SonarSpec, got {type(spec).__name__}")
+        spec = dataclasses.replace(spec, elevation_beam=self.spec.elevation_pattern(), azimuth_beam=self.spec.azimuth_pattern(),
+                                   range_resolution=self.spec.range_resolution, frequency=self.spec.frequency,
+                                   fov_elevation=self.spec.fov_elevation, beamwidth_azimuth=self.spec.beamwidth_azimuth)
+        return spec, options or self.options(), self.noise() if noise is None else noise
+
+    def simulation_spec(self) -> SonarSpec:
+        """The device's spec with enough elevation samples to resolve the elevation main lobe."""
+        el = self.spec.elevation_pattern()
+        span = 2 * min(el.null_angle(2), np.deg2rad(75.0))
+        n = int(np.clip(np.ceil(24 * span / el.beamwidth()), 64, 512))
+        return dataclasses.replace(self.spec, elevation_samples=n)
+
+    def simulate(self, *, seed=None, pose=None, scene=None):
+        """A frame of the flat seabed (reflectivity 1) at ``seabed_pose`` (or ``pose``) as this device."""
+        from ..scene import Body, Material, Plane, Scene
+        from .formation import simulate_sonar
+
+        pose = pose if pose is not None else self.seabed_pose
+        if pose is None:
+            raise ValueError("SensorProfile.simulate: the profile has no seabed pose; pass pose=")
+        if scene is None:
+            size = 4 * self.spec.range_max + 10
+            scene = Scene([Body("seabed", Plane(size=(size, size)), material=Material(reflectivity=1.0))])
+        return simulate_sonar(scene, self.simulation_spec(), pose, seed=seed, profile=self)
+
+    def to_device(self, image) -> np.ndarray:
+        """Linear intensity -> the values the device would store (rounded and clipped when integer)."""
+        v = encode(image, self.encoding, 1.0, self.db_range, self.full_scale)
+        if self.full_scale > 0:
+            v = np.clip(np.round(v), 0, self.full_scale)
+        return v
+
+    def from_device(self, values) -> np.ndarray:
+        """Device values -> linear intensity (the profile's reading)."""
+        return decode(values, self.encoding, 1.0, self.db_range, self.full_scale)
+
+    # ------------------------------------------------------------------ files
+    def to_dict(self) -> dict:
+        from .frame import spec_to_dict
+
+        sd = spec_to_dict(self.spec)
+        for k in ("elevation_beam", "azimuth_beam"):
+            sd[k] = getattr(self.spec, k).to_dict() if getattr(self.spec, k) is not None else None
+        for k in ("fov_azimuth", "fov_elevation", "beamwidth_azimuth"):
+            sd[k + "_deg"] = float(np.rad2deg(sd.pop(k)))
+        if sd.get("beam_azimuths") is not None:
+            sd["beam_azimuths_deg"] = [float(np.rad2deg(a)) for a in sd.pop("beam_azimuths")]
+        else:
+            sd.pop("beam_azimuths", None)
+        if sd.get("bin_ranges") is None:
+            sd.pop("bin_ranges", None)
+        return {
+            "optiacoustic_sensor_profile": PROFILE_VERSION,
+            "device": self.device,
+            "encoding": self.encoding,
+            "full_scale": float(self.full_scale),
+            "db_range": float(self.db_range),
+            "density_per_m2": None if not np.isfinite(self.density) else float(self.density),
+            "seabed": {"height": _num(self.height), "pitch_deg": _num(np.rad2deg(self.pitch)),
+                       "roll_deg": _num(np.rad2deg(self.roll))},
+            "gain": {k: _num(v) for k, v in self.gain.to_dict().items()},
+            "spec": sd,
+            "uncertainty": {k: _num(v) for k, v in self.uncertainty.items()},
+            "stats": {k: _num(v) for k, v in self.stats.items()},
+            "notes": list(self.notes),
+        }
+
+    def save(self, path) -> Path:
+        """Write the profile as YAML (atomically)."""
+        import yaml
+
+        from .._atomic import write_text
+
+        return write_text(path, yaml.safe_dump(self.to_dict(), sort_keys=False, default_flow_style=None, width=110))
+
+    @classmethod
+    def load(cls, path) -> "SensorProfile":
+        """Read a profile YAML written by :meth:`save` (or a preset's name, ``SensorProfile.preset``)."""
+        import yaml
+
+        path = Path(path)
+        try:
+            data = yaml.safe_load(path.read_text())
+        except FileNotFoundError:
+            raise FileNotFoundError(f"sensor profile {path}: no such file") from None
+        except yaml.YAMLError as exc:
+            raise ValueError(f"sensor profile {path}: not YAML ({exc})") from None
+        return cls.from_dict(data, source=str(path))
+
+    @classmethod
+    def from_dict(cls, data, source: str = "sensor profile") -> "SensorProfile":
+        if not isinstance(data, dict) or "optiacoustic_sensor_profile" not in data:
+            raise ValueError(f"{source}: not a sensor profile (no 'optiacoustic_sensor_profile' field)")
+        try:
+            spec = SonarSpec.from_dict(dict(data["spec"]), source=f"{source}: spec")
+            g = {k: v for k, v in data.get("gain", {}).items()}
+            gain = DeviceGain(**g)
+            sb = data.get("seabed", {}) or {}
+            dens = data.get("density_per_m2")
+            return cls(spec=spec, encoding=data.get("encoding", "linear"), gain=gain,
+                       density=float("inf") if dens is None else float(dens),
+                       height=_nan(sb.get("height")), pitch=float(np.deg2rad(_nan(sb.get("pitch_deg")))),
+                       roll=float(np.deg2rad(_nan(sb.get("roll_deg"), 0.0))),
+                       full_scale=float(data.get("full_scale", 255.0)), db_range=float(data.get("db_range", 80.0)),
+                       uncertainty={k: _nan(v) for k, v in (data.get("uncertainty") or {}).items()},
+                       stats={k: _nan(v) for k, v in (data.get("stats") or {}).items()},
+                       notes=tuple(data.get("notes") or ()), device=str(data.get("device", "")))
+        except (KeyError, TypeError) as exc:
+            raise ValueError(f"{source}: bad sensor profile field ({exc})") from None
+
+    @classmethod
+    def preset(cls, name: str) -> "SensorProfile":
+        """A profile shipped with the package (``SensorProfile.preset_names()``)."""
+        p = _PROFILE_DIR / f"{name}.yaml"
+        if not p.exists():
+            raise KeyError(f"unknown sensor profile {name!r}; profiles are {cls.preset_names()}")
+        return cls.load(p)
+
+    @staticmethod
+    def preset_names() -> list[str]:
+        return sorted(p.stem for p in _PROFILE_DIR.glob("*.yaml"))
+
+
+_PROFILE_DIR = Path(__file__).resolve().parent.parent / "data" / "sonar_profiles"
+
+
+def _num(x):
+    if x is None:
+        return None
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+def _nan(x, default=float("nan")):
+    return default if x is None else float(x)
+
+
+# =========================================================================== fitting
+def _values(frame, encoding):
+    raw = getattr(frame, "raw", None)
+    if raw is None:
+        return np.asarray(frame.image, float)
+    return decode(raw, encoding)
+
+
+def _candidate_encodings(frame) -> list[str]:
+    raw = getattr(frame, "raw", None)
+    if raw is None:
+        return ["linear"]
+    enc = str(getattr(frame, "encoding", "")).lower()
+    if "db" in enc:
+        return ["db"]
+    return ["amplitude", "root-amplitude", "linear"]
+
+
+def _k_cdf(z, nu):
+    """CDF of a unit-mean K-distributed intensity of shape ``nu`` (exponential when inf)."""
+    from scipy.special import gammaln, kv
+
+    z = np.maximum(np.asarray(z, float), 1e-12)  # K_nu overflows at 0: the CDF there is ~0 anyway
+    if not np.isfinite(nu) or nu > 200:
+        return 1 - np.exp(-z)
+    x = 2 * np.sqrt(nu * z)
+    with np.errstate(over="ignore", invalid="ignore"):
+        tail = 2 * np.exp((nu / 2) * np.log(nu * z) - gammaln(nu)) * kv(nu, x)
+    return np.clip(1 - np.nan_to_num(tail), 0, 1)
+
+
+def _choose_encoding(frames, region):
+    """Encoding whose normalised seabed intensity is single-look speckle closest to a K law."""
+    from scipy.stats import kstest
+
+    cands = _candidate_encodings(frames[0])
+    scores = {}
+    for enc in cands:
+        st = frame_statistics([_values(f, enc) for f in frames], frames[0].ranges, frames[0].azimuths, region=region)
+        c = st.contrast
+        if not np.isfinite(c):
+            continue
+        z = st.normalised
+        z = z[:: max(1, z.size // 50000)]
+        ks = kstest(z / z.mean(), lambda x: _k_cdf(x, st.k_shape)).statistic
+        scores[enc] = (c >= 0.97, -ks, st)
+    if not scores:
+        return cands[0], None, {}
+    best = max(scores, key=lambda e: scores[e][:2])
+    return best, scores[best][2], {e: {"contrast": float(v[2].contrast), "ks_to_k": float(-v[1])} for e, v in scores.items()}
+
+
+def _tvg_water_absorption(spec):
+    from .propagation import absorption_db_per_m
+
+    return float(absorption_db_per_m(spec.frequency))
+
+
+def _fit_geometry(stats, spec, alpha):
+    """Least squares of the flat-seabed echo + background on the beam groups' range profiles (dB)."""
+    from scipy.optimize import least_squares
+
+    r_all = stats.ranges
+    n_sub = max(1, len(r_all) // 160)
+    idx = np.arange(0, len(r_all), n_sub)
+    r = r_all[idx]
+    prof = stats.group_profiles[idx]
+    ok = (r > 0) & np.all(prof > 0, axis=1)
+    r, prof = r[ok], prof[ok]
+    az = stats.group_azimuths
+    data_db = 10 * np.log10(prof)
+    c, f = spec.sound_speed, spec.frequency
+    r0 = 1.0
+
+    def model(x):
+        h, pitch, roll, lbw, a_db, kexp, n_db, v_db = x
+        pat = BeamPattern.from_beamwidth(float(np.exp(lbw)), f, c)
+        E = flat_seabed_echo(r, az, h, pitch, roll, pat)
+        rk = (r / r0) ** kexp
+        tvg = (r / r0) ** (kexp + 2.0) * 10 ** (2 * alpha * (r - r0) / 10)
+        out = 10 ** (a_db / 10) * rk[:, None] * E + (10 ** (n_db / 10) * tvg + 10 ** (v_db / 10) * rk)[:, None]
+        return 10 * np.log10(np.maximum(out, 1e-30))
+
+    has_onset = bool(np.isfinite(stats.onset_r10))
+
+    def resid(x):
+        res = (model(x) - data_db).ravel()
+        if has_onset:
+            return res
+        # no onset in the window: the seabed lies in the elevation main lobe (inside its
+        # -3 dB edges) from the window's start to its end
+        h, pitch, _, lbw = x[:4]
+        half = 0.5 * np.exp(lbw)
+        dep = np.arcsin(np.clip(h / np.array([max(spec.range_min, h), spec.range_max]), 0, 1)) - pitch
+        excess = np.maximum(0.0, np.abs(dep) - half)
+        return np.append(res, 100.0 * excess * np.sqrt(res.size))
+
+    bg = stats.background_level if np.isfinite(stats.background_level) else float(np.percentile(prof, 5))
+    peak_i = int(np.argmax(prof.mean(1)))
+    r_peak = r[peak_i]
+    bw0 = spec.fov_elevation
+    lo = [0.05, np.deg2rad(-10), np.deg2rad(-45), np.log(np.deg2rad(0.5)), -200, -6, -200, -200]
+    hi = [0.99 * spec.range_max, np.deg2rad(85), np.deg2rad(45), np.log(np.deg2rad(60)), 200, 6, 200, 200]
+    if not has_onset:  # roll cannot be seen without an onset: hold it at 0
+        lo[2], hi[2] = -1e-6, 1e-6
+    best = None
+    for pitch0 in np.deg2rad([8, 20, 40]):
+        if has_onset:
+            h0 = r_peak * np.sin(pitch0)
+        else:
+            pitch0 = 0.3 * pitch0
+            h0 = spec.range_min * np.sin(pitch0)
+        h0 = float(np.clip(h0, lo[0] * 1.01, hi[0] * 0.99))
+        pat = BeamPattern.from_beamwidth(bw0, f, c)
+        E0 = flat_seabed_echo(np.array([r_peak]), np.array([0.0]), h0, pitch0, 0.0, pat)[0, 0]
+        a0 = 10 * np.log10(max(prof.max(), 1e-30) / max(E0, 1e-30))
+        x0 = np.array([h0, pitch0, 0.0, np.log(bw0), np.clip(a0, -190, 190), 0.0,
+                       10 * np.log10(max(bg, 1e-30)), 10 * np.log10(max(bg, 1e-30)) - 10])
+        x0 = np.clip(x0, np.array(lo) + 1e-6, np.array(hi) - 1e-6)
+        try:
+            sol = least_squares(resid, x0, bounds=(lo, hi), loss="soft_l1", f_scale=3.0, x_scale="jac", max_nfev=120)
+        except ValueError:
+            continue
+        if best is None or sol.cost < best.cost:
+            best = sol
+    # (a polish on relative residuals of the linear profiles, unbiased for pure speckle, was
+    # tried: on the real Oculus ping its asymmetry lifted the background by 30 dB; the dB fit stays)
+    n_r = r.size
+
+    def resid_cols(x, cols=slice(None)):
+        res = (model(x)[:, cols] - data_db[:, cols]).ravel()
+        return np.append(res, resid(x)[data_db.size:]) if not has_onset else res
+
+    # delete-one-group jackknife: the groups' profiles carry speckle and texture fluctuations
+    # correlated along range that the least-squares covariance, which takes residuals as
+    # independent, does not see
+    G = prof.shape[1]
+    jk = []
+    for g in range(G):
+        cols = np.arange(G) != g
+        try:
+            jk.append(least_squares(resid_cols, best.x, bounds=(lo, hi), loss="soft_l1", f_scale=3.0, x_scale="jac",
+                                    max_nfev=40, kwargs={"cols": cols}).x)
+        except ValueError:
+            continue
+    jk = np.asarray(jk)
+    sd_jk = np.sqrt((len(jk) - 1) / len(jk) * ((jk - jk.mean(0)) ** 2).sum(0)) if len(jk) > 2 else np.zeros(best.x.size)
+    x = best.x
+    J = best.jac
+    res = best.fun
+    dof = max(1, res.size - x.size)
+    s2 = float(np.sum(res**2) / dof)
+    infl = max(1.0, 2.0 * stats.corr_length_range / n_sub)  # residuals are correlated over the speckle grain
+    try:
+        cov = np.linalg.pinv(J.T @ J) * s2 * infl
+        sd = np.sqrt(np.maximum(np.diag(cov), 0))
+    except np.linalg.LinAlgError:
+        sd = np.full(x.size, np.inf)
+    sd = np.maximum(sd, sd_jk)
+    s2 = float(np.mean((model(x) - data_db) ** 2))  # reported: rms misfit in dB
+    return x, sd, has_onset, model(x), r, float(np.sqrt(s2))
+
+
+def _invert(fn, target, lo, hi):
+    """Solve ``fn(x) = target`` on a log grid then refine (monotone ``fn``); clamps at the ends."""
+    xs = np.geomspace(lo, hi, 40)
+    ys = np.array([fn(x) for x in xs])
+    if target <= ys[0]:
+        return float(xs[0]), True
+    if target >= ys[-1]:
+        return float(xs[-1]), True
+    i = int(np.flatnonzero(ys >= target)[0])
+    t = (target - ys[i - 1]) / (ys[i] - ys[i - 1])
+    return float(np.exp(np.log(xs[i - 1]) + t * (np.log(xs[i]) - np.log(xs[i - 1])))), False
+
+
+def _fit_speckle(stats, spec, height, rng):
+    """Range resolution, azimuth beam width and scatterer density from the speckle statistics."""
+    from scipy.ndimage import uniform_filter
+
+    from .speckle import analytic_autocorrelation, beam_kernel, correlation_length, gaussian_pulse_kernel, speckle_field
+
+    lags = np.arange(13)
+    L_r, L_b = stats.corr_length_range, stats.corr_length_beam
+
+    def len_range(res_bins):
+        return correlation_length(analytic_autocorrelation(np.inf, gaussian_pulse_kernel(res_bins), [1.0], lags, 0))
+
+    def len_beam(bw):
+        k = beam_kernel(BeamPattern.from_beamwidth(bw, spec.frequency, spec.sound_speed), spec.beam_spacing)
+        return correlation_length(analytic_autocorrelation(np.inf, [1.0], k, lags, 1))
+
+    res_bins, res_clamped = _invert(len_range, L_r, 0.3, 40.0)
+    bw, bw_clamped = _invert(len_beam, L_b, 0.1 * spec.beam_spacing, 30 * spec.beam_spacing)
+    # contrast -> scatterers per cell, by simulating the same statistic on a patch of the grid
+    h_r = gaussian_pulse_kernel(res_bins)
+    h_b = beam_kernel(BeamPattern.from_beamwidth(bw, spec.frequency, spec.sound_speed), spec.beam_spacing)
+    n_bins, n_beams = stats.region.shape
+    w_r = max(5, n_bins // 100)
+    w_b = max(3, n_beams // 24)
+    shape = (min(n_bins, 600), n_beams)
+
+    def measured_contrast(mu, seed=0):
+        f = speckle_field(mu, h_r, h_b, np.random.default_rng(seed), shape=shape)
+        m = uniform_filter(f.astype(float), (w_r * 3, w_b), mode="nearest")
+        with np.errstate(invalid="ignore", divide="ignore"):
+            z = (f / m)[w_r * 2: -w_r * 2, w_b // 2 + 1: -(w_b // 2 + 1)]
+        z = z[np.isfinite(z)]
+        return float(z.std() / z.mean()) if z.size > 100 else float("nan")
+
+    c_inf = measured_contrast(np.inf)
+    C = stats.contrast
+    if not np.isfinite(C) or C <= c_inf:
+        mu, mu_sd = np.inf, np.nan
+    else:
+        mus = np.geomspace(0.01, 1e4, 25)
+        cs = np.array([measured_contrast(m, i) for i, m in enumerate(mus)])  # decreasing in mu
+        keep = np.isfinite(cs)
+        mus, cs = mus[keep], cs[keep]
+        order = np.argsort(cs)
+        mu = float(np.exp(np.interp(C, cs[order], np.log(mus[order]))))
+        # blocks of beams: spread of the contrast -> spread of mu
+        zs = stats.normalised
+        blocks = np.array_split(zs, 8)
+        cb = np.array([b.std() / b.mean() for b in blocks if b.size > 50])
+        c_sd = float(cb.std(ddof=1) / np.sqrt(len(cb))) if cb.size > 2 else np.nan
+        mu_hi = float(np.exp(np.interp(C - c_sd, cs[order], np.log(mus[order]))))
+        mu_lo = float(np.exp(np.interp(C + c_sd, cs[order], np.log(mus[order]))))
+        mu_sd = 0.5 * abs(mu_hi - mu_lo)
+    # typical seabed area of a grid cell in the speckle region (flat seabed; median: cells
+    # near the nadir range r ~ h have huge footprints and few echoes)
+    rows = np.repeat(stats.ranges[:, None], stats.region.shape[1], 1)[stats.region]
+    rows = rows[rows > 0]
+    if rows.size and np.isfinite(height) and height > 0:
+        rr = np.maximum(rows, 1.05 * height)
+        area = float(np.median(rr * spec.beam_spacing * spec.bin_width * rr / np.sqrt(rr**2 - height**2)))
+    elif rows.size:
+        area = float(np.median(rows * spec.beam_spacing * spec.bin_width))
+    else:
+        area = float("nan")
+    density = mu / area if np.isfinite(mu) else np.inf
+    dens_sd = mu_sd / area if np.isfinite(mu) else np.nan
+    return dict(res_bins=res_bins, res_clamped=res_clamped, bw=bw, bw_clamped=bw_clamped, density=density,
+                density_sd=dens_sd, mean_count=mu, cell_area=area)
+
+
+def fit_profile(frames, *, region=None, encoding: str | None = None, device: str = "",
+                refine_density: bool = True) -> SensorProfile:
+    """Fit a :class:`SensorProfile` to real (or simulated) frames.
+
+    Parameters
+    ----------
+    frames : frame or sequence of frames
+        Measured (``MeasuredSonarFrame``, with ``.raw``) or simulated frames of one
+        device, all on the same grid.
+    region : bool array ``(n_bins, n_beams)`` or (r_min, r_max) tuple, optional
+        Where the speckle statistics are taken (default: the seabed cells found, local
+        mean 10 dB over the background).
+    encoding : str, optional
+        Force the stored values' reading (:data:`gain.ENCODINGS`); default: chosen.
+    device : str, optional
+        Name written into the profile (default the spec's name).
+    refine_density : bool
+        Refine the scatterer density by simulating frames with the whole profile
+        (a few simulations; off for a quick fit).
+    """
+    if not isinstance(frames, (list, tuple)):
+        frames = [frames]
+    if not frames:
+        raise ValueError("fit_profile: no frames")
+    f0 = frames[0]
+    for i, f in enumerate(frames):
+        if np.shape(f.image) != np.shape(f0.image):
+            raise ValueError(f"fit_profile: frame {i} has shape {np.shape(f.image)}, frame 0 {np.shape(f0.image)}")
+    spec = f0.spec
+    n_bins, n_beams = np.shape(f0.image)
+    if region is not None and not (isinstance(region, np.ndarray) and region.dtype == bool):
+        try:
+            r_lo, r_hi = (float(v) for v in region)
+        except (TypeError, ValueError):
+            raise ValueError(f"fit_profile: region must be a bool mask {(n_bins, n_beams)} or (r_min, r_max), got {region!r}") from None
+        region = np.broadcast_to(((f0.ranges >= r_lo) & (f0.ranges <= r_hi))[:, None], (n_bins, n_beams)).copy()
+    elif region is not None and region.shape != (n_bins, n_beams):
+        raise ValueError(f"fit_profile: region mask shape {region.shape}, expected {(n_bins, n_beams)}")
+    notes = []
+    if encoding is None:
+        encoding, stats, tried = _choose_encoding(frames, region)
+        if len(tried) > 1:
+            notes.append("encoding chosen among " + ", ".join(f"{e} (contrast {v['contrast']:.3g}, KS to K {v['ks_to_k']:.3g})"
+                                                               for e, v in tried.items()))
+    else:
+        if encoding not in ENCODINGS:
+            raise ValueError(f"fit_profile: encoding must be one of {ENCODINGS}, got {encoding!r}")
+        stats = None
+    if stats is None:
+        stats = frame_statistics([_values(f, encoding) for f in frames], f0.ranges, f0.azimuths, region=region)
+    alpha = _tvg_water_absorption(spec)
+    x, sd, has_onset, _, _, rms_db = _fit_geometry(stats, spec, alpha)
+    h, pitch, roll, lbw, a_db, kexp, n_db, v_db = x
+    if not has_onset:
+        notes.append("no seabed onset in the frames: height, pitch, roll and the elevation width are weakly determined")
+    sp = _fit_speckle(stats, spec, h, np.random.default_rng(0))
+    el = BeamPattern.from_beamwidth(float(np.exp(lbw)), spec.frequency, spec.sound_speed)
+    az = BeamPattern.from_beamwidth(sp["bw"], spec.frequency, spec.sound_speed)
+    fitted_spec = dataclasses.replace(spec, elevation_beam=el, azimuth_beam=az, fov_elevation=float(np.exp(lbw)),
+                                      beamwidth_azimuth=float(sp["bw"]), range_resolution=float(sp["res_bins"] * spec.bin_width))
+    from .formation import azimuth_kernel, azimuth_mixing
+
+    ksum = float(azimuth_mixing(fitted_spec).sum(1).max()) if fitted_spec.beam_azimuths is not None else float(azimuth_kernel(fitted_spec).sum())
+    gain = DeviceGain(gain_db=float(a_db - 10 * np.log10(ksum)), noise_db=float(n_db), volume_db=float(v_db),
+                      spreading_db=float(10 * (kexp + 2.0)), absorption_db_per_m=alpha)
+    if sp["res_clamped"]:
+        notes.append("range correlation at the limit of the grid: range resolution clamped")
+    if sp["bw_clamped"]:
+        notes.append("beam correlation at the limit of the grid: azimuth beam width clamped")
+    notes.append("TVG absorption assumed equal to the water's (Ainslie-McColm at the device frequency); "
+                 "spreading_db is the effective TVG exponent that explains the profile")
+    # statistical (least squares / jackknife over beam groups) and systematic parts added in
+    # quadrature; the systematic part is the bias seen on simulated flat seabeds (about -3 %
+    # in height and elevation width, -1 deg in pitch, 0.3 deg in roll; docs/physics.md 4.4)
+    sys_h, sys_p, sys_r, sys_w = 0.04 * h, np.deg2rad(1.0), np.deg2rad(0.4), 0.04 * np.exp(lbw)
+    unc = {
+        "height": np.hypot(sd[0], sys_h), "pitch_deg": np.rad2deg(np.hypot(sd[1], sys_p)),
+        "roll_deg": np.rad2deg(np.hypot(sd[2], sys_r)),
+        "elevation_beamwidth_deg": np.rad2deg(np.hypot(np.exp(lbw) * sd[3], sys_w)), "gain_db": sd[4], "spreading_db": 10 * sd[5],
+        "noise_db": sd[6], "volume_db": sd[7], "density_per_m2": sp["density_sd"], "profile_rms_db": rms_db,
+    }
+    summary = stats.summary()
+    summary.update(mean_count_per_cell=sp["mean_count"], cell_area_m2=sp["cell_area"])
+    full_scale = 255.0 if getattr(f0, "raw", None) is not None and np.asarray(f0.raw).dtype == np.uint8 else 0.0
+    prof = SensorProfile(
+        spec=fitted_spec, encoding=encoding, gain=gain, density=float(sp["density"]),
+        height=float(h), pitch=float(pitch),
+        roll=float(roll), full_scale=full_scale, uncertainty=unc, stats=summary, notes=tuple(notes),
+        device=device or spec.name,
+    )
+    if refine_density and np.isfinite(prof.density) and np.isfinite(stats.contrast):
+        prof = _refine_density(prof, stats, f0)
+    return prof
+
+
+def _refine_density(prof: SensorProfile, stats, frame, iterations: int = 4) -> SensorProfile:
+    """Adjust the scatterer density until frames simulated with the whole profile (geometry,
+    patterns, gain, noise, encoding) have the measured speckle contrast.
+
+    The first estimate assumes a uniform count per cell and no background; the full model
+    has neither. Secant steps in log density on the contrast of simulated frames (2 seeds).
+    """
+    target = stats.contrast
+
+    def contrast(log_d):
+        p = dataclasses.replace(prof, density=float(np.exp(log_d)))
+        cs = []
+        for seed in (101, 102):
+            img = p.from_device(p.to_device(p.simulate(seed=seed).image))
+            cs.append(frame_statistics(img, frame.ranges, frame.azimuths).contrast)
+        return float(np.mean(cs))
+
+    x0 = np.log(prof.density)
+    c0 = contrast(x0)
+    x1 = x0 + (0.5 if c0 < target else -0.5)  # fewer scatterers, more contrast
+    c1 = contrast(x1)
+    for _ in range(iterations):
+        if not (np.isfinite(c0) and np.isfinite(c1)) or c1 == c0:
+            break
+        x2 = float(np.clip(x1 + (target - c1) * (x1 - x0) / (c1 - c0), x1 - 2.0, x1 + 2.0))
+        x0, c0, x1, c1 = x1, c1, x2, contrast(x2)
+        if abs(c1 - target) < 0.01 * target:
+            break
+    if not np.isfinite(c1) or abs(c1 - target) > abs(contrast(np.log(prof.density)) - target):
+        return prof
+    unc = dict(prof.uncertainty)
+    # the first estimate's relative uncertainty carries over to the refined density
+    rel = prof.uncertainty.get("density_per_m2", np.nan) / prof.density
+    unc["density_per_m2"] = float(rel * np.exp(x1)) if np.isfinite(rel) else np.nan
+    notes = prof.notes + (f"density refined by simulating the profile: contrast {c1:.3g} for the measured {target:.3g}",)
+    return dataclasses.replace(prof, density=float(np.exp(x1)), uncertainty=unc, notes=notes)

@@ -1,0 +1,74 @@
+"""The shipped device profiles against the real samples they were fitted on (and the frames they were not).
+
+The profiles in ``optiacoustic/data/sonar_profiles`` were fitted by ``oas sensor-fit`` on frame 0
+of each sample (the Oculus sample has one ping; the ARIS sample six frames). Here each real
+frame is compared with a frame simulated from the profile; the targets of issue 10 that the
+model reaches are asserted, the ones it misses are marked xfail with the measured value (the
+numbers are in the issue note and docs/physics.md).
+"""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from optiacoustic.sonar.comparison import compare
+from optiacoustic.sonar.profile import SensorProfile
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+
+
+@pytest.fixture(scope="module")
+def aris():
+    from optiacoustic.io import open_sonar
+
+    frames = list(open_sonar(DATA / "aris" / "sample.aris"))[:4]  # fitted on 0, checked on 1-3
+    return compare(frames, SensorProfile.preset("aris-1200-telephoto"))
+
+
+@pytest.fixture(scope="module")
+def oculus():
+    from optiacoustic.io import open_sonar
+
+    frames = list(open_sonar(DATA / "oculus" / "one_ping_8bit.raw"))
+    return compare(frames, SensorProfile.preset("oculus-m1200d-2mhz"))[0]
+
+
+def test_aris_profile_holds_on_the_frames_it_was_not_fitted_on(aris):
+    assert len(aris) == 4
+    for c in aris[1:]:
+        s = c.scores()
+        assert abs(s["speckle_contrast"]["error"]) <= 0.10, s["speckle_contrast"]
+        assert abs(s["corr_length_range"]["error"]) <= 0.20, s["corr_length_range"]
+        assert abs(s["corr_length_beam"]["error"]) <= 0.20, s["corr_length_beam"]
+        # the mean range profile follows the real one (dB, median absolute difference)
+        d = np.abs(10 * np.log10(c.sim.profile / c.real.profile))
+        assert np.median(d) < 3.0
+
+
+def test_aris_intensity_distribution(aris):
+    ks = [c.ks for c in aris]
+    if max(ks) > 0.05:
+        pytest.xfail(f"KS distance real vs simulated {min(ks):.3f}-{max(ks):.3f} > 0.05 (target missed)")
+    assert max(ks) <= 0.05
+
+
+def test_oculus_profile_reproduces_its_ping(oculus):
+    s = oculus.scores()
+    assert abs(s["corr_length_range"]["error"]) <= 0.20
+    assert abs(s["corr_length_beam"]["error"]) <= 0.20
+    assert np.isfinite(oculus.real.onset_width) and np.isfinite(oculus.sim.onset_width)
+
+
+@pytest.mark.parametrize("name", ["onset_width", "speckle_contrast", "ks_distance"])
+def test_oculus_targets(oculus, name):
+    s = oculus.scores()[name]
+    if name == "ks_distance":
+        if not s["met"]:
+            pytest.xfail(f"KS distance real vs simulated {s['error']:.3f} > 0.05 (target missed)")
+        assert s["error"] <= 0.05
+        return
+    bound = {"onset_width": 0.25, "speckle_contrast": 0.10}[name]
+    if abs(s["error"]) > bound:
+        pytest.xfail(f"{name}: real {s['real']:.4g}, simulated {s['sim']:.4g} ({100 * s['error']:+.1f} %, target +-{100 * bound:.0f} %)")
+    assert abs(s["error"]) <= bound

@@ -1,0 +1,110 @@
+"""Speckle from scatterer counts against its exact moments (docs/physics.md, "Speckle from scatterers")."""
+
+import numpy as np
+import pytest
+
+from optiacoustic.scene import Body, Material, Plane, Scene
+from optiacoustic.sonar import SonarOptions, SonarSpec, simulate_sonar
+from optiacoustic.sonar.beampattern import BeamPattern
+from optiacoustic.sonar.formation import cell_area
+from optiacoustic.sonar.gain import DeviceGain, decode, encode
+from optiacoustic.sonar.noise import ScattererNoise
+from optiacoustic.sonar.seabed_echo import seabed_pose
+from optiacoustic.sonar.speckle import (
+    analytic_autocorrelation,
+    analytic_contrast,
+    autocorrelation,
+    beam_kernel,
+    effective_shape,
+    gaussian_pulse_kernel,
+    speckle_field,
+)
+
+H_R = gaussian_pulse_kernel(2.5)
+H_B = beam_kernel(BeamPattern.from_beamwidth(np.deg2rad(1.0), 900e3), np.deg2rad(0.25))
+
+
+def _blocks(z, n=16):
+    """Contrast of each of ``n`` row blocks: their spread gives a Monte Carlo standard error."""
+    return np.array([b.std() / b.mean() for b in np.array_split(z, n, axis=0)])
+
+
+@pytest.mark.parametrize("mu", [0.2, 2.0, np.inf])
+def test_contrast_matches_the_scatterer_count_law(mu):
+    rng = np.random.default_rng(7)
+    f = speckle_field(mu, H_R, H_B, rng, shape=(1600, 400))[20:-20, 20:-20]
+    c = _blocks(f)
+    se = c.std(ddof=1) / np.sqrt(len(c))
+    expected = analytic_contrast(mu, H_R, H_B)
+    assert abs(c.mean() - expected) < 4 * se + 0.002
+    assert se > 0
+    assert f.mean() == pytest.approx(1.0, abs=0.03)
+    if np.isfinite(mu):  # K shape nu = mu N_eff: contrast^2 = 1 + 2 / nu
+        assert expected**2 == pytest.approx(1 + 2 / effective_shape(mu, H_R, H_B))
+
+
+@pytest.mark.parametrize("mu", [0.5, np.inf])
+@pytest.mark.parametrize("axis", [0, 1])
+def test_autocorrelation_matches_the_filter(mu, axis):
+    rng = np.random.default_rng(11 + axis)
+    f = speckle_field(mu, H_R, H_B, rng, shape=(1200, 300))[20:-20, 20:-20]
+    lags = np.arange(6)
+    est = autocorrelation(f, 5, axis)
+    expected = analytic_autocorrelation(mu, H_R, H_B, lags, axis)
+    # Monte Carlo: about 1e5 pairs; sd of a correlation estimate of correlated cells ~ 0.01
+    np.testing.assert_allclose(est, expected, atol=0.03)
+    assert expected[1] > 0.2  # the grain spans more than one cell: not i.i.d. pixels
+
+
+def test_encodings_round_trip():
+    x = np.array([1e-3, 0.5, 1.0, 300.0])
+    for enc in ("linear", "amplitude", "root-amplitude", "db"):
+        np.testing.assert_allclose(decode(encode(x, enc, 2.0), enc, 2.0), x, rtol=1e-12)
+    with pytest.raises(ValueError, match="encoding"):
+        encode(x, "gamma")
+
+
+def test_device_gain_background_profile():
+    g = DeviceGain(noise_db=-30, volume_db=-10, spreading_db=20, absorption_db_per_m=0.0)
+    r = np.array([1.0, 2.0, 4.0])
+    # receiver noise rises with the 20 log r TVG; volume reverberation (r^-2) is flat after it
+    np.testing.assert_allclose(g.background(r), 1e-3 * r**2 + 1e-1)
+    with pytest.raises(ValueError, match="noise_db"):
+        DeviceGain(noise_db=float("nan"))
+
+
+def test_flat_seabed_speckle_through_the_simulator():
+    """Image over its exact mean: E[z^2] = 2 (1 + S4 / (mu S2^2)) with mu = density x cell area."""
+    scene = Scene([Body("seabed", Plane(size=(100, 100)), material=Material(reflectivity=1.0))])
+    spec = SonarSpec(n_beams=160, n_bins=600, fov_azimuth=np.deg2rad(40), fov_elevation=np.deg2rad(14), range_min=1.0,
+                     range_max=6.0, frequency=900e3, beamwidth_azimuth=np.deg2rad(0.6), range_resolution=0.02,
+                     elevation_samples=96)
+    density = 2000.0
+    noise = ScattererNoise(density=density, gain=DeviceGain(noise_db=None, spreading_db=20.0, absorption_db_per_m=0.0))
+    options = SonarOptions(beam_model="aperture", propagation="spreading")
+    pose = seabed_pose(1.5, np.deg2rad(25), 0.0)
+    f = simulate_sonar(scene, spec, pose, noise=noise, seed=3, options=options)
+    mean = f.intensity * noise.gain.tvg(spec.ranges)[:, None]
+    mu = density * cell_area(spec, _img_rays(scene, spec, pose, options), {})
+    h_r, h_b = noise.kernels(spec)
+    s2 = (h_r**2).sum() * (h_b**2).sum()
+    s4 = (h_r**4).sum() * (h_b**4).sum()
+    ok = (mean > 0.2 * mean.max()) & (mu > 0)
+    ok[:, :12] = ok[:, -12:] = False
+    z = f.image[ok] / mean[ok]
+    pred = 2 * (1 + s4 / (mu[ok] * s2**2))
+    blocks = np.array_split(np.arange(z.size), 20)
+    m = np.array([np.mean(z[b] ** 2) / np.mean(pred[b]) for b in blocks])
+    se = m.std(ddof=1) / np.sqrt(len(m))
+    assert ok.sum() > 5000
+    assert z.mean() == pytest.approx(1.0, abs=0.05)
+    assert abs(m.mean() - 1.0) < 4 * se + 0.02
+    assert pred.mean() > 2.2  # the counts matter here (not fully developed speckle)
+
+
+def _img_rays(scene, spec, pose, options):
+    from optiacoustic.sonar.formation import _aperture_elevation_weights, _scan, caster_for, scan_spec
+
+    _, img = _scan(scene, caster_for(scene), scan_spec(spec, "aperture"), pose, options,
+                   _aperture_elevation_weights(spec), spec.elevation_pattern())
+    return img
