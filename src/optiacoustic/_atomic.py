@@ -21,7 +21,7 @@ import tempfile
 from pathlib import Path
 from typing import Iterator
 
-__all__ = ["OutputError", "atomic_path", "ensure_dir", "write_text", "write_bytes", "write_json", "save_npz",
+__all__ = ["OutputError", "atomic_path", "jsonable", "ensure_dir", "write_text", "write_bytes", "write_json", "save_npz",
            "savefig", "imwrite"]
 
 
@@ -115,6 +115,28 @@ def write_bytes(path: str | os.PathLike, data: bytes) -> Path:
 def write_text(path: str | os.PathLike, text: str) -> Path:
     """Write UTF-8 ``text`` to ``path`` atomically; return the path."""
     return write_bytes(path, text.encode("utf-8"))
+
+
+def jsonable(x):
+    """``x`` with numpy scalars and arrays, tuples and paths made JSON-ready (non-finite floats as strings)."""
+    import numpy as np
+
+    if isinstance(x, dict):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return jsonable(x.tolist())
+    if isinstance(x, (np.floating, float)):
+        v = float(x)
+        return v if np.isfinite(v) else str(v)
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    if isinstance(x, os.PathLike):
+        return os.fspath(x)
+    return x
 
 
 def write_json(path: str | os.PathLike, obj, *, indent: int = 2) -> Path:

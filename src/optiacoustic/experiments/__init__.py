@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import ensure_dir, write_json
+from .._atomic import jsonable as _jsonable
 
 __all__ = ["ExperimentResult", "names", "get", "run", "write_results"]
 
@@ -42,25 +43,6 @@ class ExperimentResult:
     numbers: dict = field(default_factory=dict)
     summary: str = ""
     tables: list = field(default_factory=list)
-
-
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        v = float(x)
-        return v if np.isfinite(v) else str(v)
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, (np.bool_,)):
-        return bool(x)
-    if isinstance(x, Path):
-        return str(x)
-    return x
 
 
 def write_results(result: ExperimentResult, out_dir) -> Path:

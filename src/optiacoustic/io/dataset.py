@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._atomic import jsonable as _jsonable
+
 __all__ = ["write_dataset", "open_dataset", "DatasetReport", "DatasetError", "FORMAT", "FORMAT_VERSION"]
 
 FORMAT = "optiacoustic-dataset"
@@ -69,20 +71,6 @@ def _frame_arrays(seq, sensor: str, k: int, ground_truth: bool) -> dict:
         if ground_truth:
             a.update(depth=f.depth, body=f.body, normal=f.normal)
     return a
-
-
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        return float(x) if np.isfinite(x) else str(float(x))
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    return x
 
 
 def _metadata(seq) -> dict:
