@@ -162,3 +162,16 @@ def test_pair_frames_with_readers(tmp_path, aris_sample):
     cam_t = t[[0, 2, 4]] + 0.01
     p = pair_frames(sonar, cam_t, max_dt=0.02)
     assert p.sonar.tolist() == [0, 2, 4] and p.camera.tolist() == [0, 1, 2]
+
+
+def test_every_axis_convention_is_a_proper_rotation():
+    """A reflection among the axis tables would turn every rig read with it into a mirror image."""
+    from optiacoustic.io.rig import AXES, CAMERA_AXES
+
+    for name, R in {**AXES, **{f"camera {k}": v for k, v in CAMERA_AXES.items()}}.items():
+        assert np.allclose(R @ R.T, np.eye(3)), name
+        assert np.isclose(np.linalg.det(R), 1.0), name
+    # the ProjectedSonarImage frame: a beam at our azimuth theta points along (0, -sin theta, cos theta)
+    theta = 0.3
+    d_ours = AXES["marine_acoustic"] @ np.array([0.0, -np.sin(theta), np.cos(theta)])
+    assert np.allclose(d_ours, [np.sin(theta), np.cos(theta), 0.0])

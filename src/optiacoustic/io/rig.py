@@ -7,8 +7,9 @@ in *our* sonar axes (X right, Y forward, Z up) and OpenCV camera axes (X right, 
 Z forward). Frames in ROS usually follow other axes, so each side names its axes:
 
 - ``sonar_axes``: ``"rep103"`` (X forward, Y left, Z up; REP 103, the usual
-  ``sonar_link``), ``"marine_acoustic"`` (Z forward, X up, Y left: the
-  ``ProjectedSonarImage`` frame) or ``"optiacoustic"`` (ours);
+  ``sonar_link``), ``"marine_acoustic"`` (Z forward, Y left, X down: the
+  ``ProjectedSonarImage`` frame in which a beam at our azimuth ``theta`` points along
+  ``(0, -sin theta, cos theta)``; with "X up" that frame would be left-handed) or ``"optiacoustic"`` (ours);
 - ``camera_axes``: ``"optical"`` (OpenCV, the usual ``*_optical_frame``) or ``"rep103"``.
 
 YAML form::
@@ -40,7 +41,7 @@ __all__ = ["read_rig", "rig_from_transform", "AXES"]
 AXES = {
     "optiacoustic": np.eye(3),
     "rep103": np.array([[0.0, -1, 0], [1, 0, 0], [0, 0, 1]]),          # ours X = -Y, Y = X, Z = Z
-    "marine_acoustic": np.array([[0.0, -1, 0], [0, 0, 1], [1, 0, 0]]),  # ours X = -Y, Y = Z, Z = X
+    "marine_acoustic": np.array([[0.0, -1, 0], [0, 0, 1], [-1, 0, 0]]),  # ours X = -Y, Y = Z, Z = -X
 }
 CAMERA_AXES = {
     "optical": np.eye(3),
