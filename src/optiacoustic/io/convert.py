@@ -51,7 +51,6 @@ def convert_log(path, out, *, topic: str | None = None, camera=None, camera_topi
     from .. import __version__
     from ..sonar.frame import spec_to_dict
     from .dataset import FORMAT, FORMAT_VERSION, DatasetError, _compressors, _jsonable
-    from .errors import ReadError
     from .sonar import open_sonar
 
     out = Path(out)
@@ -79,14 +78,7 @@ def convert_log(path, out, *, topic: str | None = None, camera=None, camera_topi
                               dimension_names=("frame",))
         times = np.full(n, np.nan)
         skipped = []
-        for k in range(n):
-            try:
-                f = first if k == 0 else frames[k]
-            except ReadError:
-                if errors == "raise":
-                    raise
-                skipped.append(k)
-                continue
+        for k, f in _readable_frames(frames, first, errors, skipped):
             if f.image.shape != shape:
                 raise DatasetError(f"{path}: frame {k} is {f.image.shape[0]} bins x {f.image.shape[1]} beams, "
                                    f"frame 0 is {shape[0]} x {shape[1]}; one dataset holds one sonar geometry")
@@ -120,7 +112,6 @@ def _convert_camera(root, path, topic, errors: str) -> int:
     """The ``camera`` group from a camera log: image (linear RGB float32), time, pose (NaN), K, done."""
     from .camera import open_camera
     from .dataset import DatasetError, _compressors
-    from .errors import ReadError
 
     frames = open_camera(path, topic=topic)
     n = len(frames)
@@ -134,13 +125,8 @@ def _convert_camera(root, path, topic, errors: str) -> int:
     done = g.create_array("done", shape=(n,), chunks=(1,), dtype="bool", fill_value=False, dimension_names=("frame",))
     times = np.full(n, np.nan)
     written = 0
-    for k in range(n):
-        try:
-            f = first if k == 0 else frames[k]
-        except ReadError:
-            if errors == "raise":
-                raise
-            continue
+    skipped = []
+    for k, f in _readable_frames(frames, first, errors, skipped):
         if f.image.shape != shape:
             raise DatasetError(f"{path}: camera frame {k} is {f.image.shape}, frame 0 is {shape}")
         img[k] = f.image
@@ -152,4 +138,20 @@ def _convert_camera(root, path, topic, errors: str) -> int:
                    attributes={"description": "unknown for a measured log (NaN)"})
     if first.camera is not None:
         g.create_array("K", data=np.asarray(first.camera.K, float), dimension_names=("k_row", "k_col"))
+    g.attrs["skipped_frames"] = skipped  # damaged camera frames are reported, never dropped silently
     return written
+
+
+def _readable_frames(frames, first, errors: str, skipped: list):
+    """Yield ``(k, frame)`` for every frame of a log; a damaged one raises, or is appended to ``skipped``."""
+    from .errors import ReadError
+
+    for k in range(len(frames)):
+        try:
+            f = first if k == 0 else frames[k]
+        except ReadError:
+            if errors == "raise":
+                raise
+            skipped.append(k)
+            continue
+        yield k, f
