@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..camera import PinholeCamera
-from .errors import ReadError
+from .errors import ReadError, read_yaml_mapping
 
 __all__ = ["read_camera_info", "camera_from_matrix", "camera_from_message"]
 
@@ -82,16 +82,7 @@ def read_camera_info(path) -> PinholeCamera:
     text = p.read_bytes()[:4096]
     if p.suffix.lower() == ".xml" or text.lstrip().startswith((b"%YAML", b"<?xml")) or b"!!opencv-matrix" in text:
         return _read_opencv(p)
-    import yaml
-
-    from .._config import ConfigError, parse_config
-
-    try:  # the project's one YAML reader: duplicate keys, alias bombs and deep nesting are refused
-        data = parse_config(p.read_text())
-    except (ConfigError, yaml.YAMLError) as exc:
-        raise ReadError(p, str(exc)) from None
-    if not isinstance(data, dict):
-        raise ReadError(p, "expected a mapping of camera_info fields")
+    data = read_yaml_mapping(p, "a mapping of camera_info fields")
     K = _field(p, data, _K_NAMES)
     D = next((data[k] for k in _D_NAMES if k in data), None)
     K = K.get("data") if isinstance(K, dict) else K

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["ReadError", "SkippedFrame"]
+__all__ = ["ReadError", "SkippedFrame", "read_yaml_mapping"]
 
 from dataclasses import dataclass
 
@@ -43,3 +43,22 @@ class SkippedFrame:
 
     index: int
     reason: str
+
+
+def read_yaml_mapping(path, expected: str) -> dict:
+    """A YAML file that must hold a mapping, through the project's one config reader.
+
+    Duplicate keys, alias bombs and deep nesting are refused like in scene files; every
+    problem is a :class:`ReadError` naming ``path`` (``expected`` says what the mapping is).
+    """
+    import yaml
+
+    from .._config import ConfigError, parse_config
+
+    try:
+        data = parse_config(path.read_text())
+    except (ConfigError, yaml.YAMLError) as exc:
+        raise ReadError(path, str(exc)) from None
+    if not isinstance(data, dict):
+        raise ReadError(path, f"expected {expected}")
+    return data

@@ -33,7 +33,7 @@ import numpy as np
 
 from ..camera import PinholeCamera
 from ..rig import Rig
-from .errors import ReadError
+from .errors import ReadError, read_yaml_mapping
 
 __all__ = ["read_rig", "rig_from_transform", "AXES"]
 
@@ -97,18 +97,9 @@ def read_rig(path, *, camera: PinholeCamera | None = None, sonar_frame: str | No
 
 
 def _rig_yaml(p, camera, sonar_axes, camera_axes):
-    import yaml
-
     from .camera_info import read_camera_info
 
-    from .._config import ConfigError, parse_config
-
-    try:  # the project's one YAML reader: duplicate keys, alias bombs and deep nesting are refused
-        d = parse_config(p.read_text())
-    except (ConfigError, yaml.YAMLError) as exc:
-        raise ReadError(p, str(exc)) from None
-    if not isinstance(d, dict):
-        raise ReadError(p, "expected a mapping with translation and rotation")
+    d = read_yaml_mapping(p, "a mapping with translation and rotation")
     allowed = {"parent", "child", "translation", "rotation", "quaternion", "sonar_axes", "camera_axes", "camera_info"}
     extra = set(d) - allowed
     if extra:
