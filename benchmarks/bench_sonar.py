@@ -26,19 +26,20 @@ DESCRIPTION = (
 
 
 def _recorded_rays(caster, fn):
-    """The float32 rays every ``cast_raw`` call of ``fn()`` makes, concatenated."""
+    """The float32 rays every ``intersect_raw`` call of ``fn()`` makes (``cast_raw`` and the sonar's
+    kernels both go through it), concatenated."""
     seen = []
-    orig = caster.cast_raw
+    orig = caster.intersect_raw
 
     def spy(o32, d32, *args, **kw):
         seen.append((o32.copy(), d32.copy()))
         return orig(o32, d32, *args, **kw)
 
-    caster.cast_raw = spy
+    caster.intersect_raw = spy
     try:
         fn()
     finally:
-        del caster.cast_raw
+        del caster.intersect_raw
     o = np.ascontiguousarray(np.concatenate([s[0] for s in seen]))
     d = np.ascontiguousarray(np.concatenate([s[1] for s in seen]))
     return o, d, len(seen)

@@ -252,24 +252,46 @@ class RayCaster:
             Unit normal (world); undefined on a miss. :meth:`cast` is this, validated
             and widened to float64, bit for bit.
         """
-        n = len(origins32)
-        dists = np.full(n, _MISS_DIST, np.float32) if max_distance32 is None else max_distance32
-        outs = self._run_chunks(origins32, directions32, dists, "INTERSECT", True, copy=False)
-        cat = (lambda k: outs[0][k]) if len(outs) == 1 else (lambda k: np.concatenate([r[k] for r in outs]))
-        geom, prim, tfar = cat("geomID"), cat("primID"), cat("tfar")
+        tfar, geom, prim, u, v, ng = self.intersect_raw(origins32, directions32, max_distance32, normals=not smooth)
         if smooth:
             gi = self._tri_offset[np.maximum(geom, 0)] + np.maximum(prim, 0)
             cn = self._corner_normals[gi]  # (n, 3, 3) float32
-            u, v = cat("u"), cat("v")
             w = np.empty((len(u), 3), np.float32)  # barycentric weights of the three corners
             w[:, 1] = u
             w[:, 2] = v
             w[:, 0] = 1.0 - u - v
             nrm = np.einsum("nk,nkj->nj", w, cn)
         else:
-            nrm = cat("Ng")
+            nrm = ng
         nrm /= np.sqrt(np.einsum("ij,ij->i", nrm, nrm))[:, None] + np.float32(1e-30)
         return tfar, geom, prim, nrm
+
+    def intersect_raw(self, origins32: np.ndarray, directions32: np.ndarray, max_distance32: np.ndarray | None = None,
+                      *, normals: bool = True):
+        """Embree's closest-hit output as it comes, over the worker threads: the lowest-level query.
+
+        Parameters as :meth:`cast_raw`. Returns ``(distance, body, triangle, u, v, Ng)``:
+        ``(N,)`` float32 distance (``>= max_distance`` on a miss), ``(N,)`` int32 body
+        (``-1`` on a miss) and triangle, ``(N,)`` float32 barycentric ``u, v`` of the hit
+        (corners 1 and 2), and the unnormalised geometric normal ``(N, 3)`` float32 (``None``
+        without ``normals``). Smooth normals are ``(1 - u - v) n0 + u n1 + v n2`` of
+        :attr:`corner_normals` row ``triangle_offset[body] + triangle``.
+        """
+        n = len(origins32)
+        dists = np.full(n, _MISS_DIST, np.float32) if max_distance32 is None else max_distance32
+        outs = self._run_chunks(origins32, directions32, dists, "INTERSECT", True, copy=False)
+        cat = (lambda k: outs[0][k]) if len(outs) == 1 else (lambda k: np.concatenate([r[k] for r in outs]))
+        return cat("tfar"), cat("geomID"), cat("primID"), cat("u"), cat("v"), cat("Ng") if normals else None
+
+    @property
+    def corner_normals(self) -> np.ndarray:
+        """Per-triangle corner normals of all bodies, ``(n_triangles, 3, 3)`` float32 (read-only use)."""
+        return self._corner_normals
+
+    @property
+    def triangle_offset(self) -> np.ndarray:
+        """Row of each body's first triangle in :attr:`corner_normals`, ``(n_bodies + 1,)`` int64."""
+        return self._tri_offset
 
     def occluded_raw(self, origins32: np.ndarray, directions32: np.ndarray, max_distance32: np.ndarray) -> np.ndarray:
         """:meth:`occluded` with no validation: float32 ``(N, 3)`` unit directions, ``(N,)`` limits."""

@@ -29,6 +29,7 @@ from .._validate import as_rng, check_memory
 from ..frames import Pose
 from ..raycast import RayCaster, caster_for
 from ..scene import Scene
+from ._kernels import kernels, split_run, use_numba
 from .frame import SonarFrame, SonarGroundTruth, SonarRays
 from .propagation import Seawater, two_way_gain
 from .spec import SonarSpec
@@ -396,20 +397,27 @@ def simulate_sonar(
                                spec.elevation_pattern())
     else:
         rays = img_rays = _scan(scene, caster, sspec, pose, options)
-    # the seabed/target split needs only the rays: integrate it on the other core meanwhile
-    parts = _background().submit(_class_parts, bottom_types, spec, img_rays, options)
     area = None
-    if getattr(noise, "needs_cell_area", False):
-        area = _background().submit(cell_area, spec, img_rays, bottom_types)
-    intensity = _form_image(spec, img_rays, options)
-    shares = _seabed_shares(bottom_types, *parts.result(), intensity)
+    if use_numba():
+        # one pass forms the echo and the seabed/target split together
+        if getattr(noise, "needs_cell_area", False):
+            area = _background().submit(cell_area, spec, img_rays, bottom_types)
+        intensity, shares = _form_with_shares_numba(spec, img_rays, options, bottom_types, caster.threads)
+    else:
+        # the seabed/target split needs only the rays: integrate it on the other core meanwhile
+        parts = _background().submit(_class_parts, bottom_types, spec, img_rays, options)
+        if getattr(noise, "needs_cell_area", False):
+            area = _background().submit(cell_area, spec, img_rays, bottom_types)
+        intensity = _form_image(spec, img_rays, options)
+        shares = _seabed_shares(bottom_types, *parts.result(), intensity)
     if noise is False:
         image = intensity.copy()
     elif area is not None:
         image = noise.apply(intensity, spec=spec, seabed_share=shares, options=options, draws=draws.result(),
                             cell_area=area.result())
     else:
-        image = noise.apply(intensity, spec=spec, seabed_share=shares, options=options, draws=draws.result())
+        image = noise.apply(intensity, spec=spec, seabed_share=shares, options=options, draws=draws.result(),
+                            threads=caster.threads)
     intensity.setflags(write=False)
     image.setflags(write=False)
     gt = SonarGroundTruth(
@@ -460,6 +468,135 @@ def _form_image(spec: SonarSpec, rays: SonarRays, options: SonarOptions, select=
     return np.ascontiguousarray(echo.T)
 
 
+def _mix_and_scale(spec: SonarSpec, echo: np.ndarray, options: SonarOptions) -> np.ndarray:
+    """Beam patterns across beams (aperture model or the azimuth option), then echo per metre.
+
+    ``echo`` ``(n_bins, n_beams)`` float32 (the image layout; ``_form_image`` works on its
+    transpose) -> the same, scaled by ``1 / bin_width``."""
+    if options.beam_model == "aperture":
+        if spec.beam_azimuths is not None:
+            echo = echo @ azimuth_mixing(spec).T
+        else:
+            import cv2
+
+            k = np.ascontiguousarray(azimuth_kernel(spec)[::-1], np.float32).reshape(1, -1)
+            echo = cv2.filter2D(echo, cv2.CV_32F, k, borderType=cv2.BORDER_CONSTANT)
+    elif options.azimuth_pattern and spec.beamwidth_azimuth > 0:
+        from scipy.ndimage import gaussian_filter1d
+
+        sigma_beams = spec.beamwidth_azimuth / spec.beam_spacing / 2.3548
+        echo = gaussian_filter1d(echo, sigma_beams, axis=1, mode="constant", truncate=3.5)
+    echo *= np.float32(1.0 / spec.bin_width)
+    return echo
+
+
+def _echo_numba(spec: SonarSpec, rays: SonarRays, slot: np.ndarray, n_slots: int, threads: int,
+                cells_per_bin: int, sigma_bins: float | None) -> np.ndarray:
+    """The numba twin of :func:`echo_profile` + :func:`_decimate`, for ``n_slots`` classes at once.
+
+    Returns ``(n_slots, n_bins, n_beams)`` float32 (energy per bin): slot 0 every ray, slot
+    ``s > 0`` the rays with ``slot == s``. ``sigma_bins=None``: no anti-aliasing
+    (``cells_per_bin`` must be 1).
+    """
+    kn = kernels()
+    q = cells_per_bin
+    H, V, full = _deposit_tables(spec.n_bins, q, sigma_bins)
+    J, n_cells = spec.n_beams, spec.n_bins * q
+    energy = rays.energy.reshape(-1)
+    order, starts = kn.bucket_by_beam(np.ascontiguousarray(rays.beam_index).reshape(-1), energy, J)
+    out = np.zeros((n_slots, J, spec.n_bins), np.float32)
+    args = (order, starts, rays.footprint_lo.reshape(-1), rays.footprint_hi.reshape(-1), energy,
+            slot, float(spec.range_min), q / spec.bin_width, n_cells, H, V, full, q, spec.n_bins)
+    split_run(lambda j0, j1: kn.echo_rows(*args, j0, j1, out), J, threads)
+    return np.ascontiguousarray(out.transpose(0, 2, 1))
+
+
+@functools.lru_cache(maxsize=16)
+def _deposit_tables(n_bins: int, q: int, sigma_bins: float | None):
+    """What a unit deposit at a fine cell adds to the decimated image (``_numba_kernels.echo_rows``).
+
+    ``H[p, m + D]``: to bin ``b + m`` from the cells at and after fine cell ``q b + p`` (the
+    cumulative sum carries the deposit to all of them); ``full``: to every bin from
+    ``b + D + 1`` on (all weights); ``V[t]``: what cells past the end of the row would give
+    bin ``n_bins - D + t``. ``sigma_bins=None``: no anti-aliasing (``q = 1``).
+    """
+    if sigma_bins is None:
+        W, D = np.ones((1, 1), np.float32), 0
+    else:
+        W, D = _decimation_weights(n_bins, q, sigma_bins)
+    W = W.astype(np.float64)
+    H = np.zeros((q, 2 * D + 1))
+    for p0 in range(q):
+        for m in range(-D, D + 1):
+            for r in range(max(0, m - D), m + D + 1):  # bins after the deposit's, relative
+                k = m - r + D
+                H[p0, m + D] += W[(p0 if r == 0 else 0):, k].sum()
+    V = np.array([W[:, : t + 1].sum() for t in range(D)])
+    for a in (H, V):
+        a.setflags(write=False)
+    return H, V, float(W.sum())
+
+
+def _class_slots(bottom_types: dict, rays: SonarRays):
+    """Output slot of every ray's class for :func:`_echo_numba`: the class with most lit rays
+    (a bottom type or ``None``, the targets) has slot 0, the whole echo; the others 1, 2, ...
+
+    Returns ``(slot per ray (N,) int8, n_slots, {class: slot})``.
+    """
+    body = rays.body.reshape(-1)
+    n_bodies = int(body.max()) + 1 if body.size else 0
+    names = list(bottom_types) + [None]
+    cls = np.full(max(n_bodies, max((i for v in bottom_types.values() for i in v), default=-1) + 1) + 1,
+                  len(names) - 1, np.int64)
+    for c, name in enumerate(bottom_types):
+        cls[bottom_types[name]] = c
+    lit = rays.energy.reshape(-1) > 0
+    ray_cls = cls[body]  # body -1 reads the last entry: unlit anyway
+    counts = np.bincount(ray_cls[lit], minlength=len(names))
+    largest = int(np.argmax(counts))
+    slot_of = {}
+    k = 1
+    for c, name in enumerate(names):
+        if c == largest:
+            slot_of[name] = 0
+        else:
+            slot_of[name] = k
+            k += 1
+    table = np.array([slot_of[n] for n in names], np.int8)
+    return table[ray_cls], k, slot_of
+
+
+def _form_with_shares_numba(spec: SonarSpec, rays: SonarRays, options: SonarOptions, bottom_types: dict,
+                            threads: int):
+    """Echo image and seabed shares in one pass of the kernels (``_form_image`` + ``_class_parts``
+    + ``_seabed_shares``)."""
+    sigma_bins = max(spec.pulse_width / spec.bin_width / 2.3548, 0.5)
+    if not bottom_types:
+        slot, n_slots, slot_of = np.zeros(rays.body.size, np.int8), 1, {}
+    else:
+        slot, n_slots, slot_of = _class_slots(bottom_types, rays)
+    parts = _echo_numba(spec, rays, slot, n_slots, threads, options.range_oversample, sigma_bins)
+    if options.beam_model == "aperture" or options.azimuth_pattern:
+        parts = np.stack([_mix_and_scale(spec, parts[s], options) for s in range(n_slots)])
+    else:
+        parts *= np.float32(1.0 / spec.bin_width)
+    intensity = parts[0].copy()
+    peak = float(intensity.max()) if intensity.size else 0.0
+    intensity[intensity < np.float32(1e-9 * peak)] = 0.0  # the cumulative sums' rounding residue
+    if not bottom_types:
+        return intensity, {}
+    names = list(slot_of)
+    out = np.empty((len(names), spec.n_bins, spec.n_beams), np.float32)
+    kernels().shares(parts, intensity, np.array([slot_of[n] for n in names], np.int64), out)
+    shares = {}
+    for m, name in enumerate(names):
+        if name is not None:
+            sh = out[m]
+            sh.setflags(write=False)
+            shares[name] = sh
+    return intensity, shares
+
+
 def cell_area(spec: SonarSpec, rays: SonarRays, bottom_types: dict) -> np.ndarray:
     """Seabed area (m^2) that falls in each ``(bin, beam)`` cell, ``(n_bins, n_beams)``.
 
@@ -476,6 +613,9 @@ def cell_area(spec: SonarSpec, rays: SonarRays, bottom_types: dict) -> np.ndarra
     dtheta = np.diff(spec.beam_edges)[rays.beam_index]
     area = np.where(sel, r * r * np.cos(rays.elevation) * dtheta * width / cos_a, 0.0)
     fake = dataclasses.replace(rays, energy=area)
+    if use_numba():
+        one = np.zeros(rays.body.size, np.int8)
+        return _echo_numba(spec, fake, one, 1, 1, 1, None)[0]
     return np.ascontiguousarray(echo_profile(spec, fake).T, dtype=np.float32)
 
 
@@ -564,18 +704,13 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     ``image_rays`` splits every ray whose footprint is long in range into sub-cells
     (:func:`_subdivide`), so that the echo's density follows the surface within it.
     """
-    d_w, dd_w = _world_ray_grid(spec, pose.R)
-    # the unvalidated float32 path: the grid's directions are unit vectors by construction
-    body, r, normal = _cast_fast(caster, pose.t, d_w, spec.range_max * 1.5, smooth=True)
+    fast = use_numba()
     K, J = spec.elevation_samples, spec.n_beams
+    if fast:
+        body, r, nd, ndd, cos_inc, slope = _scan_hits_numba(caster, spec, pose)
+    else:
+        body, r, nd, ndd, cos_inc, slope = _scan_hits_numpy(caster, spec, pose)
     hit = body >= 0
-    with np.errstate(invalid="ignore"):
-        nd = np.einsum("ij,ij->i", normal, d_w)
-        ndd = np.einsum("ij,ij->i", normal, dd_w)
-    cos_inc = np.where(hit, np.abs(nd), 0.0)
-    # signed dr/dphi on the tangent plane; clamped near grazing incidence
-    with np.errstate(invalid="ignore", divide="ignore"):
-        slope = np.where(hit, -r * ndd / (np.where(nd < 0, -1.0, 1.0) * np.maximum(cos_inc, _MIN_COS_FOOTPRINT)), 0.0)
     # angular extent of each ray's elevation cell below (a) and above (b) the ray
     step = spec.elevation_step
     a = np.full(K * J, 0.5 * step)
@@ -584,23 +719,32 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
 
     refl = np.array([bd.material.reflectivity for bd in scene.bodies] + [0.0])
     beam_grid, elev_grid = _index_grids(spec)
-    energy = refl[body] * cos_inc * (a + b)
-    if weights is not None:
-        energy *= weights[elev_grid]
-    elif options.elevation_pattern != "uniform":
-        energy *= _elevation_weights(spec, options.elevation_pattern)[elev_grid]
+    if weights is None and options.elevation_pattern != "uniform":
+        weights = _elevation_weights(spec, options.elevation_pattern)
+    gain = None
     if options.propagation == "spreading":
-        energy = energy * np.where(hit, two_way_gain(np.where(hit, r, 1.0), spec.frequency, options.water), 0.0)
-    # range footprint of the cell on the tangent plane; a floor on its width (1e-4 of a
-    # bin) keeps the box integral well conditioned
-    lo = r - slope * a
-    hi = r + slope * b
-    lo, hi = np.minimum(lo, hi), np.maximum(lo, hi)
-    with np.errstate(invalid="ignore"):
-        pad = np.maximum(0.0, 1e-4 * spec.bin_width - (hi - lo)) * 0.5
-    lo, hi = np.where(hit, lo - pad, np.nan), np.where(hit, hi + pad, np.nan)
+        gain = np.where(hit, two_way_gain(np.where(hit, r, 1.0), spec.frequency, options.water), 0.0)
+    if fast:
+        energy, lo, hi = np.empty(K * J), np.empty(K * J), np.empty(K * J)
+        kernels().footprints(body, r, cos_inc, slope, a, b, refl,
+                             np.zeros(0) if weights is None else np.asarray(weights, float),
+                             np.zeros(0) if gain is None else gain, J, 1e-4 * spec.bin_width, energy, lo, hi)
+    else:
+        energy = refl[body] * cos_inc * (a + b)
+        if weights is not None:
+            energy *= weights[elev_grid]
+        if gain is not None:
+            energy = energy * gain
+        # range footprint of the cell on the tangent plane; a floor on its width (1e-4 of a
+        # bin) keeps the box integral well conditioned
+        lo = r - slope * a
+        hi = r + slope * b
+        lo, hi = np.minimum(lo, hi), np.maximum(lo, hi)
+        with np.errstate(invalid="ignore"):
+            pad = np.maximum(0.0, 1e-4 * spec.bin_width - (hi - lo)) * 0.5
+        lo, hi = np.where(hit, lo - pad, np.nan), np.where(hit, hi + pad, np.nan)
+        energy = np.where(hit, energy, 0.0)
     elev = spec.elevations[elev_grid]
-    energy = np.where(hit, energy, 0.0)
     shape = (K, J)
     rays = SonarRays(
         range=r.reshape(shape),
@@ -618,6 +762,43 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     if pattern is None:
         return rays
     return rays, _subdivide(spec, rays, nd, ndd, a, b, refl[body], pattern, options)
+
+
+def _scan_hits_numpy(caster: RayCaster, spec: SonarSpec, pose: Pose):
+    """Cast the grid; per ray ``(body, r, n.d, n.d', |n.d|, dr/dphi)`` (numpy reference path)."""
+    d_w, dd_w = _world_ray_grid(spec, pose.R)
+    # the unvalidated float32 path: the grid's directions are unit vectors by construction
+    body, r, normal = _cast_fast(caster, pose.t, d_w, spec.range_max * 1.5, smooth=True)
+    hit = body >= 0
+    with np.errstate(invalid="ignore"):
+        nd = np.einsum("ij,ij->i", normal, d_w)
+        ndd = np.einsum("ij,ij->i", normal, dd_w)
+    cos_inc = np.where(hit, np.abs(nd), 0.0)
+    # signed dr/dphi on the tangent plane; clamped near grazing incidence
+    with np.errstate(invalid="ignore", divide="ignore"):
+        slope = np.where(hit, -r * ndd / (np.where(nd < 0, -1.0, 1.0) * np.maximum(cos_inc, _MIN_COS_FOOTPRINT)), 0.0)
+    return body, r, nd, ndd, cos_inc, slope
+
+
+def _scan_hits_numba(caster: RayCaster, spec: SonarSpec, pose: Pose):
+    """:func:`_scan_hits_numpy` with the grid built and Embree's float32 output read by kernels."""
+    kn = kernels()
+    R = pose.R
+    th, ph = spec.azimuths, spec.elevations
+    a_dir = np.sin(th)[:, None] * R[:, 0] + np.cos(th)[:, None] * R[:, 1]  # (J, 3), see _world_ray_grid
+    cp, sp, rz = np.cos(ph), np.sin(ph), np.ascontiguousarray(R[:, 2])
+    n = spec.elevation_samples * spec.n_beams
+    d32 = kn.ray_grid32(cp, sp, a_dir, rz, np.empty((n, 3), np.float32))
+    o32 = np.empty_like(d32)
+    o32[...] = np.asarray(pose.t, np.float32)
+    dist32 = np.full(n, min(np.float32(spec.range_max * 1.5), np.float32(1e30)), np.float32)
+    tfar, geom, prim, u, v, _ = caster.intersect_raw(o32, d32, dist32, normals=False)
+    body = np.empty(n, np.int32)
+    r, nd, ndd, cos_inc, slope = (np.empty(n) for _ in range(5))
+    cn, off, ng = caster.corner_normals, caster.triangle_offset, np.zeros((0, 3), np.float32)
+    split_run(lambda i0, i1: kn.scan_rays(tfar, geom, prim, u, v, ng, cn, off, True, cp, sp, a_dir, rz, i0, i1,
+                                          body, r, nd, ndd, cos_inc, slope), n, caster.threads)
+    return body, r, nd, ndd, cos_inc, slope
 
 
 @functools.lru_cache(maxsize=16)

@@ -101,79 +101,165 @@ class NoiseModel:
             gain = np.ones_like(ranges)
         return (level * gain).astype(np.float32)
 
+    def _gaussian_bottom(self) -> bool:
+        """True when the bottom amplitude is a Rayleigh mixture (Rayleigh included): given its
+        component, ``sqrt(I_b) x e^{i psi}`` is then circular Gaussian of power ``I_b lam_c``."""
+        return self.reverberation in ("mixture", "rayleigh")
+
+    def _needs_psi(self) -> bool:
+        """Whether a steady part can meet a Gaussian part (then their relative phase is drawn)."""
+        if self.reverberation is None:
+            return self.target_speckle or self.noise_floor_db is not None
+        return not self._gaussian_bottom() or not self.target_speckle
+
     def draw(self, shape: tuple, bottom_types, rng: np.random.Generator) -> "NoiseDraws":
         """Draw every random variate the image needs; independent of the echo itself.
 
         ``simulate_sonar`` runs this in a background thread while it scans the scene.
-        The draws come in a fixed order, so a seed gives the same image.
+        The draws come in a fixed order (per bottom type its mixture component ``u`` or,
+        for Weibull and K, its amplitude ``x``; then ``E``, then the phases), so a seed
+        gives the same image.
         """
         from .distributions import bottom_model
 
-        x = {}
+        shape = tuple(shape)
+        u, x = {}, {}
         if self.reverberation is not None:
             for b in bottom_types:
-                if b not in x:
-                    x[b] = bottom_model(self.bottom_type or b, self.reverberation).sample(shape, rng, dtype=np.float32)
-        z = rng.standard_normal((2,) + tuple(shape), dtype=np.float32)
+                if b in u or b in x:
+                    continue
+                model = bottom_model(self.bottom_type or b, self.reverberation)
+                if self._gaussian_bottom():
+                    w, _ = _mixture_table(model)
+                    u[b] = rng.random(shape, dtype=np.float32) if len(w) > 1 else None
+                else:
+                    x[b] = model.sample(shape, rng, dtype=np.float32)
+        e = rng.standard_exponential(shape, dtype=np.float32)
         phase = None
-        if self.reverberation is not None and not self.target_speckle:
+        if self.reverberation is not None and not self._gaussian_bottom() and not self.target_speckle:
             phase = rng.random(shape, dtype=np.float32) * np.float32(2 * np.pi)
-        return NoiseDraws(z, x, phase)
+        psi = rng.random(shape, dtype=np.float32) * np.float32(2 * np.pi) if self._needs_psi() else None
+        return NoiseDraws(e, u, x, phase, psi)
 
     def apply(self, intensity: np.ndarray, *, spec, seabed_share: dict, rng: np.random.Generator | None = None,
-              options, draws: "NoiseDraws | None" = None) -> np.ndarray:
+              options, draws: "NoiseDraws | None" = None, threads: int = 1) -> np.ndarray:
         """The noisy image ``(n_bins, n_beams)`` float32 from the noise-free ``intensity``.
 
         ``seabed_share[bottom_type]`` is the share of each cell's echo returned by seabed
         bodies of that bottom type (``SonarFrame.seabed_share``). Pass either ``draws``
-        (from :meth:`draw`) or ``rng``.
+        (from :meth:`draw`) or ``rng``. ``threads``: rows are split over this many threads.
+
+        Every cell is ``|a + g|^2``: ``a`` its steady (non-Gaussian given the draws) part of
+        power ``S``, ``g`` its circular Gaussian part of power ``P``; with ``|g|^2 = P E``
+        (``E ~ Exp(1)``) and a uniform relative phase ``psi``,
+        ``|a + g|^2 = S + P E + 2 sqrt(S P E) cos(psi)`` (docs/physics.md, "Noise in one
+        exponential draw"). Rayleigh-mixture seabed returns, target speckle and noise are
+        all Gaussian given the mixture component, so the thesis model costs one uniform and
+        one exponential variate per cell.
         """
+        from ._kernels import kernels, split_run, use_numba
+
         I = np.asarray(intensity, np.float32)
         shape = I.shape
         if draws is None:
             draws = self.draw(shape, list(seabed_share), rng)
-        noise = self.noise_power(I, spec.ranges, spec.frequency, options.propagation, options.water)[:, None]
+        if self.reverberation is None and not self.target_speckle and self.noise_floor_db is None:
+            return I.copy()
+        noise = self.noise_power(I, spec.ranges, spec.frequency, options.propagation, options.water)
+        if self._gaussian_bottom() and use_numba():
+            types = list(seabed_share)
+            T = len(types)
+            tables = [_mixture_table(bottom_model_for(self, t)) for t in types]
+            C = max([len(w) for w, _ in tables], default=1)
+            cumw = np.ones((max(T, 1), C))
+            lams = np.zeros((max(T, 1), C))
+            for k, (w, lam) in enumerate(tables):  # pad with zero-weight copies of the last component
+                cumw[k, : len(w) - 1] = np.cumsum(w)[:-1]
+                lams[k, : len(w)] = lam
+                lams[k, len(w):] = lam[-1]
+            sh = np.stack([np.asarray(seabed_share[t], np.float32) for t in types]) if T else np.zeros((0,) + shape,
+                                                                                                       np.float32)
+            U = np.stack([draws.u[t] if draws.u.get(t) is not None else np.zeros(shape, np.float32) for t in types]) \
+                if T and C > 1 else np.zeros((max(T, 1), 1, 1), np.float32)
+            psi = draws.psi if draws.psi is not None else np.zeros((1, 1), np.float32)
+            out = np.empty(shape, np.float32)
+            kn = kernels()
+            split_run(lambda r0, r1: kn.noise_gaussian(I, sh, noise, cumw, lams, U, draws.e, psi, self.target_speckle,
+                                                       draws.psi is not None, r0, r1, out), shape[0], threads)
+            return out
+        return self._apply_numpy(I, noise[:, None], seabed_share, draws)
+
+    def _apply_numpy(self, I, noise, seabed_share, draws):
+        """The reference implementation of :meth:`apply` (``OAS_SONAR_KERNELS=numpy``)."""
+        shape = I.shape
         bottom = np.zeros(shape, np.float32)
-        amp_b = np.zeros(shape, np.float32)
+        P = np.broadcast_to(noise, shape).astype(np.float32)
+        amp_b = None
         for btype, share in seabed_share.items():
             part = I * share
             bottom += part
-            if self.reverberation is not None:
-                amp_b += np.sqrt(part) * draws.x[btype]
+            if self._gaussian_bottom():
+                w, lam = _mixture_table(bottom_model_for(self, btype))
+                lam_c = np.full(shape, lam[-1], np.float32)
+                if len(w) > 1:
+                    u = draws.u[btype]
+                    for c, l in zip(np.cumsum(w)[:-1][::-1], lam[:-1][::-1]):
+                        lam_c[u < c] = l
+                P += part * lam_c
+            elif self.reverberation is not None:
+                amp = np.sqrt(part) * draws.x[btype]
+                amp_b = amp if amp_b is None else amp_b + amp
         target = np.maximum(I - bottom, 0.0)
         if self.reverberation is None:
-            if self.target_speckle:
-                amp_b = np.sqrt(bottom)
-            else:  # nothing fluctuates but the noise: the steady parts add in power
-                if self.noise_floor_db is None:
-                    return I.copy()
-                amp_b = np.sqrt(I)
+            amp_b = np.sqrt(bottom) if self.target_speckle else np.sqrt(I)
+            if not self.target_speckle:
                 target = np.zeros_like(I)
-        gauss_power = target + noise if self.target_speckle else np.broadcast_to(noise, shape)
-        s = np.sqrt(gauss_power * np.float32(0.5), dtype=np.float32)
-        z = draws.z
-        re = amp_b + s * z[0]
-        im = s * z[1]
-        if draws.phase is not None:
-            # a steady target echo adds to the fluctuating bottom echo with an independent random phase
-            amp_t = np.sqrt(target)
-            re += amp_t * np.cos(draws.phase)
-            im += amp_t * np.sin(draws.phase)
-        re *= re
-        im *= im
-        re += im
-        return re
+        if self.target_speckle:
+            P += target
+            S = None if amp_b is None else amp_b * amp_b
+        elif amp_b is None:  # Gaussian seabed: only the magnitude of the steady target matters
+            S = target
+        elif draws.phase is None:  # no reverberation: the whole echo is the steady amp_b
+            S = amp_b * amp_b
+        else:  # a steady target adds to the bottom amplitude with an independent random phase
+            S = amp_b * amp_b + target + np.float32(2.0) * amp_b * np.sqrt(target) * np.cos(draws.phase)
+        pe = P * draws.e
+        if S is None:
+            return pe
+        out = S + pe
+        if draws.psi is not None:
+            out += np.float32(2.0) * np.sqrt(np.maximum(S, 0.0) * pe) * np.cos(draws.psi)
+        return np.maximum(out, 0.0)
+
+
+def bottom_model_for(model: NoiseModel, bottom_type: str):
+    """The amplitude model a :class:`NoiseModel` applies to seabeds of ``bottom_type``."""
+    from .distributions import bottom_model
+
+    return bottom_model(model.bottom_type or bottom_type, model.reverberation)
+
+
+def _mixture_table(model):
+    """``(weights, lams)`` of a Rayleigh mixture or a Rayleigh (one component), float64 arrays."""
+    if hasattr(model, "weights"):
+        return np.asarray(model.weights, float), np.asarray(model.lams, float)
+    return np.ones(1), np.array([float(model.lam)])
 
 
 @dataclass(frozen=True, eq=False)
 class NoiseDraws:
-    """Random variates of one frame: normals ``z`` (2, n_bins, n_beams), reverberation
-    amplitudes ``x[bottom_type]`` (n_bins, n_beams) with ``E[x^2] = 1``, and the phases of
-    steady target echoes (only when ``target_speckle`` is off)."""
+    """Random variates of one frame, each ``(n_bins, n_beams)`` float32: ``e ~ Exp(1)`` (the power
+    of the Gaussian part), per bottom type the mixture component's uniform ``u[bottom_type]``
+    (Rayleigh-family models; ``None`` for one component) or the amplitude ``x[bottom_type]``
+    with ``E[x^2] = 1`` (Weibull, K), the phase of steady target echoes (only when
+    ``target_speckle`` is off and the seabed is not Gaussian) and the relative phase ``psi``
+    of steady and Gaussian parts (``None`` when no cell has both)."""
 
-    z: np.ndarray
+    e: np.ndarray
+    u: dict
     x: dict
     phase: Optional[np.ndarray]
+    psi: Optional[np.ndarray]
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,66 @@
+"""Which implementation of the sonar's inner loops runs: compiled (numba) or the numpy reference.
+
+``OAS_SONAR_KERNELS=numpy`` selects the pure-numpy reference path; ``numba`` (the default)
+the compiled kernels of :mod:`._numba_kernels`, when numba is installed. numba is imported
+on the first frame only, never by ``import optiacoustic`` or ``oas --help``; the kernels
+are cached on disk, so only the first run on a machine compiles them (a few seconds).
+Both paths compute the same images (tests/sonar/test_kernels.py compares them).
+"""
+
+from __future__ import annotations
+
+import os
+
+__all__ = ["use_numba", "kernels", "split_run"]
+
+_ENV = "OAS_SONAR_KERNELS"
+
+
+def use_numba() -> bool:
+    """True when the numba kernels are selected (``OAS_SONAR_KERNELS``, default ``numba``) and importable."""
+    mode = os.environ.get(_ENV, "numba").strip().lower()
+    if mode == "numpy":
+        return False
+    if mode != "numba":
+        raise ValueError(f"{_ENV}: expected 'numba' or 'numpy', got {mode!r}")
+    try:
+        import numba  # noqa: F401
+    except ImportError:  # pragma: no cover - numba is a core dependency
+        return False
+    return True
+
+
+def kernels():
+    """The compiled kernels module (imports numba)."""
+    from . import _numba_kernels
+
+    return _numba_kernels
+
+
+_POOL = None
+
+
+def _pool(n: int):
+    global _POOL
+    if _POOL is None or _POOL._max_workers < n:  # noqa: SLF001 - sizing our own pool
+        from concurrent.futures import ThreadPoolExecutor
+
+        _POOL = ThreadPoolExecutor(max_workers=n, thread_name_prefix="oas-sonar-kernels")
+    return _POOL
+
+
+def split_run(fn, n: int, threads: int) -> None:
+    """Run ``fn(a, b)`` over ``[0, n)`` in ``threads`` contiguous parts (one on this thread).
+
+    For GIL-releasing kernels; the parts must write disjoint outputs.
+    """
+    threads = max(1, min(int(threads), n // 64 or 1))
+    if threads == 1:
+        fn(0, n)
+        return
+    bounds = [n * k // threads for k in range(threads + 1)]
+    pool = _pool(threads - 1)
+    futs = [pool.submit(fn, bounds[k], bounds[k + 1]) for k in range(1, threads)]
+    fn(bounds[0], bounds[1])
+    for f in futs:
+        f.result()

@@ -1,0 +1,326 @@
+"""numba kernels of sonar image formation (imported only through :mod:`._kernels`, on first use).
+
+Each kernel is one pass over the arrays it reads and computes what the numpy reference in
+``formation.py`` / ``noise.py`` computes (the tests compare the two on seeded inputs).
+They release the GIL (``nogil=True``) so that the caller can run beam ranges on two threads,
+and are cached on disk (``cache=True``) so that only the first run on a machine compiles.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+_MIN_COS_FOOTPRINT = 0.02  # same clamp as formation._MIN_COS_FOOTPRINT
+
+
+@njit(cache=True, nogil=True)
+def ray_grid32(cp, sp, a, rz, out):
+    """World unit directions of the (K, J) ray grid, ``cos(phi_k) a_j + sin(phi_k) R_z``, into ``out`` (K*J, 3) float32."""
+    K, J = cp.size, a.shape[0]
+    for k in range(K):
+        for j in range(J):
+            i = k * J + j
+            for c in range(3):
+                out[i, c] = cp[k] * a[j, c] + sp[k] * rz[c]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def scan_rays(tfar, geom, prim, u, v, ng, corner_normals, tri_offset, smooth, cp, sp, a, rz, i0, i1,
+              body, r, nd, ndd, cos_inc, slope):
+    """Per ray of the grid (rows ``i0..i1``): body, range, ``n.d``, ``n.d'``, ``|n.d|`` and ``dr/dphi``.
+
+    ``d = cos(phi) a + sin(phi) R_z`` and ``d' = -sin(phi) a + cos(phi) R_z``; the normal is the
+    interpolated corner normal (``smooth``) or Embree's geometric normal, normalised in float32
+    as ``RayCaster.cast_raw`` does.
+    """
+    J = a.shape[0]
+    for i in range(i0, i1):
+        g = geom[i]
+        if g < 0:
+            body[i] = -1
+            r[i] = np.inf
+            nd[i] = np.nan
+            ndd[i] = np.nan
+            cos_inc[i] = 0.0
+            slope[i] = 0.0
+            continue
+        k = i // J
+        j = i - k * J
+        if smooth:
+            t = tri_offset[g] + prim[i]
+            w1 = u[i]
+            w2 = v[i]
+            w0 = np.float32(1.0) - w1 - w2
+            n0 = w0 * corner_normals[t, 0, 0] + w1 * corner_normals[t, 1, 0] + w2 * corner_normals[t, 2, 0]
+            n1 = w0 * corner_normals[t, 0, 1] + w1 * corner_normals[t, 1, 1] + w2 * corner_normals[t, 2, 1]
+            n2 = w0 * corner_normals[t, 0, 2] + w1 * corner_normals[t, 1, 2] + w2 * corner_normals[t, 2, 2]
+        else:
+            n0, n1, n2 = ng[i, 0], ng[i, 1], ng[i, 2]
+        inv = np.float32(1.0) / (np.sqrt(n0 * n0 + n1 * n1 + n2 * n2) + np.float32(1e-30))
+        m0, m1, m2 = float(n0 * inv), float(n1 * inv), float(n2 * inv)
+        c, s = cp[k], sp[k]
+        d0 = c * a[j, 0] + s * rz[0]
+        d1 = c * a[j, 1] + s * rz[1]
+        d2 = c * a[j, 2] + s * rz[2]
+        e0 = -s * a[j, 0] + c * rz[0]
+        e1 = -s * a[j, 1] + c * rz[1]
+        e2 = -s * a[j, 2] + c * rz[2]
+        x = m0 * d0 + m1 * d1 + m2 * d2
+        y = m0 * e0 + m1 * e1 + m2 * e2
+        rr = float(tfar[i])
+        body[i] = g
+        r[i] = rr
+        nd[i] = x
+        ndd[i] = y
+        ci = abs(x)
+        cos_inc[i] = ci
+        sgn = -1.0 if x < 0 else 1.0
+        slope[i] = -rr * y / (sgn * max(ci, _MIN_COS_FOOTPRINT))
+
+
+@njit(cache=True, nogil=True)
+def footprints(body, r, cos_inc, slope, a, b, refl, weight_k, gain, J, pad_width, energy, lo, hi):
+    """Energy and range footprint of every ray (``formation._scan``'s last step).
+
+    ``weight_k`` (K,) elevation weights (or empty), ``gain`` (N,) propagation gain (or empty).
+    """
+    for i in range(body.size):
+        g = body[i]
+        if g < 0:
+            energy[i] = 0.0
+            lo[i] = np.nan
+            hi[i] = np.nan
+            continue
+        e = refl[g] * cos_inc[i] * (a[i] + b[i])
+        if weight_k.size:
+            e *= weight_k[i // J]
+        if gain.size:
+            e *= gain[i]
+        energy[i] = e
+        x = r[i] - slope[i] * a[i]
+        y = r[i] + slope[i] * b[i]
+        if y < x:
+            x, y = y, x
+        pad = max(0.0, pad_width - (y - x)) * 0.5
+        lo[i] = x - pad
+        hi[i] = y + pad
+
+
+@njit(cache=True, nogil=True)
+def bucket_by_beam(beam, energy, n_beams):
+    """Indices of the lit rays (``energy > 0``) grouped by beam (a counting sort): rays of beam
+    ``j`` are ``order[starts[j]:starts[j + 1]]``, in their original order."""
+    counts = np.zeros(n_beams + 1, np.int64)
+    for i in range(beam.size):
+        if energy[i] > 0:
+            counts[beam[i] + 1] += 1
+    for j in range(n_beams):
+        counts[j + 1] += counts[j]
+    starts = counts.copy()
+    order = np.empty(counts[n_beams], np.int32)
+    for i in range(beam.size):
+        if energy[i] > 0:
+            j = beam[i]
+            order[counts[j]] = i
+            counts[j] += 1
+    return order, starts
+
+
+@njit(cache=True, nogil=True)
+def echo_rows(order, starts, lo_m, hi_m, energy, slot, range_min, scale, n_cells, H, V, full, q, n_bins, j0, j1, out):
+    """Box-integrate rays into fine range cells, low-pass and decimate, for beams ``j0..j1``.
+
+    Every lit ray deposits into slot 0 (the whole echo) and, when ``slot[i] > 0``, into its
+    class's slot as well (the seabed/target split, in the same pass). A box of energy ``e``
+    over ``[lo, hi]`` (fine-cell units) is a step up at ``lo`` and down at ``hi``, each a
+    linear two-cell deposit (``formation._box_integrate``); the fine profile is the
+    cumulative sum of the deposits and the image its anti-aliased decimation
+    (``formation._decimate``). Both are linear, so each deposit ``a`` at fine cell
+    ``c = q b + p`` is carried straight to the output: ``a H[p, m + D]`` into bins
+    ``b + m``, ``|m| <= D`` (the decimation weights of the cells at or after ``c``), and a
+    step of ``a full`` (the sum of all weights, ``q``) from bin ``b + D + 1`` on (one cumulative sum over bins per row). Fine
+    cells past the end do not exist (zero border): ``V`` removes what the steps put there.
+    Cost is linear in rays plus bins, with no fine array. ``out`` (S, n_beams, n_bins)
+    float32 (rows per beam: a column stride of a power of two thrashes the caches) must be
+    zero; rows ``j0..j1`` are written.
+    """
+    S = out.shape[0]
+    D = (H.shape[1] - 1) // 2
+    row = np.zeros((S, n_bins))
+    step = np.zeros((S, n_bins + 1))
+    end = np.zeros(S)
+    used = np.zeros(S, np.bool_)
+    for j in range(j0, j1):
+        for idx in range(starts[j], starts[j + 1]):
+            i = order[idx]
+            e = energy[i]
+            x0 = (lo_m[i] - range_min) * scale
+            x1 = (hi_m[i] - range_min) * scale
+            dens = e / (x1 - x0)
+            x0 = min(max(x0, 0.0), n_cells)
+            x1 = min(max(x1, 0.0), n_cells)
+            p0 = int(x0)
+            f0 = x0 - p0
+            p1 = int(x1)
+            f1 = x1 - p1
+            s = slot[i]
+            for t in range(8):
+                ss = 0 if t < 4 else s
+                if t == 4 and s <= 0:
+                    break
+                tt = t & 3
+                if tt == 0:
+                    c, a = p0, dens - dens * f0
+                elif tt == 1:
+                    c, a = p0 + 1, dens * f0
+                elif tt == 2:
+                    c, a = p1, dens * f1 - dens
+                else:
+                    c, a = p1 + 1, -dens * f1
+                if c >= n_cells:  # only cells past the end, which are cut
+                    continue
+                used[ss] = True
+                end[ss] += a
+                b = c // q
+                ph = c - b * q
+                for m in range(-D, D + 1):
+                    bb = b + m
+                    if 0 <= bb < n_bins:
+                        row[ss, bb] += a * H[ph, m + D]
+                sb = b + D + 1
+                if sb < n_bins:
+                    step[ss, sb] += a * full
+        for ss in range(S):
+            if not used[ss]:
+                continue
+            acc = 0.0
+            for bb in range(n_bins):
+                acc += step[ss, bb]
+                out[ss, j, bb] = row[ss, bb] + acc
+            for t in range(V.size):
+                bb = n_bins - V.size + t
+                if bb >= 0:
+                    out[ss, j, bb] -= end[ss] * V[t]
+            row[ss, :] = 0.0
+            step[ss, :] = 0.0
+            end[ss] = 0.0
+            used[ss] = False
+    return out
+
+
+@njit(cache=True, nogil=True)
+def shares(parts, intensity, slot_of_share, out):
+    """Seabed shares from class images: ``out[m] = clip(parts[slot] / parts[0], 0, 1)`` where the
+    intensity is positive; the share whose slot is 0 is the remainder ``clip(1 - others, 0, 1)``.
+
+    ``parts`` (S, B, J) float32 (slot 0: the whole echo), ``intensity`` (B, J),
+    ``out`` (M, B, J) float32.
+    """
+    M = slot_of_share.size
+    B, J = intensity.shape
+    for bb in range(B):
+        for j in range(J):
+            if not intensity[bb, j] > 0:
+                for m in range(M):
+                    out[m, bb, j] = 0.0
+                continue
+            tt = parts[0, bb, j]
+            rest = np.float32(1.0)
+            rest_m = -1
+            for m in range(M):
+                s = slot_of_share[m]
+                if s == 0:
+                    rest_m = m
+                    continue
+                v = np.float32(0.0)
+                if tt > 0:
+                    v = min(max(parts[s, bb, j] / tt, np.float32(0.0)), np.float32(1.0))
+                out[m, bb, j] = v
+                rest -= v
+            if rest_m >= 0:
+                out[rest_m, bb, j] = min(max(rest, np.float32(0.0)), np.float32(1.0))
+    return out
+
+
+@njit(cache=True, nogil=True)
+def noise_gaussian(I, shares, N, cumw, lams, U, E, psi, target_speckle, use_psi, r0, r1, out):
+    """The thesis noise model with Rayleigh-family bottoms, rows ``r0..r1`` (``NoiseModel._apply_numpy``).
+
+    Per cell: bottom types ``t`` add circular Gaussian power ``I share_t lam_t[c]`` (component
+    ``c`` from ``U[t]`` against the cumulative weights), the noise floor ``N`` and (with
+    target speckle) the target echo add theirs: ``P``. A steady target (no speckle) is
+    ``S``. The intensity is ``S + P E + 2 sqrt(S P E) cos(psi)``.
+    """
+    T = shares.shape[0]
+    C = lams.shape[1]
+    J = I.shape[1]
+    two = np.float32(2.0)
+    for bb in range(r0, r1):
+        n = N[bb]
+        for j in range(J):
+            x = I[bb, j]
+            bottom = np.float32(0.0)
+            P = n
+            for t in range(T):
+                part = x * shares[t, bb, j]
+                bottom += part
+                lam = lams[t, C - 1]
+                if C > 1:
+                    uu = U[t, bb, j]
+                    for c in range(C - 2, -1, -1):
+                        if uu < cumw[t, c]:
+                            lam = lams[t, c]
+                P += part * np.float32(lam)
+            target = max(x - bottom, np.float32(0.0))
+            e = E[bb, j]
+            if target_speckle:
+                out[bb, j] = (P + target) * e
+            else:
+                pe = P * e
+                v = target + pe
+                if use_psi:
+                    v += two * np.sqrt(target * pe) * np.cos(psi[bb, j])
+                out[bb, j] = max(v, np.float32(0.0))
+    return out
+
+
+@njit(cache=True, nogil=True)
+def truth_maps(beam, lo_m, hi_m, energy, body, el_lo, el_hi, range_min, inv_bin, n_bins, n_beams,
+               body_map, el_min, el_max):
+    """Per cell the body of the strongest single contribution and the elevation span that echoes
+    (``formation._truth_maps``): every lit ray visits the bins its footprint overlaps."""
+    best = np.zeros(n_bins * n_beams, np.float32)
+    for c in range(n_bins * n_beams):
+        body_map.flat[c] = -1
+        el_min.flat[c] = np.inf
+        el_max.flat[c] = -np.inf
+    for i in range(beam.size):
+        e = energy[i]
+        if not e > 0:
+            continue
+        x0 = np.float32((lo_m[i] - range_min) * inv_bin)
+        x1 = np.float32((hi_m[i] - range_min) * inv_bin)
+        if not (x1 > 0 and x0 < n_bins):
+            continue
+        dens = np.float32(e / (x1 - x0))
+        b0 = int(min(max(x0, 0.0), n_bins - 1))
+        b1 = int(min(max(x1, 0.0), n_bins - 1))
+        j = beam[i]
+        lo_e = np.float32(el_lo[i])
+        hi_e = np.float32(el_hi[i])
+        for bb in range(b0, b1 + 1):
+            w = dens * max(min(x1, np.float32(bb + 1)) - max(x0, np.float32(bb)), np.float32(0.0))
+            c = bb * n_beams + j
+            if w > best[c] or (w == best[c] and body[i] > body_map.flat[c]):
+                best[c] = w
+                body_map.flat[c] = body[i]
+            if lo_e < el_min.flat[c]:
+                el_min.flat[c] = lo_e
+            if hi_e > el_max.flat[c]:
+                el_max.flat[c] = hi_e
+    for c in range(n_bins * n_beams):
+        if not np.isfinite(el_min.flat[c]):
+            el_min.flat[c] = np.nan
+            el_max.flat[c] = np.nan
