@@ -936,6 +936,15 @@ def _refine_edges(caster, spec, pose, body, r, slope, a, b) -> None:
 def _truth_maps(spec: SonarSpec, rays: SonarRays):
     """Per cell: the body of the strongest single contribution and the elevation span that echoes."""
     B, J = spec.n_bins, spec.n_beams
+    if use_numba():
+        body_map = np.empty((B, J), np.int16)
+        el_min = np.empty((B, J), np.float32)
+        el_max = np.empty((B, J), np.float32)
+        flat = lambda a: np.ascontiguousarray(a).reshape(-1)  # noqa: E731
+        kernels().truth_maps(flat(rays.beam_index), flat(rays.footprint_lo), flat(rays.footprint_hi),
+                             flat(rays.energy), flat(rays.body), flat(rays.elevation_lo), flat(rays.elevation_hi),
+                             float(spec.range_min), 1.0 / spec.bin_width, B, J, body_map, el_min, el_max)
+        return body_map, el_min, el_max
     ok = rays.energy > 0
     inv = np.float32(1.0 / spec.bin_width)
     lo = (rays.footprint_lo[ok].astype(np.float32) - np.float32(spec.range_min)) * inv
@@ -993,19 +1002,23 @@ def _shadow_mask(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.n
     idx = active
     exited = np.zeros(idx.size, bool)  # has the ray left the body it first hit?
     eps = 1e-4 * max(spec.bin_width, 1e-3)
+    d32_all = np.asarray(d_w, np.float32)
     for _ in range(6):  # a few crossings of the occluding body are enough for closed shapes
         if idx.size == 0:
             break
         org = pose.t + d_w[idx] * (t + eps)[:, None]
-        h = caster.cast(org, d_w[idx], max_distance=spec.range_max * 1.5, smooth=False)
-        got = h.body >= 0
-        tt = t + eps + np.where(got, h.distance, np.inf)
+        # the unvalidated float32 path (``caster.cast`` is this, widened): unit directions by construction
+        dist32 = np.full(idx.size, min(np.float32(spec.range_max * 1.5), np.float32(1e30)), np.float32)
+        h_dist, h_body, _, h_n = caster.cast_raw(np.asarray(org, np.float32), d32_all[idx], dist32, smooth=False)
+        got = h_body >= 0
+        tt = t + eps + np.where(got, h_dist.astype(np.float64), np.inf)
+        h_normal = h_n.astype(np.float64)
         with np.errstate(invalid="ignore"):
-            front = got & (np.einsum("ij,ij->i", np.nan_to_num(h.normal), d_w[idx]) < 0)
-        same = h.body == first_body[idx]
+            front = got & (np.einsum("ij,ij->i", h_normal, d_w[idx]) < 0)
+        same = h_body == first_body[idx]
         accept = front & (~same | exited)
         hidden_r[idx[accept]] = tt[accept]
-        hidden_n[idx[accept]] = h.normal[accept]
+        hidden_n[idx[accept]] = h_normal[accept]
         exited = exited | (got & ~front & same)
         keep = got & ~accept
         idx, t, exited = idx[keep], tt[keep], exited[keep]
