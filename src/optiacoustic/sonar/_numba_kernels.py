@@ -324,3 +324,127 @@ def truth_maps(beam, lo_m, hi_m, energy, body, el_lo, el_hi, range_min, inv_bin,
         if not np.isfinite(el_min.flat[c]):
             el_min.flat[c] = np.nan
             el_max.flat[c] = np.nan
+
+
+@njit(cache=True, nogil=True)
+def subdivide(body, rng, lo, hi, nd, ndd, a, b, refl, elevation, beam, bin_width, max_sub, sub_bins,
+              table_x0, table_dx, table_y, alpha_db, spreading):
+    """``formation._subdivide`` in one pass: each hit ray's elevation cell split into sub-cells
+    no longer than about ``sub_bins`` range bins (at most ``max_sub``), each with its own range,
+    footprint, Lambert factor, two-way pattern weight (linear interpolation in ``table_y``,
+    a uniform table from ``table_x0`` in steps of ``table_dx``, clamped at its ends as
+    ``np.interp``) and, with ``spreading``, the two-way gain ``r^-2 10^(-alpha (r - 1) / 5)``.
+    Returns flat arrays ``(range, energy, body, cos_incidence, lo, hi, beam, elevation,
+    elevation_lo, elevation_hi)``.
+    """
+    N = body.size
+    n_sub = np.zeros(N, np.int64)
+    total = 0
+    for i in range(N):
+        if body[i] >= 0:
+            s = int(np.ceil((hi[i] - lo[i]) / bin_width / sub_bins))
+            s = min(max(s, 1), max_sub)
+            n_sub[i] = s
+            total += s
+    o_r = np.empty(total)
+    o_e = np.empty(total)
+    o_body = np.empty(total, body.dtype)
+    o_c = np.empty(total)
+    o_lo = np.empty(total)
+    o_hi = np.empty(total)
+    o_beam = np.empty(total, beam.dtype)
+    o_el = np.empty(total)
+    o_el_lo = np.empty(total)
+    o_el_hi = np.empty(total)
+    n_tab = table_y.size
+    pad_w = 1e-4 * bin_width
+    m = 0
+    for i in range(N):
+        S = n_sub[i]
+        if S == 0:
+            continue
+        delta = (a[i] + b[i]) / S
+        ch = np.cos(0.5 * delta)
+        sh = np.sin(0.5 * delta)
+        x, y = nd[i], ndd[i]
+        sgn = -1.0 if x < 0 else 1.0
+        base = rng[i] * abs(x)
+        for k in range(S):
+            t = -a[i] + (k + 0.5) * delta
+            ct, st = np.cos(t), np.sin(t)
+            p_mid = (x * ct + y * st) * sgn
+            p_dif = (y * ct - x * st) * sgn
+            c_mid = max(p_mid, _MIN_COS_FOOTPRINT)
+            p_a = max(p_mid * ch - p_dif * sh, _MIN_COS_FOOTPRINT)
+            p_b = max(p_mid * ch + p_dif * sh, _MIN_COS_FOOTPRINT)
+            r_mid = base / c_mid
+            r_a = base / p_a
+            r_b = base / p_b
+            flo, fhi = min(r_a, r_b), max(r_a, r_b)
+            pad = max(0.0, pad_w - (fhi - flo)) * 0.5
+            el = elevation[i] + t
+            pos = (el - table_x0) / table_dx
+            if pos <= 0.0:
+                w = table_y[0]
+            elif pos >= n_tab - 1:
+                w = table_y[n_tab - 1]
+            else:
+                j = int(pos)
+                f = pos - j
+                w = table_y[j] + f * (table_y[j + 1] - table_y[j])
+            e = refl[i] * c_mid * delta * w
+            if spreading:
+                e *= 10.0 ** (-2.0 * alpha_db * (r_mid - 1.0) / 10.0) / (r_mid * r_mid)
+            o_r[m] = r_mid
+            o_e[m] = e
+            o_body[m] = body[i]
+            o_c[m] = c_mid
+            o_lo[m] = flo - pad
+            o_hi[m] = fhi + pad
+            o_beam[m] = beam[i]
+            o_el[m] = el
+            o_el_lo[m] = el - 0.5 * delta
+            o_el_hi[m] = el + 0.5 * delta
+            m += 1
+    return o_r, o_e, o_body, o_c, o_lo, o_hi, o_beam, o_el, o_el_lo, o_el_hi
+
+
+@njit(cache=True, nogil=True)
+def box_muller(u1, u2, scale, out):
+    """Pairs of independent normals from uniforms (Box-Muller), times ``scale``: ``out[..., 0]``,
+    ``out[..., 1]`` = ``scale sqrt(-2 ln(1 - u1)) (cos, sin)(2 pi u2)``. ``u1`` float64 (so the
+    tail reaches 8.6 sigma), ``u2`` float32, ``scale`` float32 (B, J); ``out`` (B, J, 2) float32."""
+    B, J = u1.shape
+    two_pi = 2.0 * np.pi
+    for i in range(B):
+        for j in range(J):
+            r = np.sqrt(-2.0 * np.log1p(-u1[i, j]))
+            ang = two_pi * u2[i, j]
+            s = scale[i, j]
+            out[i, j, 0] = np.float32(r * np.cos(ang)) * s
+            out[i, j, 1] = np.float32(r * np.sin(ang)) * s
+    return out
+
+
+@njit(cache=True, nogil=True)
+def poisson_inverse(mu, u, mu_max, out):
+    """Poisson counts by inversion: the least ``n`` with ``P(N <= n) >= u`` (``scipy.stats.poisson.ppf``),
+    for ``0 < mu < mu_max``; ``mu <= 0`` gives 0, ``mu >= mu_max`` gives -1 (left to the caller)."""
+    for i in range(mu.size):
+        m = mu.flat[i]
+        if not m > 0:
+            out.flat[i] = 0
+            continue
+        if m >= mu_max:
+            out.flat[i] = -1
+            continue
+        p = np.exp(-m)
+        c = p
+        n = 0
+        uu = u.flat[i]
+        while uu > c and n < 1000:
+            n += 1
+            p *= m / n
+            c += p
+        out.flat[i] = n
+    return out

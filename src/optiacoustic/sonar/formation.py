@@ -761,6 +761,8 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     )
     if pattern is None:
         return rays
+    if fast:
+        return rays, _subdivide_numba(spec, rays, nd, ndd, a, b, refl[body], pattern, options)
     return rays, _subdivide(spec, rays, nd, ndd, a, b, refl[body], pattern, options)
 
 
@@ -802,11 +804,19 @@ def _scan_hits_numba(caster: RayCaster, spec: SonarSpec, pose: Pose):
 
 
 @functools.lru_cache(maxsize=16)
+def _two_way_table(pattern, fov: float):
+    """``F^4`` at 8193 equally spaced elevations over ``[-fov / 2, fov / 2]`` (read-only)."""
+    x = np.linspace(-fov / 2, fov / 2, 8193)
+    y = np.asarray(pattern.two_way(x), float)
+    x.setflags(write=False)
+    y.setflags(write=False)
+    return x, y
+
+
 def _two_way_lookup(pattern, fov: float):
     """``F^4`` by linear interpolation in a table of 8193 samples over ``[-fov / 2, fov / 2]``
     (within 1e-5 of the closed form for the apertures of the presets; np.sinc is slow)."""
-    x = np.linspace(-fov / 2, fov / 2, 8193)
-    y = pattern.two_way(x)
+    x, y = _two_way_table(pattern, fov)
     return functools.partial(np.interp, xp=x, fp=y)
 
 
@@ -861,6 +871,24 @@ def _subdivide(spec: SonarSpec, rays: SonarRays, nd, ndd, a, b, refl, pattern, o
         elevation=elev, elevation_lo=elev - 0.5 * delta, elevation_hi=elev + 0.5 * delta,
         elevation_step=rays.elevation_step,
     )
+
+
+def _subdivide_numba(spec: SonarSpec, rays: SonarRays, nd, ndd, a, b, refl, pattern, options) -> SonarRays:
+    """:func:`_subdivide` by one kernel pass (the pattern's table interpolated in the kernel)."""
+    from .propagation import absorption_db_per_m
+
+    fov = spec.fov_elevation
+    x, y = _two_way_table(pattern, fov)
+    flat = lambda arr: np.ascontiguousarray(arr).reshape(-1)  # noqa: E731
+    spreading = options.propagation == "spreading"
+    alpha = float(absorption_db_per_m(spec.frequency, options.water)) if spreading else 0.0
+    out = kernels().subdivide(flat(rays.body), flat(rays.range), flat(rays.footprint_lo), flat(rays.footprint_hi),
+                              nd, ndd, a, b, refl, flat(rays.elevation), flat(rays.beam_index), spec.bin_width,
+                              _MAX_SUBCELLS, _SUBCELL_BINS, float(x[0]), float(x[1] - x[0]), y, alpha, spreading)
+    r, energy, body, c, lo, hi, beam, el, el_lo, el_hi = out
+    return SonarRays(range=r, energy=energy, body=body, cos_incidence=c, footprint_lo=lo, footprint_hi=hi,
+                     beam_index=beam, elevation=el, elevation_lo=el_lo, elevation_hi=el_hi,
+                     elevation_step=rays.elevation_step)
 
 
 #: Sub-rays cast across each visibility discontinuity between two elevation samples.

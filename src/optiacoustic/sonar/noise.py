@@ -307,9 +307,13 @@ class ScattererNoise:
                 raise ValueError(f"ScattererNoise.bottom_type: unknown {self.bottom_type!r}; expected one of {sorted(BOTTOM_TYPES)}")
 
     def draw(self, shape: tuple, bottom_types, rng: np.random.Generator):
-        """The complex normals (drawn while the scene is scanned) and the generator for the
-        counts, which depend on the cell areas known only after the scan."""
-        return rng.standard_normal(tuple(shape) + (2,), dtype=np.float32), rng
+        """The uniforms of the complex normals and of the counts (drawn while the scene is
+        scanned), and the generator for counts of large mean (after the scan)."""
+        shape = tuple(shape)
+        u1 = rng.random(shape)
+        u2 = rng.random(shape, dtype=np.float32)
+        u_count = rng.random(shape)
+        return (u1, u2, u_count), rng
 
     def kernels(self, spec):
         """Amplitude kernels along range (the pulse) and across beams (two-way ``F^2``)."""
@@ -329,7 +333,7 @@ class ScattererNoise:
         from .speckle import filter_complex
 
         I = np.asarray(intensity, np.float32)
-        z, rng = draws if draws is not None else self.draw(I.shape, (), np.random.default_rng(rng))
+        (u1, u2, u_count), rng = draws if draws is not None else self.draw(I.shape, (), np.random.default_rng(rng))
         h_r, h_b = self.kernels(spec)
         g = self.gain
         alpha = absorption_db_per_m(spec.frequency, options.water) if options.propagation == "spreading" else 0.0
@@ -346,17 +350,55 @@ class ScattererNoise:
         else:
             mu = self.density * np.asarray(cell_area, np.float64)
             seabed = mu > 0
-            n = rng.poisson(np.where(seabed, mu, 0.0)).astype(np.float32)
+            n = _poisson_counts(np.where(seabed, mu, 0.0), u_count, rng).astype(np.float32)
             with np.errstate(invalid="ignore", divide="ignore"):
                 ratio = np.where(seabed, n / np.where(seabed, mu, 1.0), 1.0).astype(np.float32)
             power = echo * ratio + back
-        z = z * np.sqrt(power * np.float32(0.5))[..., None]
+        z = _complex_normals(u1, u2, np.sqrt(power * np.float32(0.5)))
         f = filter_complex(z, h_r, h_b)
         s2 = float((np.asarray(h_r) ** 2).sum() * (np.asarray(h_b) ** 2).sum())
         out = f[..., 0] * f[..., 0]
         out += f[..., 1] * f[..., 1]
         out *= (g.tvg(spec.ranges) / s2).astype(np.float32)[:, None]
         return out
+
+
+#: Counts of mean at least this are drawn by ``Generator.poisson`` after the scan (inversion
+#: would take about ``mu`` steps); below it, by inversion of the uniforms drawn beforehand.
+_POISSON_INVERSION_MAX = 30.0
+
+
+def _poisson_counts(mu: np.ndarray, u: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Poisson counts of mean ``mu`` (float64, any shape): by inversion of the uniforms ``u`` where
+    ``mu < 30`` (exact: the least ``n`` with ``P(N <= n) >= u``), by ``rng.poisson`` elsewhere."""
+    from ._kernels import kernels, use_numba
+
+    if use_numba():
+        n = kernels().poisson_inverse(mu, u, _POISSON_INVERSION_MAX, np.empty(mu.shape, np.int64))
+    else:
+        from scipy.stats import poisson
+
+        small = (mu > 0) & (mu < _POISSON_INVERSION_MAX)
+        n = np.where(mu >= _POISSON_INVERSION_MAX, -1, 0).astype(np.int64)
+        n[small] = poisson.ppf(u[small], mu[small]).astype(np.int64)
+    big = n < 0
+    if big.any():
+        n[big] = rng.poisson(mu[big])
+    return n
+
+
+def _complex_normals(u1: np.ndarray, u2: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """``(n_bins, n_beams, 2)`` float32 pairs of independent normals times ``scale`` (Box-Muller from
+    ``u1`` float64 and ``u2`` float32 uniforms): two ``Generator.random`` draws cost less than
+    two ``standard_normal`` ones."""
+    from ._kernels import kernels, use_numba
+
+    scale = np.ascontiguousarray(scale, np.float32)
+    if use_numba():
+        return kernels().box_muller(u1, u2, scale, np.empty(scale.shape + (2,), np.float32))
+    r = np.sqrt(-2.0 * np.log1p(-u1))
+    ang = 2.0 * np.pi * u2.astype(np.float64)
+    return np.stack([(r * np.cos(ang)).astype(np.float32) * scale, (r * np.sin(ang)).astype(np.float32) * scale], -1)
 
 
 @functools.lru_cache(maxsize=32)
