@@ -109,9 +109,12 @@ def footprints(body, r, cos_inc, slope, a, b, refl, weight_k, gain, J, pad_width
 
 
 @njit(cache=True, nogil=True)
-def bucket_by_beam(beam, energy, n_beams):
-    """Indices of the lit rays (``energy > 0``) grouped by beam (a counting sort): rays of beam
-    ``j`` are ``order[starts[j]:starts[j + 1]]``, in their original order."""
+def bucket_by_beam(beam, lo_m, hi_m, energy, slot, range_min, scale, n_cells, n_beams):
+    """The lit rays (``energy > 0``) as records grouped by beam (a counting sort), in their
+    original order within a beam: ``rec[k] = (x0, x1, density, slot)`` with the footprint
+    ``[x0, x1]`` in fine cells (clipped to ``[0, n_cells]``) and the energy density per cell;
+    beam ``j`` holds ``rec[starts[j]:starts[j + 1]]``. One sequential pass over the rays, so
+    that the per-beam pass reads its rays contiguously."""
     counts = np.zeros(n_beams + 1, np.int64)
     for i in range(beam.size):
         if energy[i] > 0:
@@ -119,17 +122,24 @@ def bucket_by_beam(beam, energy, n_beams):
     for j in range(n_beams):
         counts[j + 1] += counts[j]
     starts = counts.copy()
-    order = np.empty(counts[n_beams], np.int32)
+    rec = np.empty((counts[n_beams], 4))
     for i in range(beam.size):
-        if energy[i] > 0:
+        e = energy[i]
+        if e > 0:
             j = beam[i]
-            order[counts[j]] = i
+            k = counts[j]
             counts[j] += 1
-    return order, starts
+            x0 = (lo_m[i] - range_min) * scale
+            x1 = (hi_m[i] - range_min) * scale
+            rec[k, 2] = e / (x1 - x0)
+            rec[k, 0] = min(max(x0, 0.0), n_cells)
+            rec[k, 1] = min(max(x1, 0.0), n_cells)
+            rec[k, 3] = slot[i]
+    return rec, starts
 
 
 @njit(cache=True, nogil=True)
-def echo_rows(order, starts, lo_m, hi_m, energy, slot, range_min, scale, n_cells, H, V, full, q, n_bins, j0, j1, out):
+def echo_rows(rec, starts, n_cells, H, V, full, q, n_bins, j0, j1, out):
     """Box-integrate rays into fine range cells, low-pass and decimate, for beams ``j0..j1``.
 
     Every lit ray deposits into slot 0 (the whole echo) and, when ``slot[i] > 0``, into its
@@ -154,18 +164,14 @@ def echo_rows(order, starts, lo_m, hi_m, energy, slot, range_min, scale, n_cells
     used = np.zeros(S, np.bool_)
     for j in range(j0, j1):
         for idx in range(starts[j], starts[j + 1]):
-            i = order[idx]
-            e = energy[i]
-            x0 = (lo_m[i] - range_min) * scale
-            x1 = (hi_m[i] - range_min) * scale
-            dens = e / (x1 - x0)
-            x0 = min(max(x0, 0.0), n_cells)
-            x1 = min(max(x1, 0.0), n_cells)
+            x0 = rec[idx, 0]
+            x1 = rec[idx, 1]
+            dens = rec[idx, 2]
+            s = int(rec[idx, 3])
             p0 = int(x0)
             f0 = x0 - p0
             p1 = int(x1)
             f1 = x1 - p1
-            s = slot[i]
             for t in range(8):
                 ss = 0 if t < 4 else s
                 if t == 4 and s <= 0:
@@ -183,12 +189,20 @@ def echo_rows(order, starts, lo_m, hi_m, energy, slot, range_min, scale, n_cells
                     continue
                 used[ss] = True
                 end[ss] += a
-                b = c // q
-                ph = c - b * q
-                for m in range(-D, D + 1):
-                    bb = b + m
-                    if 0 <= bb < n_bins:
-                        row[ss, bb] += a * H[ph, m + D]
+                if q == 2:  # the default oversampling: no integer division
+                    b = c >> 1
+                    ph = c & 1
+                else:
+                    b = c // q
+                    ph = c - b * q
+                if D <= b < n_bins - D:
+                    for m in range(2 * D + 1):
+                        row[ss, b - D + m] += a * H[ph, m]
+                else:
+                    for m in range(-D, D + 1):
+                        bb = b + m
+                        if 0 <= bb < n_bins:
+                            row[ss, bb] += a * H[ph, m + D]
                 sb = b + D + 1
                 if sb < n_bins:
                     step[ss, sb] += a * full
@@ -369,9 +383,13 @@ def subdivide(body, rng, lo, hi, nd, ndd, a, b, refl, elevation, beam, bin_width
         x, y = nd[i], ndd[i]
         sgn = -1.0 if x < 0 else 1.0
         base = rng[i] * abs(x)
+        cd, sd = np.cos(delta), np.sin(delta)
+        t = -a[i] + 0.5 * delta
+        ct, st = np.cos(t), np.sin(t)
         for k in range(S):
-            t = -a[i] + (k + 0.5) * delta
-            ct, st = np.cos(t), np.sin(t)
+            if k > 0:  # rotate by delta: cos/sin of t + k delta without two trigonometric calls each
+                t = -a[i] + (k + 0.5) * delta
+                ct, st = ct * cd - st * sd, st * cd + ct * sd
             p_mid = (x * ct + y * st) * sgn
             p_dif = (y * ct - x * st) * sgn
             c_mid = max(p_mid, _MIN_COS_FOOTPRINT)
@@ -394,7 +412,7 @@ def subdivide(body, rng, lo, hi, nd, ndd, a, b, refl, elevation, beam, bin_width
                 w = table_y[j] + f * (table_y[j + 1] - table_y[j])
             e = refl[i] * c_mid * delta * w
             if spreading:
-                e *= 10.0 ** (-2.0 * alpha_db * (r_mid - 1.0) / 10.0) / (r_mid * r_mid)
+                e *= np.exp(-0.2 * np.log(10.0) * alpha_db * (r_mid - 1.0)) / (r_mid * r_mid)
             o_r[m] = r_mid
             o_e[m] = e
             o_body[m] = body[i]
@@ -418,11 +436,12 @@ def box_muller(u1, u2, scale, out):
     two_pi = 2.0 * np.pi
     for i in range(B):
         for j in range(J):
-            r = np.sqrt(-2.0 * np.log1p(-u1[i, j]))
-            ang = two_pi * u2[i, j]
-            s = scale[i, j]
-            out[i, j, 0] = np.float32(r * np.cos(ang)) * s
-            out[i, j, 1] = np.float32(r * np.sin(ang)) * s
+            # 1 - u1 in float64 keeps the tail; its logarithm and the trigonometry in float32
+            r = np.sqrt(np.float32(-2.0) * np.log(np.float32(1.0 - u1[i, j])))
+            ang = np.float32(two_pi) * u2[i, j]
+            s = scale[i, j] * r
+            out[i, j, 0] = np.cos(ang) * s
+            out[i, j, 1] = np.sin(ang) * s
     return out
 
 

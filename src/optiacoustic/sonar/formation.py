@@ -502,12 +502,12 @@ def _echo_numba(spec: SonarSpec, rays: SonarRays, slot: np.ndarray, n_slots: int
     q = cells_per_bin
     H, V, full = _deposit_tables(spec.n_bins, q, sigma_bins)
     J, n_cells = spec.n_beams, spec.n_bins * q
-    energy = rays.energy.reshape(-1)
-    order, starts = kn.bucket_by_beam(np.ascontiguousarray(rays.beam_index).reshape(-1), energy, J)
-    out = np.zeros((n_slots, J, spec.n_bins), np.float32)
-    args = (order, starts, rays.footprint_lo.reshape(-1), rays.footprint_hi.reshape(-1), energy,
-            slot, float(spec.range_min), q / spec.bin_width, n_cells, H, V, full, q, spec.n_bins)
-    split_run(lambda j0, j1: kn.echo_rows(*args, j0, j1, out), J, threads)
+    flat = lambda a: np.ascontiguousarray(a).reshape(-1)  # noqa: E731
+    rec, starts = kn.bucket_by_beam(flat(rays.beam_index), flat(rays.footprint_lo), flat(rays.footprint_hi),
+                                    flat(rays.energy), slot, float(spec.range_min), q / spec.bin_width, n_cells, J)
+    out = _workspace(f"echo{n_slots}", (n_slots, J, spec.n_bins), np.float32)  # fresh pages fault: reuse
+    out.fill(0.0)
+    split_run(lambda j0, j1: kn.echo_rows(rec, starts, n_cells, H, V, full, q, spec.n_bins, j0, j1, out), J, threads)
     return np.ascontiguousarray(out.transpose(0, 2, 1))
 
 
@@ -580,7 +580,7 @@ def _form_with_shares_numba(spec: SonarSpec, rays: SonarRays, options: SonarOpti
         parts = np.stack([_mix_and_scale(spec, parts[s], options) for s in range(n_slots)])
     else:
         parts *= np.float32(1.0 / spec.bin_width)
-    intensity = parts[0].copy()
+    intensity = parts[0]  # parts is fresh; thresholding it in place only zeroes cells whose shares are 0
     peak = float(intensity.max()) if intensity.size else 0.0
     intensity[intensity < np.float32(1e-9 * peak)] = 0.0  # the cumulative sums' rounding residue
     if not bottom_types:

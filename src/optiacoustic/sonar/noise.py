@@ -177,10 +177,9 @@ class NoiseModel:
                 cumw[k, : len(w) - 1] = np.cumsum(w)[:-1]
                 lams[k, : len(w)] = lam
                 lams[k, len(w):] = lam[-1]
-            sh = np.stack([np.asarray(seabed_share[t], np.float32) for t in types]) if T else np.zeros((0,) + shape,
-                                                                                                       np.float32)
-            U = np.stack([draws.u[t] if draws.u.get(t) is not None else np.zeros(shape, np.float32) for t in types]) \
-                if T and C > 1 else np.zeros((max(T, 1), 1, 1), np.float32)
+            sh = _stack([np.asarray(seabed_share[t], np.float32) for t in types], shape)
+            U = _stack([draws.u[t] if draws.u.get(t) is not None else np.zeros(shape, np.float32) for t in types],
+                       shape) if C > 1 else np.zeros((max(T, 1), 1, 1), np.float32)
             psi = draws.psi if draws.psi is not None else np.zeros((1, 1), np.float32)
             out = np.empty(shape, np.float32)
             kn = kernels()
@@ -230,6 +229,15 @@ class NoiseModel:
         if draws.psi is not None:
             out += np.float32(2.0) * np.sqrt(np.maximum(S, 0.0) * pe) * np.cos(draws.psi)
         return np.maximum(out, 0.0)
+
+
+def _stack(arrays: list, shape: tuple) -> np.ndarray:
+    """``np.stack`` without the copy for one array (the usual single bottom type)."""
+    if not arrays:
+        return np.zeros((0,) + tuple(shape), np.float32)
+    if len(arrays) == 1:
+        return np.ascontiguousarray(arrays[0])[None]
+    return np.stack(arrays)
 
 
 def bottom_model_for(model: NoiseModel, bottom_type: str):
@@ -396,9 +404,10 @@ def _complex_normals(u1: np.ndarray, u2: np.ndarray, scale: np.ndarray) -> np.nd
     scale = np.ascontiguousarray(scale, np.float32)
     if use_numba():
         return kernels().box_muller(u1, u2, scale, np.empty(scale.shape + (2,), np.float32))
-    r = np.sqrt(-2.0 * np.log1p(-u1))
-    ang = 2.0 * np.pi * u2.astype(np.float64)
-    return np.stack([(r * np.cos(ang)).astype(np.float32) * scale, (r * np.sin(ang)).astype(np.float32) * scale], -1)
+    r = np.sqrt(np.float32(-2.0) * np.log((1.0 - u1).astype(np.float32)))
+    ang = np.float32(2.0 * np.pi) * u2
+    s = scale * r
+    return np.stack([np.cos(ang) * s, np.sin(ang) * s], -1)
 
 
 @functools.lru_cache(maxsize=32)
