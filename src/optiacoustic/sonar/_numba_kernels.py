@@ -467,3 +467,45 @@ def poisson_inverse(mu, u, mu_max, out):
             c += p
         out.flat[i] = n
     return out
+
+
+@njit(cache=True, nogil=True)
+def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, z, big):
+    """``ScattererNoise``'s white complex field, rows ``r0..r1``: per cell the Poisson count ``n``
+    of mean ``mu = density area`` (by inversion of ``u_count``, as :func:`poisson_inverse`),
+    the power ``echo n / mu + back`` (``echo + back`` where ``mu = 0``) and a complex normal of
+    that power (as :func:`box_muller`). Cells with ``mu >= mu_max`` are flagged in ``big``
+    (their count is drawn by the caller) and get ``z = 0``."""
+    J = echo.shape[1]
+    two_pi = np.float32(2.0 * np.pi)
+    half = np.float32(0.5)
+    for i in range(r0, r1):
+        bk = back[i]
+        for j in range(J):
+            m = density * area[i, j]
+            big[i, j] = False
+            if m > 0:
+                if m >= mu_max:
+                    big[i, j] = True
+                    z[i, j, 0] = 0.0
+                    z[i, j, 1] = 0.0
+                    continue
+                p = np.exp(-m)
+                c = p
+                n = 0
+                uu = u_count[i, j]
+                while uu > c and n < 1000:
+                    n += 1
+                    p *= m / n
+                    c += p
+                power = echo[i, j] * np.float32(n / m) + bk
+            else:
+                power = echo[i, j] + bk
+            r = np.sqrt(np.float32(-2.0) * np.log(np.float32(1.0 - u1[i, j])))
+            ang = two_pi * u2[i, j]
+            s = np.sqrt(power * half) * r
+            c = np.cos(ang)
+            sn = np.sqrt(max(np.float32(1.0) - c * c, np.float32(0.0)))  # sin(ang) >= 0 on [0, pi)
+            z[i, j, 0] = c * s
+            z[i, j, 1] = (sn if u2[i, j] < half else -sn) * s
+    return z

@@ -414,7 +414,7 @@ def simulate_sonar(
         image = intensity.copy()
     elif area is not None:
         image = noise.apply(intensity, spec=spec, seabed_share=shares, options=options, draws=draws.result(),
-                            cell_area=area.result())
+                            cell_area=area.result(), threads=caster.threads)
     else:
         image = noise.apply(intensity, spec=spec, seabed_share=shares, options=options, draws=draws.result(),
                             threads=caster.threads)

@@ -328,7 +328,7 @@ class ScattererNoise:
         return _kernels(spec)
 
     def apply(self, intensity: np.ndarray, *, spec, seabed_share: dict, options, draws=None, rng=None,
-              cell_area=None) -> np.ndarray:
+              cell_area=None, threads: int = 1) -> np.ndarray:
         """The image ``(n_bins, n_beams)`` float32, linear intensity after the device's TVG.
 
         One complex white field carries both parts, ``w = sqrt(g I n / mu + B) z`` (``n``
@@ -337,6 +337,7 @@ class ScattererNoise:
         It is filtered by the pulse and beam kernels and normalised by ``S2 = sum h^2``,
         so a uniform region has mean ``g I + B`` and the moments of :mod:`.speckle`.
         """
+        from ._kernels import kernels, split_run, use_numba
         from .propagation import absorption_db_per_m
         from .speckle import filter_complex
 
@@ -355,14 +356,28 @@ class ScattererNoise:
             h_r, h_b = np.ones(1), np.ones(1)
         elif cell_area is None or not np.isfinite(self.density):
             power = echo + back
+        elif use_numba():  # counts, power and complex normals in one pass
+            z = np.empty(I.shape + (2,), np.float32)
+            big = np.empty(I.shape, np.bool_)
+            area = np.ascontiguousarray(cell_area, np.float32)
+            kn = kernels()
+            split_run(lambda r0, r1: kn.scatterer_field(echo, back[:, 0], area, float(self.density), u_count, u1, u2,
+                                                        _POISSON_INVERSION_MAX, r0, r1, z, big), I.shape[0], threads)
+            if big.any():  # the rare cells of large mean: counts from the generator, as the numpy path
+                mu = self.density * area[big].astype(np.float64)
+                ratio = (rng.poisson(mu) / mu).astype(np.float32)
+                z[big] = _complex_normals(u1[big][None], u2[big][None],
+                                          np.sqrt((echo[big] * ratio + back[:, 0][np.nonzero(big)[0]]) * np.float32(0.5))[None])[0]
+            power = None
         else:
-            mu = self.density * np.asarray(cell_area, np.float64)
+            mu = self.density * np.asarray(cell_area, np.float32).astype(np.float64)
             seabed = mu > 0
             n = _poisson_counts(np.where(seabed, mu, 0.0), u_count, rng).astype(np.float32)
             with np.errstate(invalid="ignore", divide="ignore"):
                 ratio = np.where(seabed, n / np.where(seabed, mu, 1.0), 1.0).astype(np.float32)
             power = echo * ratio + back
-        z = _complex_normals(u1, u2, np.sqrt(power * np.float32(0.5)))
+        if power is not None:
+            z = _complex_normals(u1, u2, np.sqrt(power * np.float32(0.5)))
         f = filter_complex(z, h_r, h_b)
         s2 = float((np.asarray(h_r) ** 2).sum() * (np.asarray(h_b) ** 2).sum())
         out = f[..., 0] * f[..., 0]
