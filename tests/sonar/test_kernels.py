@@ -1,0 +1,190 @@
+"""The numba kernels of sonar formation against the numpy reference path, on seeded inputs.
+
+``OAS_SONAR_KERNELS=numpy`` selects the reference; both must give the same numbers (within
+float rounding: the kernels sum in another order) and the same draws. Independent truths
+too: energy conservation of the echo, scipy's Poisson quantiles, normal statistics.
+"""
+
+import dataclasses
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from optiacoustic import Pose, scenes
+from optiacoustic.sonar import SonarOptions, SonarSpec, simulate_sonar
+from optiacoustic.sonar import formation as F
+from optiacoustic.sonar import noise as N
+from optiacoustic.sonar.gain import DeviceGain
+from optiacoustic.sonar.noise import NoiseModel, ScattererNoise
+
+SPEC = dataclasses.replace(SonarSpec.preset("blueview-p900-90"), n_beams=96, n_bins=240, elevation_samples=48)
+
+
+def _both(monkeypatch, fn):
+    out = {}
+    for k in ("numba", "numpy"):
+        monkeypatch.setenv("OAS_SONAR_KERNELS", k)
+        out[k] = fn()
+    return out["numba"], out["numpy"]
+
+
+def _close(a, b, rtol=1e-5):
+    scale = float(np.max(np.abs(b))) if np.size(b) else 1.0
+    np.testing.assert_allclose(a, b, rtol=rtol, atol=1e-6 * scale)
+
+
+@pytest.fixture(scope="module")
+def thesis():
+    sc = scenes.get("thesis_scene1")
+    return sc, Pose.look_at(sc.view.eye, sc.view.target)
+
+
+def test_switch_is_validated(monkeypatch):
+    from optiacoustic.sonar._kernels import use_numba
+
+    monkeypatch.setenv("OAS_SONAR_KERNELS", "fortran")
+    with pytest.raises(ValueError, match="OAS_SONAR_KERNELS"):
+        use_numba()
+
+
+@pytest.mark.parametrize("options", [SonarOptions(), SonarOptions(elevation_pattern="gaussian", propagation="spreading")])
+def test_thesis_frame_rays_echo_shares_and_truth_agree(thesis, options, monkeypatch):
+    sc, pose = thesis
+    a, b = _both(monkeypatch, lambda: simulate_sonar(sc, SPEC, pose, seed=4, options=options))
+    for name in ("range", "energy", "footprint_lo", "footprint_hi", "cos_incidence", "elevation_lo", "elevation_hi"):
+        x, y = getattr(a.rays, name), getattr(b.rays, name)
+        assert np.array_equal(np.isfinite(x), np.isfinite(y)), name
+        _close(np.nan_to_num(x), np.nan_to_num(y), rtol=1e-9)
+    assert np.array_equal(a.rays.body, b.rays.body)
+    _close(a.intensity, b.intensity)
+    lit = b.intensity > 1e-6 * b.intensity.max()  # the numpy path zeroes its class images' residue
+    for k in b.seabed_share:
+        np.testing.assert_allclose(a.seabed_share[k][lit], b.seabed_share[k][lit], atol=1e-3)
+    _close(a.image, b.image, rtol=1e-4)  # the same draws
+    ga, gb = a.ground_truth, b.ground_truth
+    assert np.array_equal(ga.body, gb.body)
+    np.testing.assert_array_equal(ga.elevation_min, gb.elevation_min)
+    np.testing.assert_array_equal(ga.elevation_max, gb.elevation_max)
+    assert np.array_equal(ga.shadow, gb.shadow) and ga.shadow.any()
+
+
+def test_aperture_model_subcells_area_and_image_agree(thesis, monkeypatch):
+    sc, pose = thesis
+    opts = SonarOptions(beam_model="aperture", propagation="spreading")
+    a, b = _both(monkeypatch, lambda: simulate_sonar(sc, SPEC, pose, noise=False, options=opts))
+    _close(a.intensity, b.intensity)
+    sspec = F.scan_spec(SPEC, "aperture")
+    caster = F.caster_for(sc)
+
+    def area():
+        _, img = F._scan(sc, caster, sspec, pose, opts, F._aperture_elevation_weights(SPEC), SPEC.elevation_pattern())
+        return img, F.cell_area(SPEC, img, F._bottom_types(sc))
+
+    (ia, aa), (ib, ab) = _both(monkeypatch, area)
+    assert ia.energy.size == ib.energy.size
+    _close(ia.energy, ib.energy, rtol=1e-7)
+    _close(aa, ab)
+    noise = ScattererNoise(density=300.0, gain=DeviceGain(noise_db=-60.0, volume_db=-50.0, spreading_db=30.0))
+    area_big = ab.copy()
+    area_big[::17, ::13] = 0.2  # some cells of mean count >= 30: drawn by the generator in both paths
+
+    def image():
+        d = noise.draw(b.intensity.shape, (), np.random.default_rng(9))
+        return noise.apply(b.intensity, spec=SPEC, seabed_share=b.seabed_share, options=opts, draws=d,
+                           cell_area=area_big, threads=2)
+
+    x, y = _both(monkeypatch, image)
+    _close(x, y, rtol=1e-4)
+
+
+def _boxes(spec, lo, hi, e, rng):
+    n = lo.size
+    return F.SonarRays(range=lo, energy=e, body=np.zeros(n, np.int32), cos_incidence=np.ones(n), footprint_lo=lo,
+                       footprint_hi=hi, beam_index=rng.integers(0, spec.n_beams, n), elevation=np.zeros(n),
+                       elevation_lo=np.zeros(n), elevation_hi=np.zeros(n), elevation_step=0.01)
+
+
+def _echo(spec, rays):
+    opts = SonarOptions()
+    if F.use_numba():
+        return F._form_with_shares_numba(spec, rays, opts, {}, 2)[0]
+    return F._form_image(spec, rays, opts)
+
+
+def test_echo_kernel_matches_box_integration_and_conserves_energy(monkeypatch):
+    """Random boxes, some past either end of the range window, some of zero energy: both paths
+    agree. Boxes well inside the window: the image holds their energy (the box integral and
+    the normalised anti-aliasing weights conserve it)."""
+    spec = dataclasses.replace(SPEC, n_bins=120, n_beams=16)
+    rng = np.random.default_rng(2)
+    n = 3000
+    lo = rng.uniform(spec.range_min - 0.3, spec.range_max, n)
+    hi = lo + rng.exponential(0.05, n) + 1e-6
+    e = rng.uniform(0.0, 1.0, n)
+    e[::7] = 0.0
+    rays = _boxes(spec, lo, hi, e, rng)
+    a, b = _both(monkeypatch, lambda: _echo(spec, rays))
+    _close(a, b)
+    lo = rng.uniform(spec.range_min + 0.3, spec.range_max - 0.6, n)
+    hi = lo + np.minimum(rng.exponential(0.05, n), 0.3) + 1e-6
+    inner = _boxes(spec, lo, hi, e, rng)
+    a, b = _both(monkeypatch, lambda: _echo(spec, inner))
+    _close(a, b)
+    assert float(a.astype(float).sum()) * spec.bin_width == pytest.approx(float(e.sum()), rel=1e-5)
+
+
+@pytest.mark.parametrize("model", [
+    NoiseModel(),
+    NoiseModel(reverberation="rayleigh", noise_floor_db=None),
+    NoiseModel(target_speckle=False),
+    NoiseModel(reverberation="k", target_speckle=False),
+    NoiseModel(reverberation=None),
+])
+def test_noise_model_paths_agree(model, monkeypatch):
+    rng = np.random.default_rng(5)
+    shape = (SPEC.n_bins, SPEC.n_beams)
+    I = (rng.exponential(1.0, shape) * (rng.random(shape) < 0.7)).astype(np.float32)
+    s1 = rng.random(shape).astype(np.float32) * 0.6
+    shares = {"sand/shell": s1, "mud": (1 - s1) * rng.random(shape).astype(np.float32)}
+
+    def image():
+        d = model.draw(shape, list(shares), np.random.default_rng(11))
+        return model.apply(I, spec=SPEC, seabed_share=shares, options=SonarOptions(), draws=d, threads=2)
+
+    a, b = _both(monkeypatch, image)
+    _close(a, b, rtol=1e-5)
+    assert a.dtype == np.float32 and np.all(a >= 0)
+
+
+def test_poisson_inversion_is_scipys_quantile_and_poisson(monkeypatch):
+    rng = np.random.default_rng(3)
+    mu = np.concatenate([rng.uniform(0, 29.9, 4000), [0.0, 31.0, 80.0]])
+    u = rng.random(mu.size)
+    a, b = _both(monkeypatch, lambda: N._poisson_counts(mu, u, np.random.default_rng(1)))
+    assert np.array_equal(a, b)
+    assert np.array_equal(a[:4000], stats.poisson.ppf(u[:4000], mu[:4000]).astype(np.int64))
+    # and it is Poisson: mean and variance of many counts of one mean
+    m = np.full(200_000, 0.7)
+    n = N._poisson_counts(m, np.random.default_rng(4).random(m.size), np.random.default_rng(1))
+    assert abs(n.mean() - 0.7) < 5 * np.sqrt(0.7 / m.size)
+    assert abs(n.var() - 0.7) < 0.02
+
+
+def test_box_muller_normals(monkeypatch):
+    rng = np.random.default_rng(8)
+    u1, u2 = rng.random((300, 200)), rng.random((300, 200), dtype=np.float32)
+    scale = np.full((300, 200), 2.0, np.float32)
+    a, b = _both(monkeypatch, lambda: N._complex_normals(u1, u2, scale))
+    _close(a, b, rtol=1e-5)
+    for c in (0, 1):
+        assert stats.kstest(a[..., c].ravel() / 2.0, "norm").pvalue > 1e-3
+    assert abs(np.corrcoef(a[..., 0].ravel(), a[..., 1].ravel())[0, 1]) < 0.02
+
+
+def test_import_does_not_load_numba():
+    code = "import sys, optiacoustic, optiacoustic.sonar; print('numba' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "False"
