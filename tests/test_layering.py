@@ -81,3 +81,9 @@ def test_imports_flow_one_way(name, path):
 def test_embree_is_behind_the_ray_caster():
     users = sorted(n for n, p in _modules() if any(m.startswith("embreex") for m in _imports(n, p)))
     assert users == ["optiacoustic.raycast"]
+
+
+def test_numba_is_behind_the_sonar_kernels():
+    """numba is imported by one module, loaded only on a frame's first kernel call (never by ``import optiacoustic``)."""
+    users = sorted(n for n, p in _modules() if any(m == "numba" or m.startswith("numba.") for m in _imports(n, p)))
+    assert users == ["optiacoustic.sonar._kernels", "optiacoustic.sonar._numba_kernels"]
