@@ -29,8 +29,12 @@ def run() -> list[dict]:
     real_opts = SonarOptions(beam_model="aperture", propagation="spreading")
     noise = ScattererNoise(density=500.0, gain=DeviceGain(noise_db=-60.0, volume_db=-50.0, spreading_db=30.0))
     seeds = iter(range(10_000))
-    thesis_ms = median_ms(lambda: simulate_sonar(scene, spec, pose, seed=next(seeds)), repeat=9)
-    real_ms = median_ms(lambda: simulate_sonar(scene, spec, pose, seed=next(seeds), noise=noise, options=real_opts), repeat=9)
+    from bench_sonar import paired_ms
+
+    # timed alternately (medians of each), so that load falls on both alike
+    thesis_ms, real_ms = paired_ms(lambda: simulate_sonar(scene, spec, pose, seed=next(seeds)),
+                                   lambda: simulate_sonar(scene, spec, pose, seed=next(seeds), noise=noise,
+                                                          options=real_opts), repeat=11)
     clean_thesis = median_ms(lambda: simulate_sonar(scene, spec, pose, noise=False), repeat=7)
     clean_real = median_ms(lambda: simulate_sonar(scene, spec, pose, noise=False, options=real_opts), repeat=7)
     small = dataclasses.replace(spec, elevation_samples=64)

@@ -23,6 +23,12 @@ def test_uniform_spec_bit_identical_to_output_before_tables():
     got = dict(intensity=fr.intensity, image=fr.image, ranges=fr.ranges, azimuths=fr.azimuths,
                fan=fr.fan(width=64).data, fan_col=col, fan_row=row, fan_mask=mask,
                beam_index=spec.beam_index(th), bin_index=spec.bin_index(r), contains=spec.contains(r, th))
+    # the noise-free echo within float rounding (the compiled kernels of issue 14 sum in another
+    # order); the noisy image and its fan are not pinned: the noise's realisation for a seed
+    # changed with the one-exponential draw (docs/physics.md), its statistics are in test_noise.py
+    np.testing.assert_allclose(got.pop("intensity"), ref["intensity"], rtol=1e-5, atol=1e-6 * float(ref["intensity"].max()))
+    got.pop("image")
+    got.pop("fan")
     for k, v in got.items():
         assert np.array_equal(v, ref[k]), k
 

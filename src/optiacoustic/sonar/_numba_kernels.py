@@ -280,12 +280,12 @@ def noise_gaussian(I, shares, N, cumw, lams, U, E, psi, target_speckle, use_psi,
             for t in range(T):
                 part = x * shares[t, bb, j]
                 bottom += part
-                lam = lams[t, C - 1]
-                if C > 1:
+                k = 0
+                if C > 1:  # component: how many cumulative weights u passes (no branch on random data)
                     uu = U[t, bb, j]
-                    for c in range(C - 2, -1, -1):
-                        if uu < cumw[t, c]:
-                            lam = lams[t, c]
+                    for c in range(C - 1):
+                        k += np.int64(uu >= cumw[t, c])
+                lam = lams[t, k]
                 P += part * np.float32(lam)
             target = max(x - bottom, np.float32(0.0))
             e = E[bb, j]

@@ -20,6 +20,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import threading
+import weakref
 from dataclasses import dataclass
 from typing import Literal
 
@@ -537,6 +538,20 @@ def _deposit_tables(n_bins: int, q: int, sigma_bins: float | None):
     return H, V, float(W.sum())
 
 
+def _box_image_numba(spec: SonarSpec, beam, lo_m, hi_m, energy) -> np.ndarray:
+    """Boxes of ``energy`` over ``[lo_m, hi_m]`` (m) integrated into range bins, ``(n_bins, n_beams)``
+    float32, no anti-aliasing (:func:`echo_profile` with one cell per bin, transposed)."""
+    kn = kernels()
+    H, V, full = _deposit_tables(spec.n_bins, 1, None)
+    slot = np.zeros(len(beam), np.int8)
+    rec, starts = kn.bucket_by_beam(np.ascontiguousarray(beam), np.ascontiguousarray(lo_m, float),
+                                    np.ascontiguousarray(hi_m, float), np.ascontiguousarray(energy, float), slot,
+                                    float(spec.range_min), 1.0 / spec.bin_width, spec.n_bins, spec.n_beams)
+    out = np.zeros((1, spec.n_beams, spec.n_bins), np.float32)
+    kn.echo_rows(rec, starts, spec.n_bins, H, V, full, 1, spec.n_bins, 0, spec.n_beams, out)
+    return np.ascontiguousarray(out[0].T)
+
+
 def _class_slots(bottom_types: dict, rays: SonarRays):
     """Output slot of every ray's class for :func:`_echo_numba`: the class with most lit rays
     (a bottom type or ``None``, the targets) has slot 0, the whole echo; the others 1, 2, ...
@@ -1012,6 +1027,31 @@ def _truth_maps(spec: SonarSpec, rays: SonarRays):
     return body_map, el_min.reshape(B, J), el_max.reshape(B, J)
 
 
+_FLOORS: "weakref.WeakKeyDictionary[Scene, tuple]" = weakref.WeakKeyDictionary()
+
+
+def _floor_planes(scene: Scene) -> tuple:
+    """Bodies that are horizontal planes with every vertex of the scene at or above them.
+
+    A ray that crosses one going down meets nothing after it, so the acoustic shadow needs no
+    continuation ray for it (exact; in most scenes the seabed, hit by most rays). Cached per scene.
+    """
+    got = _FLOORS.get(scene)
+    if got is None:
+        surfaces = scene.surfaces()
+        lows = [float(sf.vertices[:, 2].min()) if sf.vertices.size else np.inf for sf in surfaces]
+        floors = []
+        for i, sf in enumerate(surfaces):
+            z = sf.vertices[:, 2] if sf.vertices.size else None
+            if z is None or float(z.max() - z.min()) > 1e-9 * max(1.0, abs(float(z.min()))):
+                continue
+            # 1 um: far below what Embree's float32 resolves (a body resting on the plane may dip 1e-16 m under it)
+            if all(lows[k] >= float(z.min()) - 1e-6 for k in range(len(surfaces)) if k != i):
+                floors.append(i)
+        got = _FLOORS[scene] = tuple(floors)
+    return got
+
+
 def _shadow_mask(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.ndarray) -> np.ndarray:
     """Cells that would echo but for an occluder: the hidden surfaces behind each hit, unlit.
 
@@ -1019,11 +1059,14 @@ def _shadow_mask(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.n
     the body it hit first, to the next surface facing the sonar. Cells that surface's
     footprint covers and that no direct ray lights are acoustic shadow.
     """
-    d_s, dd_s = _ray_grid(spec)
-    d_w = pose.directions_to_world(d_s)
+    d_w, dd_w = _world_ray_grid(spec, pose.R)
     first_body = rays.body.reshape(-1)
     r0 = rays.range.reshape(-1)
-    active = np.flatnonzero(first_body >= 0)
+    hit = first_body >= 0
+    floors = _floor_planes(scene)
+    if floors:  # nothing lies below a floor plane: a ray going down through it hits nothing more
+        hit &= ~(np.isin(first_body, floors) & (d_w[:, 2] < 0))
+    active = np.flatnonzero(hit)
     hidden_r = np.full(first_body.shape, np.inf)
     hidden_n = np.zeros((first_body.size, 3))
     t = r0[active].copy()
@@ -1055,11 +1098,15 @@ def _shadow_mask(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.n
         return np.zeros((spec.n_bins, spec.n_beams), bool)
     r = hidden_r[sel]
     nd = np.abs(np.einsum("ij,ij->i", hidden_n[sel], d_w[sel]))
-    ndd = np.abs(np.einsum("ij,ij->i", hidden_n[sel], pose.directions_to_world(dd_s[sel])))
+    ndd = np.abs(np.einsum("ij,ij->i", hidden_n[sel], dd_w[sel]))
     half = 0.5 * spec.elevation_step * r * ndd / np.maximum(nd, _MIN_COS_FOOTPRINT)
     half = np.maximum(half, 0.5 * spec.bin_width * 1e-3)
-    lo = (r - half - spec.range_min) / spec.bin_width
-    hi = (r + half - spec.range_min) / spec.bin_width
-    beam = np.tile(np.arange(spec.n_beams), spec.elevation_samples)[sel]
-    hidden = _box_integrate(beam, lo, hi, np.ones_like(r), spec.n_beams, spec.n_bins).T
+    beam = _index_grids(spec)[0][sel]
+    if use_numba():
+        ones = np.ones_like(r)
+        hidden = _box_image_numba(spec, beam, r - half, r + half, ones)
+    else:
+        lo = (r - half - spec.range_min) / spec.bin_width
+        hi = (r + half - spec.range_min) / spec.bin_width
+        hidden = _box_integrate(beam, lo, hi, np.ones_like(r), spec.n_beams, spec.n_bins).T
     return (hidden > 1e-9) & np.isnan(elevation_min)
