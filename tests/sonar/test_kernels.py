@@ -188,3 +188,16 @@ def test_import_does_not_load_numba():
     code = "import sys, optiacoustic, optiacoustic.sonar; print('numba' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False"
+
+
+@pytest.mark.parametrize("name", ["thesis_scene1", "cuboids"])
+def test_shadow_floor_shortcut_is_exact(name, monkeypatch):
+    """Rays going down through a floor plane (nothing below it) cast no continuation ray: same mask."""
+    sc = scenes.get(name)
+    assert F._floor_planes(sc) == (0,)  # the seabed
+    pose = Pose.look_at(sc.view.eye, sc.view.target)
+    f = simulate_sonar(sc, SPEC, pose, noise=False)
+    fast = f.ground_truth.shadow
+    monkeypatch.setattr(F, "_floor_planes", lambda scene: ())
+    slow = F._shadow_mask(sc, F.caster_for(sc), SPEC, pose, f.rays, f.ground_truth.elevation_min)
+    assert fast.any() and np.array_equal(fast, slow)
