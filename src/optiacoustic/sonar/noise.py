@@ -7,10 +7,12 @@ range by the TVG):
 
     image = | sqrt(I_bottom) X e^{i psi} + sqrt(I_target) Z_t + sqrt(N(r)) Z_n |^2
 
-with ``E[X^2] = 1``, ``Z ~ CN(0, 1)``, ``psi`` uniform. The two circular Gaussian terms
-merge into one, ``sqrt(I_target + N) Z``, and its phase absorbs ``psi``; so a cell costs
-one bottom amplitude and two normals. ``E[image] = I_bottom + I_target + N``: noise adds
-power, reverberation and speckle only redistribute it (docs/physics.md).
+with ``E[X^2] = 1``, ``Z ~ CN(0, 1)``, ``psi`` uniform. The circular Gaussian terms merge
+into one, and a Rayleigh-mixture amplitude of a given component is one too; a circular
+Gaussian's intensity is its power times ``E ~ Exp(1)``. So the thesis's cell costs one
+uniform (the mixture component) and one exponential (docs/physics.md, "Noise in one
+exponential draw"). ``E[image] = I_bottom + I_target + N``: noise adds power,
+reverberation and speckle only redistribute it (docs/physics.md).
 """
 
 from __future__ import annotations
