@@ -225,16 +225,16 @@ def echo_rows(rec, starts, n_cells, H, V, full, q, n_bins, j0, j1, out):
 
 
 @njit(cache=True, nogil=True)
-def shares(parts, intensity, slot_of_share, out):
+def shares(parts, intensity, slot_of_share, r0, r1, out):
     """Seabed shares from class images: ``out[m] = clip(parts[slot] / parts[0], 0, 1)`` where the
     intensity is positive; the share whose slot is 0 is the remainder ``clip(1 - others, 0, 1)``.
 
     ``parts`` (S, B, J) float32 (slot 0: the whole echo), ``intensity`` (B, J),
-    ``out`` (M, B, J) float32.
+    ``out`` (M, B, J) float32; rows ``r0..r1``.
     """
     M = slot_of_share.size
-    B, J = intensity.shape
-    for bb in range(B):
+    J = intensity.shape[1]
+    for bb in range(r0, r1):
         for j in range(J):
             if not intensity[bb, j] > 0:
                 for m in range(M):

@@ -602,7 +602,8 @@ def _form_with_shares_numba(spec: SonarSpec, rays: SonarRays, options: SonarOpti
         return intensity, {}
     names = list(slot_of)
     out = np.empty((len(names), spec.n_bins, spec.n_beams), np.float32)
-    kernels().shares(parts, intensity, np.array([slot_of[n] for n in names], np.int64), out)
+    kn, table = kernels(), np.array([slot_of[n] for n in names], np.int64)
+    split_run(lambda r0, r1: kn.shares(parts, intensity, table, r0, r1, out), spec.n_bins, threads)
     shares = {}
     for m, name in enumerate(names):
         if name is not None:
@@ -1052,6 +1053,16 @@ def _floor_planes(scene: Scene) -> tuple:
     return got
 
 
+def _grid_directions(spec: SonarSpec, R: np.ndarray, idx: np.ndarray):
+    """World directions ``d`` and elevation derivatives ``d'`` of the grid rays ``idx`` (flat
+    indices ``k * n_beams + j``), ``(len(idx), 3)`` each, as :func:`_world_ray_grid` gives them."""
+    k, j = np.divmod(idx, spec.n_beams)
+    th, ph = spec.azimuths[j], spec.elevations[k]
+    a = np.sin(th)[:, None] * R[:, 0] + np.cos(th)[:, None] * R[:, 1]
+    cp, sp = np.cos(ph)[:, None], np.sin(ph)[:, None]
+    return cp * a + sp * R[:, 2], -sp * a + cp * R[:, 2]
+
+
 def _shadow_mask(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.ndarray) -> np.ndarray:
     """Cells that would echo but for an occluder: the hidden surfaces behind each hit, unlit.
 
@@ -1059,14 +1070,22 @@ def _shadow_mask(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.n
     the body it hit first, to the next surface facing the sonar. Cells that surface's
     footprint covers and that no direct ray lights are acoustic shadow.
     """
-    d_w, dd_w = _world_ray_grid(spec, pose.R)
     first_body = rays.body.reshape(-1)
     r0 = rays.range.reshape(-1)
     hit = first_body >= 0
     floors = _floor_planes(scene)
     if floors:  # nothing lies below a floor plane: a ray going down through it hits nothing more
-        hit &= ~(np.isin(first_body, floors) & (d_w[:, 2] < 0))
+        R = pose.R
+        a_z = np.sin(spec.azimuths) * R[2, 0] + np.cos(spec.azimuths) * R[2, 1]
+        down = (np.cos(spec.elevations)[:, None] * a_z + np.sin(spec.elevations)[:, None] * R[2, 2]).reshape(-1) < 0
+        hit &= ~(np.isin(first_body, floors) & down)
     active = np.flatnonzero(hit)
+    # the directions of the rays that continue only (most rays end on a floor)
+    d_act, dd_act = _grid_directions(spec, pose.R, active)
+    d_w = np.zeros((first_body.size, 3))
+    dd_w = np.zeros((first_body.size, 3))
+    d_w[active] = d_act
+    dd_w[active] = dd_act
     hidden_r = np.full(first_body.shape, np.inf)
     hidden_n = np.zeros((first_body.size, 3))
     t = r0[active].copy()
