@@ -88,13 +88,13 @@ class NoiseModel:
             return np.zeros(len(ranges), np.float32)
         # medians over every 7th cell: a stable reference at a seventh of the cost
         sub = intensity.reshape(-1)[::7]
-        rows = np.arange(0, intensity.size, 7) // intensity.shape[1]
+        rows = _subsample_rows(intensity.shape)
         pos = sub > 0
         if self.reference_level is not None:
             ref = self.reference_level
         else:
             ref = float(np.median(sub[pos])) if pos.any() else 1.0
-        r_ref = float(np.median(ranges[rows[pos]])) if pos.any() else float(np.median(ranges))
+        r_ref = _median_of_rows(ranges, rows[pos]) if pos.any() else float(np.median(ranges))
         level = ref * 10.0 ** (self.noise_floor_db / 10.0)
         if propagation == "tvg" and self.tvg_noise:
             alpha = absorption_db_per_m(frequency, water)
@@ -231,6 +231,21 @@ class NoiseModel:
         if draws.psi is not None:
             out += np.float32(2.0) * np.sqrt(np.maximum(S, 0.0) * pe) * np.cos(draws.psi)
         return np.maximum(out, 0.0)
+
+
+@functools.lru_cache(maxsize=8)
+def _subsample_rows(shape: tuple) -> np.ndarray:
+    """Row of every 7th cell of an image of ``shape`` (read-only, cached)."""
+    rows = np.arange(0, shape[0] * shape[1], 7) // shape[1]
+    rows.setflags(write=False)
+    return rows
+
+
+def _median_of_rows(ranges: np.ndarray, rows: np.ndarray) -> float:
+    """``np.median(ranges[rows])`` for ascending ``ranges`` and sorted ``rows``, by counting."""
+    n = rows.size
+    lo, hi = rows[(n - 1) // 2], rows[n // 2]  # rows are sorted: the middle elements' rows
+    return float(np.mean([ranges[lo], ranges[hi]]))
 
 
 def _stack(arrays: list, shape: tuple) -> np.ndarray:
