@@ -153,8 +153,8 @@ def echo_rows(rec, starts, n_cells, H, V, full, q, n_bins, j0, j1, out):
     step of ``a full`` (the sum of all weights, ``q``) from bin ``b + D + 1`` on (one cumulative sum over bins per row). Fine
     cells past the end do not exist (zero border): ``V`` removes what the steps put there.
     Cost is linear in rays plus bins, with no fine array. ``out`` (S, n_beams, n_bins)
-    float32 (rows per beam: a column stride of a power of two thrashes the caches) must be
-    zero; rows ``j0..j1`` are written.
+    float32 (rows per beam: a column stride of a power of two thrashes the caches): rows
+    ``j0..j1`` are written whole.
     """
     S = out.shape[0]
     D = (H.shape[1] - 1) // 2
@@ -208,6 +208,7 @@ def echo_rows(rec, starts, n_cells, H, V, full, q, n_bins, j0, j1, out):
                     step[ss, sb] += a * full
         for ss in range(S):
             if not used[ss]:
+                out[ss, j, :] = 0.0
                 continue
             acc = 0.0
             for bb in range(n_bins):
@@ -249,8 +250,9 @@ def shares(parts, intensity, slot_of_share, r0, r1, out):
                     rest_m = m
                     continue
                 v = np.float32(0.0)
-                if tt > 0:
-                    v = min(max(parts[s, bb, j] / tt, np.float32(0.0)), np.float32(1.0))
+                ps = parts[s, bb, j]
+                if ps != 0 and tt > 0:  # most cells hold one class only
+                    v = min(max(ps / tt, np.float32(0.0)), np.float32(1.0))
                 out[m, bb, j] = v
                 rest -= v
             if rest_m >= 0:

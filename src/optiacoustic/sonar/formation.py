@@ -507,7 +507,6 @@ def _echo_numba(spec: SonarSpec, rays: SonarRays, slot: np.ndarray, n_slots: int
     rec, starts = kn.bucket_by_beam(flat(rays.beam_index), flat(rays.footprint_lo), flat(rays.footprint_hi),
                                     flat(rays.energy), slot, float(spec.range_min), q / spec.bin_width, n_cells, J)
     out = _workspace(f"echo{n_slots}", (n_slots, J, spec.n_bins), np.float32)  # fresh pages fault: reuse
-    out.fill(0.0)
     split_run(lambda j0, j1: kn.echo_rows(rec, starts, n_cells, H, V, full, q, spec.n_bins, j0, j1, out), J, threads)
     return np.ascontiguousarray(out.transpose(0, 2, 1))
 
@@ -547,7 +546,7 @@ def _box_image_numba(spec: SonarSpec, beam, lo_m, hi_m, energy) -> np.ndarray:
     rec, starts = kn.bucket_by_beam(np.ascontiguousarray(beam), np.ascontiguousarray(lo_m, float),
                                     np.ascontiguousarray(hi_m, float), np.ascontiguousarray(energy, float), slot,
                                     float(spec.range_min), 1.0 / spec.bin_width, spec.n_bins, spec.n_beams)
-    out = np.zeros((1, spec.n_beams, spec.n_bins), np.float32)
+    out = np.empty((1, spec.n_beams, spec.n_bins), np.float32)
     kn.echo_rows(rec, starts, spec.n_bins, H, V, full, 1, spec.n_bins, 0, spec.n_beams, out)
     return np.ascontiguousarray(out[0].T)
 
