@@ -13,6 +13,11 @@ energy is spread uniformly over that interval and integrated exactly into range 
 So returns at equal range add up, shadows receive nothing, a steep surface leaves no
 empty bins between lit ones, and the image converges as ``elevation_samples`` grows.
 The fine range profile is then low-pass filtered and decimated to ``n_bins``.
+
+The inner loops run as compiled kernels (``_numba_kernels``: the scan's per-ray work, the
+echo with the seabed/target split and the decimation in one pass, the truth maps); with
+``OAS_SONAR_KERNELS=numpy`` the numpy reference implementation in this module runs
+instead, and the tests compare the two (``_kernels``).
 """
 
 from __future__ import annotations
