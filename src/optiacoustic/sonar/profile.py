@@ -8,14 +8,18 @@
 * the **seabed geometry and gain**: height, pitch and roll over a flat seabed, the
   elevation beam width, the echo scale, the range exponent left after the device's TVG,
   the receiver noise and the volume reverberation, by least squares of the analytic
-  flat-seabed echo (:mod:`.seabed_echo`) on the range profiles of beam groups (in dB);
+  flat-seabed echo (:mod:`.seabed_echo`), blurred by the pulse and averaged over beams
+  like the data, on the range profiles of beam groups (in dB);
 * the **speckle**: range resolution and azimuth beam width from the autocorrelation
-  lengths, and the seabed's scatterer density from the speckle contrast (matched by
-  simulating the statistic with :mod:`.speckle` on the device's grid).
+  lengths; the scatterers' clustering (texture shape per cell) and the device's looks
+  from the one-point law (contrast and the gamma maximum-likelihood statistic, matched by
+  simulating them with :mod:`.speckle` on the device's grid), the clustering then refined
+  by simulating whole frames with the profile.
 
-Uncertainties are one standard deviation: from the least-squares Jacobian (residual
-variance inflated by the residuals' correlation length) for the geometry and gain, from
-blocks of beams for the speckle.
+Uncertainties are one standard deviation: the larger of the least-squares covariance
+(residual variance inflated by the residuals' correlation length) and a delete-a-block
+jackknife over beam groups for the geometry and gain; for the speckle, the statistics'
+spread over blocks of cells carried through the inverse Jacobian.
 """
 
 from __future__ import annotations
@@ -537,13 +541,13 @@ def _fit_speckle(stats, spec, height, rng):
     n_bins, n_beams = stats.region.shape
     w_r = max(5, n_bins // 100)
     w_b = max(3, n_beams // 24)
-    shape = (min(n_bins, 600), n_beams)
+    shape = (min(n_bins, 400), n_beams)
     crng = np.random.default_rng(12345)
     u_tex = crng.random(shape)
-    normals = crng.standard_normal((12, 2) + shape)  # up to 12 looks
+    normals = crng.standard_normal((8, 2) + shape)  # up to 8 looks
 
     def sim_stats(log_nu, looks):
-        f = _texture_field(shape, float(np.exp(log_nu)), float(min(looks, 12.0)), h_r, h_b, u_tex, normals)
+        f = _texture_field(shape, float(np.exp(log_nu)), float(min(looks, 8.0)), h_r, h_b, u_tex, normals)
         m = uniform_filter(f, (w_r * 3, w_b), mode="nearest")
         with np.errstate(invalid="ignore", divide="ignore"):
             z = (f / m)[w_r * 2: -w_r * 2, w_b // 2 + 1: -(w_b // 2 + 1)]
@@ -556,13 +560,13 @@ def _fit_speckle(stats, spec, height, rng):
     blocks = [speckle_statistics(b) for b in np.array_split(z, 8)]
     bs = np.array([[b["contrast"], b["log_ratio"]] for b in blocks if np.isfinite(b["contrast"])])
     cov_t = np.cov(bs.T) / len(bs) if len(bs) > 2 else np.full((2, 2), np.nan)
-    lo, hi = np.array([np.log(0.01), 1.0]), np.array([np.log(1e4), 12.0])
+    lo, hi = np.array([np.log(0.01), 1.0]), np.array([np.log(1e4), 8.0])
     # coarse grid, then a least-squares polish from its best point
-    grid = [(a, b) for a in np.log([0.03, 0.1, 0.3, 1.0, 3.0, 10.0, 1e3]) for b in (1.0, 1.5, 2.0, 3.0, 5.0)]
+    grid = [(a, b) for a in np.log([0.05, 0.3, 2.0, 1e3]) for b in (1.0, 2.0, 4.0)]
     gerr = [float(np.sum(((sim_stats(a, b) - target) / 0.01) ** 2)) for a, b in grid]
     x0 = np.clip(np.array(grid[int(np.nanargmin(gerr))]), lo + 1e-6, hi - 1e-6)
     sol = least_squares(lambda p: (sim_stats(*p) - target) / np.array([0.01, 0.01]), x0, bounds=(lo, hi),
-                        diff_step=np.array([0.05, 0.05]), max_nfev=40)
+                        diff_step=np.array([0.05, 0.05]), max_nfev=25)
     log_nu, looks = sol.x
     try:
         Jinv = np.linalg.pinv(sol.jac * 0.01)  # d(params)/d(stats)
