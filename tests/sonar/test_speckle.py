@@ -108,3 +108,57 @@ def _img_rays(scene, spec, pose, options):
     _, img = _scan(scene, caster_for(scene), scan_spec(spec, "aperture"), pose, options,
                    _aperture_elevation_weights(spec), spec.elevation_pattern())
     return img
+
+
+# --------------------------------------------------------------------------- clusters and looks
+def test_look_weights_give_the_effective_number_of_looks():
+    from optiacoustic.sonar.speckle import look_weights
+
+    rng = np.random.default_rng(4)
+    for L in (1.0, 1.3, 2.0, 2.7, 4.5):
+        w = look_weights(L)
+        assert w.sum() == pytest.approx(1.0) and np.all(w > 0)
+        assert w.sum() ** 2 / (w**2).sum() == pytest.approx(L)
+        x = rng.exponential(size=(len(w), 200_000)).T @ w  # weighted average of independent looks
+        c = _blocks(x.reshape(-1, 1000).T, 20)
+        assert abs(c.mean() - 1 / np.sqrt(L)) < 4 * c.std(ddof=1) / np.sqrt(len(c)) + 0.002
+    with pytest.raises(ValueError, match="looks"):
+        look_weights(0.5)
+
+
+@pytest.mark.parametrize("mu,nu", [(np.inf, 0.7), (3.0, 2.0), (np.inf, np.inf)])
+def test_cluster_ratio_is_gamma_mixed_poisson(mu, nu):
+    """E[n / mu] = 1 and Var(n / mu) = 1 / mu + 1 / nu (negative binomial counts)."""
+    from optiacoustic.sonar.speckle import cluster_ratio
+
+    x = cluster_ratio(np.full(400_000, mu), np.full(400_000, nu), np.random.default_rng(2), dtype=np.float64)
+    var = (0 if not np.isfinite(mu) else 1 / mu) + (0 if not np.isfinite(nu) else 1 / nu)
+    b = x.reshape(40, -1)
+    means, vars_ = b.mean(1), b.var(1)
+    assert abs(means.mean() - 1) < 4 * means.std(ddof=1) / np.sqrt(40) + 1e-12
+    assert abs(vars_.mean() - var) < 4 * vars_.std(ddof=1) / np.sqrt(40) + 1e-12
+
+
+@pytest.mark.parametrize("nu_c,looks", [(0.8, 1.0), (2.0, 2.5)])
+def test_texture_and_looks_through_the_noise_model(nu_c, looks):
+    """A uniform seabed through ScattererNoise: mean kept (the image's own mean, blurred once)
+    and contrast^2 = (1 + S4 / (S2^2 nu_c))(1 + 1 / L) - 1, the generalised K law of the
+    filtered texture (docs/physics.md 4.3)."""
+    from optiacoustic.sonar.speckle import gk_moments
+
+    spec = SonarSpec(n_beams=200, n_bins=1200, fov_azimuth=np.deg2rad(50), fov_elevation=np.deg2rad(14), range_min=1.0,
+                     range_max=6.0, frequency=900e3, beamwidth_azimuth=np.deg2rad(0.5), range_resolution=0.01)
+    area = 1e-3
+    noise = ScattererNoise(clusters_per_m2=nu_c / area, looks=looks,
+                           gain=DeviceGain(noise_db=None, spreading_db=0.0, absorption_db_per_m=0.0))
+    I = np.ones((spec.n_bins, spec.n_beams), np.float32)
+    out = noise.apply(I, spec=spec, seabed_share={}, options=SonarOptions(beam_model="aperture"), rng=11,
+                      cell_area=np.full(I.shape, area))[40:-40, 20:-20]
+    h_r, h_b = noise.kernels(spec)
+    s2 = (h_r**2).sum() * (h_b**2).sum()
+    s4 = (h_r**4).sum() * (h_b**4).sum()
+    expected, _ = gk_moments(nu_c * s2**2 / s4, looks)
+    c = _blocks(out, 20)
+    m = np.array([b.mean() for b in np.array_split(out, 20, axis=0)])
+    assert abs(m.mean() - 1) < 4 * m.std(ddof=1) / np.sqrt(20)
+    assert abs(c.mean() - expected) < 4 * c.std(ddof=1) / np.sqrt(len(c)) + 0.01

@@ -248,6 +248,12 @@ def _median_of_rows(ranges: np.ndarray, rows: np.ndarray) -> float:
     return float(np.mean([ranges[lo], ranges[hi]]))
 
 
+def _look_weights(looks: float) -> np.ndarray:
+    from .speckle import look_weights
+
+    return look_weights(looks)
+
+
 def _stack(arrays: list, shape: tuple) -> np.ndarray:
     """``np.stack`` without the copy for one array (the usual single bottom type)."""
     if not arrays:
@@ -309,11 +315,18 @@ class ScattererNoise:
     bottom_type : str, optional
         A Table 2.2 bottom type instead of scatterer counts: its reverberation amplitude
         (thesis, i.i.d. per cell) takes the place of ``f_s``.
+    clusters_per_m2 : float
+        Independent scatterer clusters per m^2: a cell's count is gamma-mixed Poisson of
+        shape ``clusters_per_m2 x cell area`` (``sonar.speckle.cluster_ratio``); ``inf``: none.
+    looks : float
+        Effective number of independent looks the device averages per stored sample (>= 1).
     """
 
     density: float = float("inf")
     gain: "DeviceGain" = None  # type: ignore[assignment]
     bottom_type: Optional[str] = None
+    clusters_per_m2: float = float("inf")  # issue 10: gamma clustering of the counts (inf: none)
+    looks: float = 1.0  # issue 10: independent looks the device averages per sample
     needs_cell_area = True
 
     def __post_init__(self):
@@ -325,6 +338,10 @@ class ScattererNoise:
             raise ValueError(f"ScattererNoise.gain: expected a DeviceGain, got {type(self.gain).__name__}")
         if not (self.density > 0):
             raise ValueError(f"ScattererNoise.density: must be > 0 scatterers/m^2 (or inf), got {self.density!r}")
+        if not (self.clusters_per_m2 > 0):
+            raise ValueError(f"ScattererNoise.clusters_per_m2: must be > 0 per m^2 (or inf), got {self.clusters_per_m2!r}")
+        if not (np.isfinite(self.looks) and self.looks >= 1):
+            raise ValueError(f"ScattererNoise.looks: must be a finite number >= 1, got {self.looks!r}")
         if self.bottom_type is not None:
             from .distributions import BOTTOM_TYPES
 
@@ -371,9 +388,10 @@ class ScattererNoise:
             x = bottom_model(self.bottom_type, "mixture").sample(I.shape, rng, dtype=np.float32)
             power = echo * x * x + back  # Table 2.2 reverberation: i.i.d. amplitudes, as the thesis
             h_r, h_b = np.ones(1), np.ones(1)
-        elif cell_area is None or not np.isfinite(self.density):
+        elif cell_area is None or not (np.isfinite(self.density) or np.isfinite(self.clusters_per_m2)):
             power = echo + back
-        elif use_numba():  # counts, power and complex normals in one pass
+        elif (use_numba() and np.isfinite(self.density) and not np.isfinite(self.clusters_per_m2)
+              and len(_look_weights(self.looks)) == 1):  # counts, power and complex normals in one pass
             z = np.empty(I.shape + (2,), np.float32)
             big = np.empty(I.shape, np.bool_)
             area = np.ascontiguousarray(cell_area, np.float32)
@@ -387,19 +405,37 @@ class ScattererNoise:
                                           np.sqrt((echo[big] * ratio + back[:, 0][np.nonzero(big)[0]]) * np.float32(0.5))[None])[0]
             power = None
         else:
-            mu = self.density * np.asarray(cell_area, np.float32).astype(np.float64)
-            seabed = mu > 0
-            n = _poisson_counts(np.where(seabed, mu, 0.0), u_count, rng).astype(np.float32)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                ratio = np.where(seabed, n / np.where(seabed, mu, 1.0), 1.0).astype(np.float32)
-            power = echo * ratio + back
-        if power is not None:
-            z = _complex_normals(u1, u2, np.sqrt(power * np.float32(0.5)))
-        f = filter_complex(z, h_r, h_b)
-        s2 = float((np.asarray(h_r) ** 2).sum() * (np.asarray(h_b) ** 2).sum())
-        out = f[..., 0] * f[..., 0]
-        out += f[..., 1] * f[..., 1]
-        out *= (g.tvg(spec.ranges) / s2).astype(np.float32)[:, None]
+            area = np.asarray(cell_area, np.float64)
+            if np.isfinite(self.clusters_per_m2):
+                from .speckle import cluster_ratio
+
+                with np.errstate(invalid="ignore"):  # inf x 0 outside the seabed: no texture there
+                    ratio = cluster_ratio(self.density * area, self.clusters_per_m2 * area, rng)
+            else:  # plain Poisson counts, by inversion of the uniforms drawn during the scan
+                mu = self.density * np.asarray(cell_area, np.float32).astype(np.float64)
+                seabed = mu > 0
+                n = _poisson_counts(np.where(seabed, mu, 0.0), u_count, rng).astype(np.float32)
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    ratio = np.where(seabed, n / np.where(seabed, mu, 1.0), 1.0).astype(np.float32)
+            power = echo * np.where(area > 0, ratio, np.float32(1.0)) + back
+        # issue 10: the mean image ``echo + back`` is already blurred by the pulse and the beam
+        # pattern (formation); filtering the field blurs its power a second time, so the
+        # speckle is normalised by that filtered mean and multiplied by the image's own mean
+        from .speckle import _filter, look_weights
+
+        mean = echo + back
+        expected = _filter(mean, np.asarray(h_r, np.float32) ** 2, np.asarray(h_b, np.float32) ** 2)
+        out = np.zeros(I.shape, np.float32)
+        for k, w in enumerate(look_weights(self.looks)):
+            if k == 0:  # the first look from the uniforms drawn during the scan (or the kernel's field)
+                zk = z if power is None else _complex_normals(u1, u2, np.sqrt(power * np.float32(0.5)))
+            else:
+                zk = rng.standard_normal(I.shape + (2,), dtype=np.float32) * np.sqrt(power * np.float32(0.5))[..., None]
+            f = filter_complex(zk, h_r, h_b)
+            out += np.float32(w) * (f[..., 0] * f[..., 0] + f[..., 1] * f[..., 1])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out *= np.where(expected > 0, mean / expected, 0.0).astype(np.float32)
+        out *= g.tvg(spec.ranges).astype(np.float32)[:, None]
         return out
 
 

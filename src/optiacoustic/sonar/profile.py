@@ -8,14 +8,18 @@
 * the **seabed geometry and gain**: height, pitch and roll over a flat seabed, the
   elevation beam width, the echo scale, the range exponent left after the device's TVG,
   the receiver noise and the volume reverberation, by least squares of the analytic
-  flat-seabed echo (:mod:`.seabed_echo`) on the range profiles of beam groups (in dB);
+  flat-seabed echo (:mod:`.seabed_echo`), blurred by the pulse and averaged over beams
+  like the data, on the range profiles of beam groups (in dB);
 * the **speckle**: range resolution and azimuth beam width from the autocorrelation
-  lengths, and the seabed's scatterer density from the speckle contrast (matched by
-  simulating the statistic with :mod:`.speckle` on the device's grid).
+  lengths; the scatterers' clustering (texture shape per cell) and the device's looks
+  from the one-point law (contrast and the gamma maximum-likelihood statistic, matched by
+  simulating them with :mod:`.speckle` on the device's grid), the clustering then refined
+  by simulating whole frames with the profile.
 
-Uncertainties are one standard deviation: from the least-squares Jacobian (residual
-variance inflated by the residuals' correlation length) for the geometry and gain, from
-blocks of beams for the speckle.
+Uncertainties are one standard deviation: the larger of the least-squares covariance
+(residual variance inflated by the residuals' correlation length) and a delete-a-block
+jackknife over beam groups for the geometry and gain; for the speckle, the statistics'
+spread over blocks of cells carried through the inverse Jacobian.
 """
 
 from __future__ import annotations
@@ -53,6 +57,11 @@ class SensorProfile:
         Gain, receiver noise, volume reverberation and the device's TVG.
     density : float
         Seabed scatterers per m^2 (``inf``: fully developed speckle).
+    clusters_per_m2 : float
+        Independent scatterer clusters per m^2 (gamma-mixed counts, the seabed's texture;
+        ``inf``: none); a cell's K shape is ``clusters_per_m2 x footprint``.
+    looks : float
+        Effective number of independent looks the device averages per stored sample.
     height, pitch, roll : float
         The sonar over the flat seabed z = 0 that explains the frames (m, rad); NaN
         when the frames do not show a seabed onset.
@@ -68,6 +77,8 @@ class SensorProfile:
     encoding: str = "linear"
     gain: DeviceGain = field(default_factory=DeviceGain)
     density: float = float("inf")
+    clusters_per_m2: float = float("inf")
+    looks: float = 1.0
     height: float = float("nan")
     pitch: float = float("nan")
     roll: float = 0.0
@@ -83,6 +94,10 @@ class SensorProfile:
             raise ValueError(f"SensorProfile.encoding: expected one of {ENCODINGS}, got {self.encoding!r}")
         if not (self.density > 0):
             raise ValueError(f"SensorProfile.density: must be > 0 (or inf), got {self.density!r}")
+        if not (self.clusters_per_m2 > 0):
+            raise ValueError(f"SensorProfile.clusters_per_m2: must be > 0 (or inf), got {self.clusters_per_m2!r}")
+        if not (np.isfinite(self.looks) and self.looks >= 1):
+            raise ValueError(f"SensorProfile.looks: must be >= 1, got {self.looks!r}")
 
     # ------------------------------------------------------------------ use
     @property
@@ -101,7 +116,7 @@ class SensorProfile:
     def noise(self):
         from .noise import ScattererNoise
 
-        return ScattererNoise(density=self.density, gain=self.gain)
+        return ScattererNoise(density=self.density, gain=self.gain, clusters_per_m2=self.clusters_per_m2, looks=self.looks)
 
     def apply_to(self, spec: SonarSpec, options=None, noise=None):
         """``(spec, options, noise)`` for ``simulate_sonar``: the profile's beam patterns and
@@ -166,6 +181,8 @@ class SensorProfile:
             "full_scale": float(self.full_scale),
             "db_range": float(self.db_range),
             "density_per_m2": None if not np.isfinite(self.density) else float(self.density),
+            "clusters_per_m2": None if not np.isfinite(self.clusters_per_m2) else float(self.clusters_per_m2),
+            "looks": float(self.looks),
             "seabed": {"height": _num(self.height), "pitch_deg": _num(np.rad2deg(self.pitch)),
                        "roll_deg": _num(np.rad2deg(self.roll))},
             "gain": {k: _num(v) for k, v in self.gain.to_dict().items()},
@@ -207,8 +224,10 @@ class SensorProfile:
             gain = DeviceGain(**g)
             sb = data.get("seabed", {}) or {}
             dens = data.get("density_per_m2")
+            clus = data.get("clusters_per_m2")
             return cls(spec=spec, encoding=data.get("encoding", "linear"), gain=gain,
                        density=float("inf") if dens is None else float(dens),
+                       clusters_per_m2=float("inf") if clus is None else float(clus), looks=float(data.get("looks", 1.0)),
                        height=_nan(sb.get("height")), pitch=float(np.deg2rad(_nan(sb.get("pitch_deg")))),
                        roll=float(np.deg2rad(_nan(sb.get("roll_deg"), 0.0))),
                        full_scale=float(data.get("full_scale", 255.0)), db_range=float(data.get("db_range", 80.0)),
@@ -303,8 +322,18 @@ def _tvg_water_absorption(spec):
     return float(absorption_db_per_m(spec.frequency))
 
 
-def _fit_geometry(stats, spec, alpha):
-    """Least squares of the flat-seabed echo + background on the beam groups' range profiles (dB)."""
+def _fit_geometry(stats, spec, alpha, azimuths=None, pulse_bins=None):
+    """Least squares of the flat-seabed echo + background on the beam groups' range profiles (dB).
+
+    The model is measured the way the data are: the analytic echo of every range bin,
+    blurred along range by the pulse (Gaussian power of FWHM ``pulse_bins``, as the image
+    formation does), averaged over beams of each group (up to 4 per group) like the
+    groups' profiles, then sampled at the fitted ranges. Without the blur and the
+    averaging the sharp nulls of the elevation pattern and the onset's curvature across a
+    group pull the fit low: 3-7 % in height and width, 1-2 deg in pitch on simulated
+    seabeds (docs/physics.md 4.4).
+    """
+    from scipy.ndimage import gaussian_filter1d
     from scipy.optimize import least_squares
 
     r_all = stats.ranges
@@ -313,16 +342,35 @@ def _fit_geometry(stats, spec, alpha):
     r = r_all[idx]
     prof = stats.group_profiles[idx]
     ok = (r > 0) & np.all(prof > 0, axis=1)
-    r, prof = r[ok], prof[ok]
+    r, prof, idx = r[ok], prof[ok], idx[ok]
     az = stats.group_azimuths
     data_db = 10 * np.log10(prof)
     c, f = spec.sound_speed, spec.frequency
     r0 = 1.0
+    G = prof.shape[1]
+    if azimuths is None:
+        az_cols, seg = az, np.arange(G)
+    else:
+        groups = beam_groups(len(azimuths))
+        picks = [g[np.unique(np.round(np.linspace(0, len(g) - 1, min(len(g), 4))).astype(int))] for g in groups]
+        az_cols = np.asarray(azimuths, float)[np.concatenate(picks)]
+        seg = np.repeat(np.arange(len(picks)), [len(p) for p in picks])
+    counts = np.bincount(seg, minlength=G).astype(float)
+    sigma = max((spec.pulse_width / spec.bin_width if pulse_bins is None else float(pulse_bins)) / 2.3548, 0.5)
+
+    def seabed(h, pitch, roll, pat):
+        E = flat_seabed_echo(r_all, az_cols, h, pitch, roll, pat)
+        E = gaussian_filter1d(E, sigma, axis=0, mode="constant", truncate=3.5)
+        Eg = np.zeros((E.shape[0], G))
+        np.add.at(Eg.T, seg, E.T)
+        return (Eg / counts)[idx]
+
+    cheap = [False]  # the starts use the echo at the groups' centres, unblurred; the polish the full model
 
     def model(x):
         h, pitch, roll, lbw, a_db, kexp, n_db, v_db = x
         pat = BeamPattern.from_beamwidth(float(np.exp(lbw)), f, c)
-        E = flat_seabed_echo(r, az, h, pitch, roll, pat)
+        E = flat_seabed_echo(r, az, h, pitch, roll, pat) if cheap[0] else seabed(h, pitch, roll, pat)
         rk = (r / r0) ** kexp
         tvg = (r / r0) ** (kexp + 2.0) * 10 ** (2 * alpha * (r - r0) / 10)
         out = 10 ** (a_db / 10) * rk[:, None] * E + (10 ** (n_db / 10) * tvg + 10 ** (v_db / 10) * rk)[:, None]
@@ -351,6 +399,7 @@ def _fit_geometry(stats, spec, alpha):
     if not has_onset:  # roll cannot be seen without an onset: hold it at 0
         lo[2], hi[2] = -1e-6, 1e-6
     best = None
+    cheap[0] = True
     for pitch0 in np.deg2rad([8, 20, 40]):
         if has_onset:
             h0 = r_peak * np.sin(pitch0)
@@ -359,7 +408,7 @@ def _fit_geometry(stats, spec, alpha):
             h0 = spec.range_min * np.sin(pitch0)
         h0 = float(np.clip(h0, lo[0] * 1.01, hi[0] * 0.99))
         pat = BeamPattern.from_beamwidth(bw0, f, c)
-        E0 = flat_seabed_echo(np.array([r_peak]), np.array([0.0]), h0, pitch0, 0.0, pat)[0, 0]
+        E0 = float(seabed(h0, pitch0, 0.0, pat)[peak_i].mean())
         a0 = 10 * np.log10(max(prof.max(), 1e-30) / max(E0, 1e-30))
         x0 = np.array([h0, pitch0, 0.0, np.log(bw0), np.clip(a0, -190, 190), 0.0,
                        10 * np.log10(max(bg, 1e-30)), 10 * np.log10(max(bg, 1e-30)) - 10])
@@ -370,6 +419,15 @@ def _fit_geometry(stats, spec, alpha):
             continue
         if best is None or sol.cost < best.cost:
             best = sol
+    cheap[0] = False
+    # typical scales of the parameters: with x_scale="jac" the polish crawls along the
+    # valley where height, pitch and width trade off
+    x_typ = np.array([0.01, 0.01, 0.01, 0.02, 1.0, 0.05, 1.0, 1.0])
+    try:
+        best = least_squares(resid, best.x, bounds=(lo, hi), loss="soft_l1", f_scale=3.0, x_scale=x_typ, max_nfev=100,
+                             method="dogbox")
+    except ValueError:
+        pass
     # (a polish on relative residuals of the linear profiles, unbiased for pure speckle, was
     # tried: on the real Oculus ping its asymmetry lifted the background by 30 dB; the dB fit stays)
     n_r = r.size
@@ -381,13 +439,14 @@ def _fit_geometry(stats, spec, alpha):
     # delete-one-group jackknife: the groups' profiles carry speckle and texture fluctuations
     # correlated along range that the least-squares covariance, which takes residuals as
     # independent, does not see
+    # (delete-a-block: 8 blocks of neighbouring groups, each left out once)
     G = prof.shape[1]
     jk = []
-    for g in range(G):
-        cols = np.arange(G) != g
+    for blk in np.array_split(np.arange(G), min(8, G)):
+        keep = ~np.isin(np.arange(G), blk)
         try:
-            jk.append(least_squares(resid_cols, best.x, bounds=(lo, hi), loss="soft_l1", f_scale=3.0, x_scale="jac",
-                                    max_nfev=40, kwargs={"cols": cols}).x)
+            jk.append(least_squares(resid_cols, best.x, bounds=(lo, hi), loss="soft_l1", f_scale=3.0, x_scale=x_typ, method="dogbox",
+                                    max_nfev=30, kwargs={"cols": keep}).x)
         except ValueError:
             continue
     jk = np.asarray(jk)
@@ -421,59 +480,102 @@ def _invert(fn, target, lo, hi):
     return float(np.exp(np.log(xs[i - 1]) + t * (np.log(xs[i]) - np.log(xs[i - 1])))), False
 
 
-def _fit_speckle(stats, spec, height, rng):
-    """Range resolution, azimuth beam width and scatterer density from the speckle statistics."""
-    from scipy.ndimage import uniform_filter
-
-    from .speckle import analytic_autocorrelation, beam_kernel, correlation_length, gaussian_pulse_kernel, speckle_field
+def _range_resolution_bins(stats):
+    """Range resolution (bins) whose analytic range correlation length is the measured one."""
+    from .speckle import analytic_autocorrelation, correlation_length, gaussian_pulse_kernel
 
     lags = np.arange(13)
-    L_r, L_b = stats.corr_length_range, stats.corr_length_beam
 
     def len_range(res_bins):
         return correlation_length(analytic_autocorrelation(np.inf, gaussian_pulse_kernel(res_bins), [1.0], lags, 0))
+
+    return _invert(len_range, stats.corr_length_range, 0.3, 40.0)
+
+
+def _texture_field(shape, cluster_shape, looks, h_r, h_b, u_tex, normals):
+    """Bare speckle of clustered scatterers and ``looks`` on a patch, from fixed random numbers
+    (common random numbers: the statistics are smooth in the parameters)."""
+    from scipy.stats import gamma
+
+    from .speckle import _filter, look_weights
+
+    T = gamma.ppf(u_tex, cluster_shape) / cluster_shape if np.isfinite(cluster_shape) and cluster_shape < 1e4 else np.ones(shape)
+    amp = np.sqrt(T)
+    out = np.zeros(shape)
+    for k, w in enumerate(look_weights(looks)):
+        re = _filter(amp * normals[k, 0], h_r, h_b)
+        im = _filter(amp * normals[k, 1], h_r, h_b)
+        out += w * (re * re + im * im)
+    return out
+
+
+def _fit_speckle(stats, spec, height, rng):
+    """Range resolution, azimuth beam width, scatterer clustering and device looks from the speckle.
+
+    The correlation lengths give the range resolution and the azimuth beam width (analytic,
+    :mod:`.speckle`). The one-point law of the normalised intensity gives the clustering
+    shape per cell ``nu_c`` and the looks ``L`` by indirect inference: two statistics, the
+    contrast and the maximum-likelihood gamma shape's sufficient statistic
+    ``log mean(z) - mean(log z)`` (``speckle.speckle_statistics``, ``scipy.stats.gamma.fit``),
+    are matched between the data and bare fields simulated on the device's grid with the
+    same kernels and the same local-mean normalisation (``scipy.optimize.least_squares``
+    on common random numbers). Uncertainties: the statistics' spread over 8 blocks of cells
+    carried through the inverse Jacobian.
+    """
+    from scipy.ndimage import uniform_filter
+    from scipy.optimize import least_squares
+
+    from .speckle import analytic_autocorrelation, beam_kernel, correlation_length, gaussian_pulse_kernel, gk_moments, speckle_statistics
+
+    lags = np.arange(13)
+    L_b = stats.corr_length_beam
 
     def len_beam(bw):
         k = beam_kernel(BeamPattern.from_beamwidth(bw, spec.frequency, spec.sound_speed), spec.beam_spacing)
         return correlation_length(analytic_autocorrelation(np.inf, [1.0], k, lags, 1))
 
-    res_bins, res_clamped = _invert(len_range, L_r, 0.3, 40.0)
+    res_bins, res_clamped = _range_resolution_bins(stats)
     bw, bw_clamped = _invert(len_beam, L_b, 0.1 * spec.beam_spacing, 30 * spec.beam_spacing)
-    # contrast -> scatterers per cell, by simulating the same statistic on a patch of the grid
     h_r = gaussian_pulse_kernel(res_bins)
     h_b = beam_kernel(BeamPattern.from_beamwidth(bw, spec.frequency, spec.sound_speed), spec.beam_spacing)
     n_bins, n_beams = stats.region.shape
     w_r = max(5, n_bins // 100)
     w_b = max(3, n_beams // 24)
-    shape = (min(n_bins, 600), n_beams)
+    shape = (min(n_bins, 400), n_beams)
+    crng = np.random.default_rng(12345)
+    u_tex = crng.random(shape)
+    normals = crng.standard_normal((8, 2) + shape)  # up to 8 looks
 
-    def measured_contrast(mu, seed=0):
-        f = speckle_field(mu, h_r, h_b, np.random.default_rng(seed), shape=shape)
-        m = uniform_filter(f.astype(float), (w_r * 3, w_b), mode="nearest")
+    def sim_stats(log_nu, looks):
+        f = _texture_field(shape, float(np.exp(log_nu)), float(min(looks, 8.0)), h_r, h_b, u_tex, normals)
+        m = uniform_filter(f, (w_r * 3, w_b), mode="nearest")
         with np.errstate(invalid="ignore", divide="ignore"):
             z = (f / m)[w_r * 2: -w_r * 2, w_b // 2 + 1: -(w_b // 2 + 1)]
-        z = z[np.isfinite(z)]
-        return float(z.std() / z.mean()) if z.size > 100 else float("nan")
+        st = speckle_statistics(z.ravel())
+        return np.array([st["contrast"], st["log_ratio"]])
 
-    c_inf = measured_contrast(np.inf)
-    C = stats.contrast
-    if not np.isfinite(C) or C <= c_inf:
-        mu, mu_sd = np.inf, np.nan
-    else:
-        mus = np.geomspace(0.01, 1e4, 25)
-        cs = np.array([measured_contrast(m, i) for i, m in enumerate(mus)])  # decreasing in mu
-        keep = np.isfinite(cs)
-        mus, cs = mus[keep], cs[keep]
-        order = np.argsort(cs)
-        mu = float(np.exp(np.interp(C, cs[order], np.log(mus[order]))))
-        # blocks of beams: spread of the contrast -> spread of mu
-        zs = stats.normalised
-        blocks = np.array_split(zs, 8)
-        cb = np.array([b.std() / b.mean() for b in blocks if b.size > 50])
-        c_sd = float(cb.std(ddof=1) / np.sqrt(len(cb))) if cb.size > 2 else np.nan
-        mu_hi = float(np.exp(np.interp(C - c_sd, cs[order], np.log(mus[order]))))
-        mu_lo = float(np.exp(np.interp(C + c_sd, cs[order], np.log(mus[order]))))
-        mu_sd = 0.5 * abs(mu_hi - mu_lo)
+    z = stats.normalised
+    meas = speckle_statistics(z)
+    target = np.array([meas["contrast"], meas["log_ratio"]])
+    blocks = [speckle_statistics(b) for b in np.array_split(z, 8)]
+    bs = np.array([[b["contrast"], b["log_ratio"]] for b in blocks if np.isfinite(b["contrast"])])
+    cov_t = np.cov(bs.T) / len(bs) if len(bs) > 2 else np.full((2, 2), np.nan)
+    lo, hi = np.array([np.log(0.01), 1.0]), np.array([np.log(1e4), 8.0])
+    # coarse grid, then a least-squares polish from its best point
+    grid = [(a, b) for a in np.log([0.05, 0.3, 2.0, 1e3]) for b in (1.0, 2.0, 4.0)]
+    gerr = [float(np.sum(((sim_stats(a, b) - target) / 0.01) ** 2)) for a, b in grid]
+    x0 = np.clip(np.array(grid[int(np.nanargmin(gerr))]), lo + 1e-6, hi - 1e-6)
+    sol = least_squares(lambda p: (sim_stats(*p) - target) / np.array([0.01, 0.01]), x0, bounds=(lo, hi),
+                        diff_step=np.array([0.05, 0.05]), max_nfev=25)
+    log_nu, looks = sol.x
+    try:
+        Jinv = np.linalg.pinv(sol.jac * 0.01)  # d(params)/d(stats)
+        cov_p = Jinv @ cov_t @ Jinv.T
+        sd_log_nu, sd_looks = np.sqrt(np.maximum(np.diag(cov_p), 0))
+    except (np.linalg.LinAlgError, ValueError):
+        sd_log_nu, sd_looks = np.nan, np.nan
+    achieved = sim_stats(log_nu, looks)
+    nu_c = float(np.exp(log_nu))
     # typical seabed area of a grid cell in the speckle region (flat seabed; median: cells
     # near the nadir range r ~ h have huge footprints and few echoes)
     rows = np.repeat(stats.ranges[:, None], stats.region.shape[1], 1)[stats.region]
@@ -485,10 +587,13 @@ def _fit_speckle(stats, spec, height, rng):
         area = float(np.median(rows * spec.beam_spacing * spec.bin_width))
     else:
         area = float("nan")
-    density = mu / area if np.isfinite(mu) else np.inf
-    dens_sd = mu_sd / area if np.isfinite(mu) else np.nan
-    return dict(res_bins=res_bins, res_clamped=res_clamped, bw=bw, bw_clamped=bw_clamped, density=density,
-                density_sd=dens_sd, mean_count=mu, cell_area=area)
+    at_bound = nu_c >= 0.99e4
+    clusters = np.inf if at_bound or not np.isfinite(area) else nu_c / area
+    return dict(res_bins=res_bins, res_clamped=res_clamped, bw=bw, bw_clamped=bw_clamped,
+                cluster_shape=nu_c, cluster_shape_sd_rel=float(sd_log_nu), clusters=clusters,
+                clusters_sd=float(sd_log_nu * clusters) if np.isfinite(clusters) else np.nan,
+                looks=float(looks), looks_sd=float(sd_looks), cell_area=area, measured=meas,
+                matched=achieved.tolist(), gamma_shape=meas["gamma_shape"])
 
 
 def fit_profile(frames, *, region=None, encoding: str | None = None, device: str = "",
@@ -508,8 +613,8 @@ def fit_profile(frames, *, region=None, encoding: str | None = None, device: str
     device : str, optional
         Name written into the profile (default the spec's name).
     refine_density : bool
-        Refine the scatterer density by simulating frames with the whole profile
-        (a few simulations; off for a quick fit).
+        Refine the scatterer clustering (the texture) by simulating frames with the whole
+        profile (a few simulations; off for a quick fit).
     """
     if not isinstance(frames, (list, tuple)):
         frames = [frames]
@@ -542,7 +647,8 @@ def fit_profile(frames, *, region=None, encoding: str | None = None, device: str
     if stats is None:
         stats = frame_statistics([_values(f, encoding) for f in frames], f0.ranges, f0.azimuths, region=region)
     alpha = _tvg_water_absorption(spec)
-    x, sd, has_onset, _, _, rms_db = _fit_geometry(stats, spec, alpha)
+    res0, _ = _range_resolution_bins(stats)
+    x, sd, has_onset, _, _, rms_db = _fit_geometry(stats, spec, alpha, azimuths=f0.azimuths, pulse_bins=res0)
     h, pitch, roll, lbw, a_db, kexp, n_db, v_db = x
     if not has_onset:
         notes.append("no seabed onset in the frames: height, pitch, roll and the elevation width are weakly determined")
@@ -562,50 +668,54 @@ def fit_profile(frames, *, region=None, encoding: str | None = None, device: str
         notes.append("beam correlation at the limit of the grid: azimuth beam width clamped")
     notes.append("TVG absorption assumed equal to the water's (Ainslie-McColm at the device frequency); "
                  "spreading_db is the effective TVG exponent that explains the profile")
-    # statistical (least squares / jackknife over beam groups) and systematic parts added in
-    # quadrature; the systematic part is the bias seen on simulated flat seabeds (about -3 %
-    # in height and elevation width, -1 deg in pitch, 0.3 deg in roll; docs/physics.md 4.4)
-    sys_h, sys_p, sys_r, sys_w = 0.04 * h, np.deg2rad(1.0), np.deg2rad(0.4), 0.04 * np.exp(lbw)
+    # one sigma: the larger of the least-squares covariance and the jackknife over beam groups
+    # (the model is measured like the data, blurred by the pulse and averaged over each
+    # group's beams, so no systematic term is added; docs/physics.md 4.4)
     unc = {
-        "height": np.hypot(sd[0], sys_h), "pitch_deg": np.rad2deg(np.hypot(sd[1], sys_p)),
-        "roll_deg": np.rad2deg(np.hypot(sd[2], sys_r)),
-        "elevation_beamwidth_deg": np.rad2deg(np.hypot(np.exp(lbw) * sd[3], sys_w)), "gain_db": sd[4], "spreading_db": 10 * sd[5],
-        "noise_db": sd[6], "volume_db": sd[7], "density_per_m2": sp["density_sd"], "profile_rms_db": rms_db,
+        "height": sd[0], "pitch_deg": np.rad2deg(sd[1]), "roll_deg": np.rad2deg(sd[2]),
+        "elevation_beamwidth_deg": np.rad2deg(np.exp(lbw) * sd[3]), "gain_db": sd[4], "spreading_db": 10 * sd[5],
+        "noise_db": sd[6], "volume_db": sd[7], "clusters_per_m2": sp["clusters_sd"], "looks": sp["looks_sd"],
+        "profile_rms_db": rms_db,
     }
     summary = stats.summary()
-    summary.update(mean_count_per_cell=sp["mean_count"], cell_area_m2=sp["cell_area"])
+    summary.update(cluster_shape_per_cell=sp["cluster_shape"], cell_area_m2=sp["cell_area"],
+                   gamma_ml_shape=sp["gamma_shape"], log_ratio=sp["measured"]["log_ratio"])
+    notes.append(f"speckle: clustering shape {sp['cluster_shape']:.3g} per cell, {sp['looks']:.3g} looks, matched "
+                 f"(contrast, log mean - mean log) = ({sp['measured']['contrast']:.3g}, {sp['measured']['log_ratio']:.3g}) "
+                 f"with ({sp['matched'][0]:.3g}, {sp['matched'][1]:.3g}) on bare fields")
     full_scale = 255.0 if getattr(f0, "raw", None) is not None and np.asarray(f0.raw).dtype == np.uint8 else 0.0
     prof = SensorProfile(
-        spec=fitted_spec, encoding=encoding, gain=gain, density=float(sp["density"]),
-        height=float(h), pitch=float(pitch),
+        spec=fitted_spec, encoding=encoding, gain=gain, density=float("inf"), clusters_per_m2=float(sp["clusters"]),
+        looks=float(sp["looks"]), height=float(h), pitch=float(pitch),
         roll=float(roll), full_scale=full_scale, uncertainty=unc, stats=summary, notes=tuple(notes),
         device=device or spec.name,
     )
-    if refine_density and np.isfinite(prof.density) and np.isfinite(stats.contrast):
-        prof = _refine_density(prof, stats, f0)
+    if refine_density and np.isfinite(prof.clusters_per_m2) and np.isfinite(stats.contrast):
+        prof = _refine_clusters(prof, stats, f0)
     return prof
 
 
-def _refine_density(prof: SensorProfile, stats, frame, iterations: int = 4) -> SensorProfile:
-    """Adjust the scatterer density until frames simulated with the whole profile (geometry,
-    patterns, gain, noise, encoding) have the measured speckle contrast.
+def _refine_clusters(prof: SensorProfile, stats, frame, iterations: int = 4) -> SensorProfile:
+    """Adjust the clustering (texture) until frames simulated with the whole profile (geometry,
+    patterns, gain, noise, encoding) have the measured speckle contrast; looks kept.
 
-    The first estimate assumes a uniform count per cell and no background; the full model
-    has neither. Secant steps in log density on the contrast of simulated frames (2 seeds).
+    The bare-field estimate has a uniform mean and no background; the full model has
+    neither. Secant steps in log clusters on the contrast of simulated frames (2 seeds).
     """
     target = stats.contrast
 
-    def contrast(log_d):
-        p = dataclasses.replace(prof, density=float(np.exp(log_d)))
+    def contrast(log_k):
+        p = dataclasses.replace(prof, clusters_per_m2=float(np.exp(log_k)))
         cs = []
         for seed in (101, 102):
             img = p.from_device(p.to_device(p.simulate(seed=seed).image))
             cs.append(frame_statistics(img, frame.ranges, frame.azimuths).contrast)
         return float(np.mean(cs))
 
-    x0 = np.log(prof.density)
-    c0 = contrast(x0)
-    x1 = x0 + (0.5 if c0 < target else -0.5)  # fewer scatterers, more contrast
+    x_start = np.log(prof.clusters_per_m2)
+    x0 = x_start
+    c_start = c0 = contrast(x0)
+    x1 = x0 + (0.5 if c0 > target else -0.5)  # fewer clusters, more contrast
     c1 = contrast(x1)
     for _ in range(iterations):
         if not (np.isfinite(c0) and np.isfinite(c1)) or c1 == c0:
@@ -614,11 +724,11 @@ def _refine_density(prof: SensorProfile, stats, frame, iterations: int = 4) -> S
         x0, c0, x1, c1 = x1, c1, x2, contrast(x2)
         if abs(c1 - target) < 0.01 * target:
             break
-    if not np.isfinite(c1) or abs(c1 - target) > abs(contrast(np.log(prof.density)) - target):
+    if not np.isfinite(c1) or abs(c1 - target) > abs(c_start - target):
         return prof
     unc = dict(prof.uncertainty)
-    # the first estimate's relative uncertainty carries over to the refined density
-    rel = prof.uncertainty.get("density_per_m2", np.nan) / prof.density
-    unc["density_per_m2"] = float(rel * np.exp(x1)) if np.isfinite(rel) else np.nan
-    notes = prof.notes + (f"density refined by simulating the profile: contrast {c1:.3g} for the measured {target:.3g}",)
-    return dataclasses.replace(prof, density=float(np.exp(x1)), uncertainty=unc, notes=notes)
+    rel = prof.uncertainty.get("clusters_per_m2", np.nan) / prof.clusters_per_m2
+    unc["clusters_per_m2"] = float(rel * np.exp(x1)) if np.isfinite(rel) else np.nan
+    notes = prof.notes + (f"clustering refined by simulating the profile: contrast {c1:.3g} for the measured {target:.3g} "
+                          f"(bare-field estimate gave {c_start:.3g})",)
+    return dataclasses.replace(prof, clusters_per_m2=float(np.exp(x1)), uncertainty=unc, notes=notes)

@@ -16,6 +16,20 @@ intensity autocorrelation coefficient at lag ``d`` is
 
     rho(d) = [C(d)^2 + (2 / mu) Q(d)] / [S2^2 + (2 / mu) S4],
     C(d) = sum h_k h_{k+d},  Q(d) = sum h_k^2 h_{k+d}^2.
+
+Two further device and seabed terms (docs/physics.md 4.3, "Clustered scatterers and looks"):
+
+* **clustered scatterers**: the count of a cell is gamma-mixed Poisson (negative
+  binomial), ``n ~ Poisson(mu T)``, ``T ~ Gamma(nu_c, 1 / nu_c)`` with ``nu_c = kappa A``
+  (``kappa`` independent clusters per m^2, ``A`` the cell's footprint): the seabed's
+  reflectivity texture. For ``mu -> inf`` the cell's power is ``T``: K speckle whose
+  shape follows the cell size (Jakeman and Pusey's negative-binomial K);
+* **looks**: a device that averages ``L`` independent speckle realisations per stored
+  sample (incoherent averaging within the sample period) gives, given the texture, a
+  Gamma(L) intensity; a non-integer ``L`` is the effective number of looks
+  ``(sum w)^2 / sum w^2`` of a weighted average of ``ceil(L)`` looks
+  (:func:`look_weights`). Texture times looks is the generalised K law
+  (:func:`gk_moments`).
 """
 
 from __future__ import annotations
@@ -30,6 +44,10 @@ __all__ = [
     "analytic_autocorrelation",
     "correlation_length",
     "autocorrelation",
+    "look_weights",
+    "cluster_ratio",
+    "gk_moments",
+    "speckle_statistics",
 ]
 
 
@@ -209,3 +227,75 @@ def correlation_length(rho: np.ndarray, level: float = 0.5) -> float:
         return 0.0
     r0, r1 = rho[i - 1], rho[i]
     return float(i - 1 + (r0 - level) / (r0 - r1))
+
+
+# --------------------------------------------------------------------------- clustering and looks
+def look_weights(looks: float) -> np.ndarray:
+    """Weights (summing to 1) of ``ceil(looks)`` independent looks whose weighted average has
+    ``looks`` effective looks, ``(sum w)^2 / sum w^2 = looks``: ``ceil(looks) - 1`` equal
+    weights and a last one ``w`` solving ``(m + w)^2 / (m + w^2) = looks`` (``m = ceil - 1``)."""
+    L = float(looks)
+    if not (np.isfinite(L) and L >= 1.0):
+        raise ValueError(f"looks: must be a finite number >= 1, got {looks!r}")
+    K = int(np.ceil(L - 1e-9))
+    if K <= 1:
+        return np.ones(1)
+    m = K - 1
+    # (m + w)^2 = L (m + w^2)  ->  (1 - L) w^2 + 2 m w + m^2 - L m = 0, root in (0, 1]
+    a, b, c = 1.0 - L, 2.0 * m, m * m - L * m
+    w = 1.0 if abs(a) < 1e-12 else (-b + np.sqrt(max(b * b - 4 * a * c, 0.0))) / (2 * a)  # the root in (0, 1]
+    w = float(np.clip(w, 0.0, 1.0))
+    out = np.ones(K)
+    out[-1] = w
+    return out / out.sum()
+
+
+def cluster_ratio(mean_count, cluster_shape, rng, dtype=np.float32) -> np.ndarray:
+    """Per-cell power ratio ``n / mu`` of clustered scatterers (negative-binomial counts).
+
+    ``T ~ Gamma(nu_c, 1 / nu_c)`` (``cluster_shape`` ``nu_c``, ``inf``: ``T = 1``), then
+    ``n ~ Poisson(mu T)`` (``mean_count`` ``mu``, ``inf``: ``n / mu = T``). Cells with
+    ``mu = 0`` or ``nu_c = 0`` get 1 (no seabed there: the ratio multiplies nothing).
+    """
+    mu = np.asarray(mean_count, np.float64)
+    nu = np.broadcast_to(np.asarray(cluster_shape, np.float64), mu.shape)
+    T = np.ones(mu.shape)
+    tex = np.isfinite(nu) & (nu > 0)
+    if tex.any():
+        T[tex] = rng.gamma(nu[tex], 1.0 / nu[tex])
+    fin = np.isfinite(mu) & (mu > 0)
+    if fin.any():
+        T[fin] = rng.poisson(mu[fin] * T[fin]) / mu[fin]
+    return T.astype(dtype)
+
+
+def gk_moments(shape: float, looks: float = 1.0) -> tuple[float, float]:
+    """``(contrast, log_ratio)`` of the unit-mean generalised K intensity ``T G``,
+    ``T ~ Gamma(shape)``, ``G ~ Gamma(looks)`` (each of unit mean).
+
+    ``contrast^2 = (1 + 1/shape)(1 + 1/looks) - 1``; ``log_ratio = log E[I] - E[log I]
+    = (log shape - psi(shape)) + (log looks - psi(looks))``: the statistic whose value
+    fixes the maximum-likelihood gamma shape (``scipy.stats.gamma.fit`` with ``floc=0``).
+    """
+    from scipy.special import digamma
+
+    def part(k):
+        return 0.0 if not np.isfinite(k) else float(np.log(k) - digamma(k))
+
+    inv = lambda k: 0.0 if not np.isfinite(k) else 1.0 / k  # noqa: E731
+    return float(np.sqrt((1 + inv(shape)) * (1 + inv(looks)) - 1)), part(shape) + part(looks)
+
+
+def speckle_statistics(z) -> dict:
+    """Statistics of normalised speckle intensities ``z`` (> 0): contrast and the
+    maximum-likelihood gamma law (``scipy.stats.gamma.fit``, ``floc=0``): its shape, and
+    ``log_ratio = log mean(z) - mean(log z)``, the statistic that shape is a function of."""
+    from scipy import stats
+
+    z = np.asarray(z, float)
+    z = z[np.isfinite(z) & (z > 0)]
+    if z.size < 100:
+        return {"contrast": float("nan"), "gamma_shape": float("nan"), "log_ratio": float("nan"), "n": int(z.size)}
+    k, _, _ = stats.gamma.fit(z, floc=0.0)
+    return {"contrast": float(z.std() / z.mean()), "gamma_shape": float(k),
+            "log_ratio": float(np.log(z.mean()) - np.mean(np.log(z))), "n": int(z.size)}
