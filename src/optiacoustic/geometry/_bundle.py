@@ -143,6 +143,8 @@ class Problem:
         A point's own solve also stops, without its last step, once Gauss-Newton predicts at
         most this fraction of its cost left to gain (0: only the classic tests; see
         ``docs/derivations.md``, "Motion estimation: the bundle's Jacobians").
+    ftol : float
+        ``least_squares``'s relative tolerance on the cost (default 1e-8).
     """
 
     def __init__(self, K, blocks, n_planes, R_ref, inner_iterations=10):
@@ -152,6 +154,7 @@ class Problem:
         self.R_ref = np.asarray(R_ref, float)
         self.inner = int(inner_iterations)
         self.inner_rtol = 0.0  # see _lm
+        self.ftol = 1e-8  # the outer solve's relative cost tolerance
         self.n_theta = 6 + 3 * self.k
         self._cache_key = None
         self._cache = None
@@ -265,23 +268,17 @@ class Problem:
         p = np.array(p, float)
         if e is None:
             e, Jp, _ = self._residual(block, p, m, Rv, cv, w, meas=meas)
-        cost = np.sum(e * e, 1)
-        cost = np.where(np.isfinite(cost), cost, np.inf)
+        cost = np.einsum("nr,nr->n", e, e)
+        cost[~np.isfinite(cost)] = np.inf
         N = p.shape[0]
         lam = np.full(N, 1e-6)
-        eye = np.eye(p.shape[1])
         act = np.arange(N)  # the points still iterating; e, Jp hold their rows only
         for _ in range(self.inner):
             H = np.einsum("nri,nrj->nij", Jp, Jp)
             g = np.einsum("nri,nr->ni", Jp, e)
             D = np.diagonal(H, axis1=1, axis2=2)
-            Hd = H + (lam[act, None] * np.maximum(D, 1e-300 + 1e-12 * D.max(1, keepdims=True)))[:, :, None] * eye
-            with np.errstate(invalid="ignore", over="ignore"):
-                try:
-                    dp = np.linalg.solve(Hd, -g[..., None])[..., 0]
-                except np.linalg.LinAlgError:
-                    dp = np.zeros((act.size, p.shape[1]))
-            dp = np.where(np.all(np.isfinite(dp), 1)[:, None], dp, 0.0)
+            D = np.maximum(D, 1e-300 + 1e-12 * D.max(1, keepdims=True))
+            dp = -_solve_small(H, g, lam[act, None] * D)
             # Gauss-Newton's predicted decrease; where negligible, take the step without a
             # trial evaluation and stop
             pred = -np.einsum("ni,ni->n", g, dp)
@@ -298,7 +295,7 @@ class Problem:
                     break
             pt = p[act] + dp
             et, Jpt, _ = self._residual(block, pt, None if m is None else m[act], Rv, cv, w, meas=meas[act])
-            ct = np.sum(et * et, 1)
+            ct = np.einsum("nr,nr->n", et, et)
             c0 = cost[act]
             ok = np.isfinite(ct) & (ct <= c0)
             gain = np.where(ok, c0 - ct, 0.0)
@@ -390,11 +387,11 @@ class Problem:
         for b in self.blocks:
             _, e, Jp, Jt = self.solve_points(b, theta, want_theta=True)
             H = np.einsum("nri,nrj->nij", Jp, Jp)
-            H = H + (1e-12 * np.trace(H, axis1=1, axis2=2) + 1e-300)[:, None, None] * np.eye(Jp.shape[2])
+            tr = 1e-12 * np.trace(H, axis1=1, axis2=2) + 1e-300
             G = np.einsum("nri,nrj->nij", Jp, Jt)
+            Y = _solve_small(H, G, np.repeat(tr[:, None], H.shape[1], 1), bad=np.nan)  # (such J: zeroed below)
             with np.errstate(invalid="ignore", over="ignore"):
-                Y = np.linalg.solve(H, G)
-                Jred = Jt - Jp @ Y
+                Jred = Jt - np.einsum("nri,nit->nrt", Jp, Y)
             p = self._warm.get(id(b))
             if p is not None:  # the sensitivity of this solution, for the next evaluation's start
                 self._sens[id(b)] = (p, np.array(theta, float), Y)
@@ -437,7 +434,7 @@ class Problem:
 
     def _least_squares(self, theta0, max_nfev):
         return least_squares(self.residuals, np.asarray(theta0, float), jac=self.jacobian, method="lm",
-                             x_scale="jac", ftol=1e-8, xtol=1e-10, gtol=1e-10, max_nfev=max_nfev)
+                             x_scale="jac", ftol=self.ftol, xtol=1e-10, gtol=1e-10, max_nfev=max_nfev)
 
     def adopt_points(self, other: "Problem") -> None:
         """Start every block's points from ``other``'s last solution (the same blocks, in order),
@@ -463,18 +460,45 @@ def _cross(a, b):
     return out
 
 
+def _solve_small(H, B, damping=None, bad=0.0):
+    """``(H + diag(damping))^{-1} B`` for a batch of small symmetric systems.
+
+    ``H (N, n, n)``, ``B (N, n)`` or ``(N, n, m)``, ``damping (N, n)``. Two unknowns (a point
+    on a plane) by the closed form, more by ``numpy.linalg.solve``; a system that is singular
+    or not finite gives ``bad``.
+    """
+    n = H.shape[1]
+    vec = B.ndim == 2
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        if n == 2:
+            a, b, c = H[:, 0, 0], H[:, 0, 1], H[:, 1, 1]
+            if damping is not None:
+                a, c = a + damping[:, 0], c + damping[:, 1]
+            inv = 1.0 / (a * c - b * b)
+            if vec:
+                x = np.stack([(c * B[:, 0] - b * B[:, 1]) * inv, (a * B[:, 1] - b * B[:, 0]) * inv], 1)
+            else:
+                x = np.stack([(c[:, None] * B[:, 0] - b[:, None] * B[:, 1]) * inv[:, None],
+                              (a[:, None] * B[:, 1] - b[:, None] * B[:, 0]) * inv[:, None]], 1)
+        else:
+            Hd = H if damping is None else H + damping[:, :, None] * np.eye(n)
+            try:
+                x = np.linalg.solve(Hd, B[..., None])[..., 0] if vec else np.linalg.solve(Hd, B)
+            except np.linalg.LinAlgError:
+                x = np.full(B.shape, np.nan)
+    ok = np.all(np.isfinite(x.reshape(x.shape[0], -1)), 1)
+    return np.where(ok.reshape((-1,) + (1,) * (x.ndim - 1)), x, bad)
+
+
 def _converged(e, Jp, rtol) -> np.ndarray:
     """Points for which Gauss-Newton predicts a gain of at most ``rtol`` of their cost, (N,)."""
-    cost = np.sum(e * e, 1)
+    cost = np.einsum("nr,nr->n", e, e)
     H = np.einsum("nri,nrj->nij", Jp, Jp)
     g = np.einsum("nri,nr->ni", Jp, e)
-    H = H + (1e-12 * np.trace(H, axis1=1, axis2=2) + 1e-300)[:, None, None] * np.eye(Jp.shape[2])
-    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
-        try:
-            pred = np.einsum("ni,ni->n", g, np.linalg.solve(H, g[..., None])[..., 0])
-        except np.linalg.LinAlgError:
-            return np.zeros(e.shape[0], bool)
-    return pred <= rtol * cost + 1e-16
+    tr = 1e-12 * np.trace(H, axis1=1, axis2=2) + 1e-300
+    pred = np.einsum("ni,ni->n", g, _solve_small(H, g, np.repeat(tr[:, None], H.shape[1], 1)))
+    ok = np.isfinite(cost) & np.all(np.isfinite(g), 1)
+    return ok & (pred <= rtol * cost + 1e-16)
 
 
 def covariance_from_jacobian(J) -> tuple[np.ndarray, bool]:
