@@ -261,6 +261,18 @@ def test_point_sensitivity_matches_finite_differences_of_the_point_optimum():
             assert np.allclose(fd, S[:, :, i], rtol=1e-4, atol=1e-5 * np.abs(S).max()), i
 
 
+def test_rotation_of_one_vector_equals_scipy_and_the_batched_form():
+    # exp_so3 of a single vector takes Rodrigues' formula (no scipy call per evaluation)
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(14)
+    W = rng.normal(size=(40, 3)) * np.repeat([1e-12, 1e-8, 1e-4, 0.3, 3.0], 8)[:, None]
+    single = np.array([B.exp_so3(w) for w in W])
+    assert np.allclose(single, Rotation.from_rotvec(W).as_matrix(), rtol=0, atol=1e-14)
+    assert np.allclose(single, B.exp_so3(W), rtol=0, atol=1e-14)
+    assert np.allclose(B.log_so3(single[16:32]), W[16:32], rtol=1e-9, atol=0)  # (angles below pi)
+
+
 def test_vectorised_point_solve_equals_scipy_point_by_point():
     # the batched per-point Levenberg-Marquardt (its active set shrinking as points converge)
     # finds each point's optimum: scipy's least_squares on every point alone agrees

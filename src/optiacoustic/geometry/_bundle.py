@@ -37,7 +37,6 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from ..frames import skew
 
 __all__: list[str] = []
 
@@ -46,7 +45,20 @@ __all__: list[str] = []
 def exp_so3(w) -> np.ndarray:
     """Rotation matrix of the rotation vector ``w`` (rad), ``(..., 3) -> (..., 3, 3)``."""
     w = np.asarray(w, float)
+    if w.shape == (3,):  # Rodrigues' formula: one vector, without scipy's per-call overhead
+        a2 = float(w @ w)
+        W = _skew3(w)
+        if a2 < 1e-14:
+            return np.eye(3) + W + 0.5 * (W @ W)
+        a = np.sqrt(a2)
+        return np.eye(3) + (np.sin(a) / a) * W + ((1.0 - np.cos(a)) / a2) * (W @ W)
     return Rotation.from_rotvec(w.reshape(-1, 3)).as_matrix().reshape(w.shape[:-1] + (3, 3))
+
+
+def _skew3(w) -> np.ndarray:
+    """``[w]_x`` of one 3-vector."""
+    x, y, z = float(w[0]), float(w[1]), float(w[2])
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 def log_so3(R) -> np.ndarray:
@@ -58,8 +70,8 @@ def log_so3(R) -> np.ndarray:
 def left_jacobian(w) -> np.ndarray:
     """Left Jacobian of SO(3): ``exp(w + d) ~ exp(J_l(w) d) exp(w)``."""
     w = np.asarray(w, float)
-    a = float(np.linalg.norm(w))
-    W = skew(w)
+    a = float(np.sqrt(w @ w))
+    W = _skew3(w)
     if a < 1e-7:
         return np.eye(3) + 0.5 * W + W @ W / 6.0
     return np.eye(3) + (1 - np.cos(a)) / a**2 * W + (a - np.sin(a)) / a**3 * (W @ W)
@@ -161,15 +173,19 @@ class Problem:
         self._warm = {}
         self._sens = {}
         self._jl_key = self._jl = None
+        self._unpack_key = self._unpacked = None
         self.warm_start = True
         self._branches_fixed = False
 
     # ---------------------------------------------------------------- parameters
     def unpack(self, theta):
         theta = np.asarray(theta, float)
-        w, c = theta[:3], theta[3:6]
-        planes = theta[6:].reshape(self.k, 3)
-        return exp_so3(w) @ self.R_ref, c, planes
+        key = theta.tobytes()
+        if self._unpack_key != key:  # (called once per block and per point solve)
+            w, c = theta[:3].copy(), theta[3:6].copy()
+            planes = theta[6:].reshape(self.k, 3).copy()
+            self._unpack_key, self._unpacked = key, (exp_so3(w) @ self.R_ref, c, planes)
+        return self._unpacked
 
     # ---------------------------------------------------------------- per-point model
     def _residual(self, block: Block, p, m, Rv, cv, w, want_theta=False, meas=None, plane=None):
@@ -475,11 +491,11 @@ def _solve_small(H, B, damping=None, bad=0.0):
             if damping is not None:
                 a, c = a + damping[:, 0], c + damping[:, 1]
             inv = 1.0 / (a * c - b * b)
-            if vec:
-                x = np.stack([(c * B[:, 0] - b * B[:, 1]) * inv, (a * B[:, 1] - b * B[:, 0]) * inv], 1)
-            else:
-                x = np.stack([(c[:, None] * B[:, 0] - b[:, None] * B[:, 1]) * inv[:, None],
-                              (a[:, None] * B[:, 1] - b[:, None] * B[:, 0]) * inv[:, None]], 1)
+            x = np.empty(B.shape)
+            if not vec:
+                a, b, c, inv = a[:, None], b[:, None], c[:, None], inv[:, None]
+            x[:, 0] = (c * B[:, 0] - b * B[:, 1]) * inv
+            x[:, 1] = (a * B[:, 1] - b * B[:, 0]) * inv
         else:
             Hd = H if damping is None else H + damping[:, :, None] * np.eye(n)
             try:
