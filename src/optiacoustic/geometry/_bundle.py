@@ -194,7 +194,7 @@ class Problem:
         ``meas`` and ``plane`` default to the block's (they are passed when the points are
         replicated for several starts, or for a subset of them). The chain rule is spelt out
         per row with outer products (no batched small matrix products): see
-        ``docs/derivations.md``, "Motion: the bundle's Jacobians".
+        ``docs/derivations.md``, "Motion estimation: the bundle's Jacobians".
         """
         meas = block.meas if meas is None else meas
         N = p.shape[0]
