@@ -201,3 +201,19 @@ def test_shadow_floor_shortcut_is_exact(name, monkeypatch):
     monkeypatch.setattr(F, "_floor_planes", lambda scene: ())
     slow = F._shadow_mask(sc, F.caster_for(sc), SPEC, pose, f.rays, f.ground_truth.elevation_min)
     assert fast.any() and np.array_equal(fast, slow)
+
+
+def test_kernels_make_no_python_callbacks(thesis, monkeypatch):
+    """A kernel that returned an array would call back into Python to box it; a Ctrl-C landing
+    there surfaces as SystemError, not KeyboardInterrupt (oas's one-line exit 130). None do."""
+    import numba.core.serialize as serialize
+
+    calls = []
+    orig = serialize._numba_unpickle
+    monkeypatch.setattr(serialize, "_numba_unpickle", lambda *a: calls.append(1) or orig(*a))
+    sc, pose = thesis
+    f = simulate_sonar(sc, SPEC, pose, seed=1)
+    f.ground_truth.body, f.ground_truth.shadow
+    simulate_sonar(sc, SPEC, pose, seed=1, options=SonarOptions(beam_model="aperture", propagation="spreading"),
+                   noise=ScattererNoise(density=300.0))
+    assert calls == []

@@ -23,7 +23,6 @@ def ray_grid32(cp, sp, a, rz, out):
             i = k * J + j
             for c in range(3):
                 out[i, c] = cp[k] * a[j, c] + sp[k] * rz[c]
-    return out
 
 
 @njit(cache=True, nogil=True)
@@ -109,20 +108,21 @@ def footprints(body, r, cos_inc, slope, a, b, refl, weight_k, gain, J, pad_width
 
 
 @njit(cache=True, nogil=True)
-def bucket_by_beam(beam, lo_m, hi_m, energy, slot, range_min, scale, n_cells, n_beams):
+def bucket_by_beam(beam, lo_m, hi_m, energy, slot, range_min, scale, n_cells, n_beams, rec, starts):
     """The lit rays (``energy > 0``) as records grouped by beam (a counting sort), in their
     original order within a beam: ``rec[k] = (x0, x1, density, slot)`` with the footprint
     ``[x0, x1]`` in fine cells (clipped to ``[0, n_cells]``) and the energy density per cell;
     beam ``j`` holds ``rec[starts[j]:starts[j + 1]]``. One sequential pass over the rays, so
-    that the per-beam pass reads its rays contiguously."""
+    that the per-beam pass reads its rays contiguously. ``rec`` (>= lit rays, 4) and ``starts``
+    (n_beams + 1) are written (kernels return nothing: boxing a returned array calls back
+    into Python, where a Ctrl-C would surface as a SystemError instead of KeyboardInterrupt)."""
     counts = np.zeros(n_beams + 1, np.int64)
     for i in range(beam.size):
         if energy[i] > 0:
             counts[beam[i] + 1] += 1
     for j in range(n_beams):
         counts[j + 1] += counts[j]
-    starts = counts.copy()
-    rec = np.empty((counts[n_beams], 4))
+    starts[:] = counts
     for i in range(beam.size):
         e = energy[i]
         if e > 0:
@@ -135,7 +135,6 @@ def bucket_by_beam(beam, lo_m, hi_m, energy, slot, range_min, scale, n_cells, n_
             rec[k, 0] = min(max(x0, 0.0), n_cells)
             rec[k, 1] = min(max(x1, 0.0), n_cells)
             rec[k, 3] = slot[i]
-    return rec, starts
 
 
 @njit(cache=True, nogil=True)
@@ -222,7 +221,6 @@ def echo_rows(rec, starts, n_cells, H, V, full, q, n_bins, j0, j1, out):
             step[ss, :] = 0.0
             end[ss] = 0.0
             used[ss] = False
-    return out
 
 
 @njit(cache=True, nogil=True)
@@ -257,7 +255,6 @@ def shares(parts, intensity, slot_of_share, r0, r1, out):
                 rest -= v
             if rest_m >= 0:
                 out[rest_m, bb, j] = min(max(rest, np.float32(0.0)), np.float32(1.0))
-    return out
 
 
 @njit(cache=True, nogil=True)
@@ -299,7 +296,6 @@ def noise_gaussian(I, shares, N, cumw, lams, U, E, psi, target_speckle, use_psi,
                 if use_psi:
                     v += two * np.sqrt(target * pe) * np.cos(psi[bb, j])
                 out[bb, j] = max(v, np.float32(0.0))
-    return out
 
 
 @njit(cache=True, nogil=True)
@@ -343,35 +339,32 @@ def truth_maps(beam, lo_m, hi_m, energy, body, el_lo, el_hi, range_min, inv_bin,
 
 
 @njit(cache=True, nogil=True)
-def subdivide(body, rng, lo, hi, nd, ndd, a, b, refl, elevation, beam, bin_width, max_sub, sub_bins,
-              table_x0, table_dx, table_y, alpha_db, spreading):
+def subcell_counts(body, lo, hi, bin_width, max_sub, sub_bins, n_sub):
+    """Sub-cells of each hit ray for :func:`subdivide` into ``n_sub``; returns their total."""
+    total = 0
+    for i in range(body.size):
+        s = 0
+        if body[i] >= 0:
+            s = int(np.ceil((hi[i] - lo[i]) / bin_width / sub_bins))
+            s = min(max(s, 1), max_sub)
+        n_sub[i] = s
+        total += s
+    return total
+
+
+@njit(cache=True, nogil=True)
+def subdivide(body, rng, lo, hi, nd, ndd, a, b, refl, elevation, beam, bin_width, n_sub,
+              table_x0, table_dx, table_y, alpha_db, spreading,
+              o_r, o_e, o_body, o_c, o_lo, o_hi, o_beam, o_el, o_el_lo, o_el_hi):
     """``formation._subdivide`` in one pass: each hit ray's elevation cell split into sub-cells
     no longer than about ``sub_bins`` range bins (at most ``max_sub``), each with its own range,
     footprint, Lambert factor, two-way pattern weight (linear interpolation in ``table_y``,
     a uniform table from ``table_x0`` in steps of ``table_dx``, clamped at its ends as
     ``np.interp``) and, with ``spreading``, the two-way gain ``r^-2 10^(-alpha (r - 1) / 5)``.
-    Returns flat arrays ``(range, energy, body, cos_incidence, lo, hi, beam, elevation,
-    elevation_lo, elevation_hi)``.
+    ``n_sub`` from :func:`subcell_counts`; writes the flat arrays ``o_*`` (range, energy, body,
+    cos_incidence, lo, hi, beam, elevation, elevation_lo, elevation_hi) of ``n_sub.sum()``.
     """
     N = body.size
-    n_sub = np.zeros(N, np.int64)
-    total = 0
-    for i in range(N):
-        if body[i] >= 0:
-            s = int(np.ceil((hi[i] - lo[i]) / bin_width / sub_bins))
-            s = min(max(s, 1), max_sub)
-            n_sub[i] = s
-            total += s
-    o_r = np.empty(total)
-    o_e = np.empty(total)
-    o_body = np.empty(total, body.dtype)
-    o_c = np.empty(total)
-    o_lo = np.empty(total)
-    o_hi = np.empty(total)
-    o_beam = np.empty(total, beam.dtype)
-    o_el = np.empty(total)
-    o_el_lo = np.empty(total)
-    o_el_hi = np.empty(total)
     n_tab = table_y.size
     pad_w = 1e-4 * bin_width
     m = 0
@@ -426,7 +419,6 @@ def subdivide(body, rng, lo, hi, nd, ndd, a, b, refl, elevation, beam, bin_width
             o_el_lo[m] = el - 0.5 * delta
             o_el_hi[m] = el + 0.5 * delta
             m += 1
-    return o_r, o_e, o_body, o_c, o_lo, o_hi, o_beam, o_el, o_el_lo, o_el_hi
 
 
 @njit(cache=True, nogil=True)
@@ -444,7 +436,6 @@ def box_muller(u1, u2, scale, out):
             s = scale[i, j] * r
             out[i, j, 0] = np.cos(ang) * s
             out[i, j, 1] = np.sin(ang) * s
-    return out
 
 
 @njit(cache=True, nogil=True)
@@ -468,7 +459,6 @@ def poisson_inverse(mu, u, mu_max, out):
             p *= m / n
             c += p
         out.flat[i] = n
-    return out
 
 
 @njit(cache=True, nogil=True)
@@ -510,4 +500,3 @@ def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, 
             sn = np.sqrt(max(np.float32(1.0) - c * c, np.float32(0.0)))  # sin(ang) >= 0 on [0, pi)
             z[i, j, 0] = c * s
             z[i, j, 1] = (sn if u2[i, j] < half else -sn) * s
-    return z

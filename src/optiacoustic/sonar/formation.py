@@ -509,11 +509,19 @@ def _echo_numba(spec: SonarSpec, rays: SonarRays, slot: np.ndarray, n_slots: int
     H, V, full = _deposit_tables(spec.n_bins, q, sigma_bins)
     J, n_cells = spec.n_beams, spec.n_bins * q
     flat = lambda a: np.ascontiguousarray(a).reshape(-1)  # noqa: E731
-    rec, starts = kn.bucket_by_beam(flat(rays.beam_index), flat(rays.footprint_lo), flat(rays.footprint_hi),
-                                    flat(rays.energy), slot, float(spec.range_min), q / spec.bin_width, n_cells, J)
+    rec, starts = _bucket(flat(rays.beam_index), flat(rays.footprint_lo), flat(rays.footprint_hi), flat(rays.energy),
+                          slot, float(spec.range_min), q / spec.bin_width, n_cells, J)
     out = _workspace(f"echo{n_slots}", (n_slots, J, spec.n_bins), np.float32)  # fresh pages fault: reuse
     split_run(lambda j0, j1: kn.echo_rows(rec, starts, n_cells, H, V, full, q, spec.n_bins, j0, j1, out), J, threads)
     return np.ascontiguousarray(out.transpose(0, 2, 1))
+
+
+def _bucket(beam, lo_m, hi_m, energy, slot, range_min, scale, n_cells, n_beams):
+    """``_numba_kernels.bucket_by_beam`` into fresh arrays: ``(records, starts)``."""
+    rec = np.empty((beam.size, 4))
+    starts = np.empty(n_beams + 1, np.int64)
+    kernels().bucket_by_beam(beam, lo_m, hi_m, energy, slot, range_min, scale, n_cells, n_beams, rec, starts)
+    return rec, starts
 
 
 @functools.lru_cache(maxsize=16)
@@ -548,9 +556,9 @@ def _box_image_numba(spec: SonarSpec, beam, lo_m, hi_m, energy) -> np.ndarray:
     kn = kernels()
     H, V, full = _deposit_tables(spec.n_bins, 1, None)
     slot = np.zeros(len(beam), np.int8)
-    rec, starts = kn.bucket_by_beam(np.ascontiguousarray(beam), np.ascontiguousarray(lo_m, float),
-                                    np.ascontiguousarray(hi_m, float), np.ascontiguousarray(energy, float), slot,
-                                    float(spec.range_min), 1.0 / spec.bin_width, spec.n_bins, spec.n_beams)
+    rec, starts = _bucket(np.ascontiguousarray(beam), np.ascontiguousarray(lo_m, float), np.ascontiguousarray(hi_m, float),
+                          np.ascontiguousarray(energy, float), slot, float(spec.range_min), 1.0 / spec.bin_width,
+                          spec.n_bins, spec.n_beams)
     out = np.empty((1, spec.n_beams, spec.n_bins), np.float32)
     kn.echo_rows(rec, starts, spec.n_bins, H, V, full, 1, spec.n_bins, 0, spec.n_beams, out)
     return np.ascontiguousarray(out[0].T)
@@ -810,7 +818,8 @@ def _scan_hits_numba(caster: RayCaster, spec: SonarSpec, pose: Pose):
     a_dir = np.sin(th)[:, None] * R[:, 0] + np.cos(th)[:, None] * R[:, 1]  # (J, 3), see _world_ray_grid
     cp, sp, rz = np.cos(ph), np.sin(ph), np.ascontiguousarray(R[:, 2])
     n = spec.elevation_samples * spec.n_beams
-    d32 = kn.ray_grid32(cp, sp, a_dir, rz, np.empty((n, 3), np.float32))
+    d32 = np.empty((n, 3), np.float32)
+    kn.ray_grid32(cp, sp, a_dir, rz, d32)
     o32 = np.empty_like(d32)
     o32[...] = np.asarray(pose.t, np.float32)
     dist32 = np.full(n, min(np.float32(spec.range_max * 1.5), np.float32(1e30)), np.float32)
@@ -902,10 +911,15 @@ def _subdivide_numba(spec: SonarSpec, rays: SonarRays, nd, ndd, a, b, refl, patt
     flat = lambda arr: np.ascontiguousarray(arr).reshape(-1)  # noqa: E731
     spreading = options.propagation == "spreading"
     alpha = float(absorption_db_per_m(spec.frequency, options.water)) if spreading else 0.0
-    out = kernels().subdivide(flat(rays.body), flat(rays.range), flat(rays.footprint_lo), flat(rays.footprint_hi),
-                              nd, ndd, a, b, refl, flat(rays.elevation), flat(rays.beam_index), spec.bin_width,
-                              _MAX_SUBCELLS, _SUBCELL_BINS, float(x[0]), float(x[1] - x[0]), y, alpha, spreading)
-    r, energy, body, c, lo, hi, beam, el, el_lo, el_hi = out
+    kn = kernels()
+    body0, lo0, hi0, beam0 = flat(rays.body), flat(rays.footprint_lo), flat(rays.footprint_hi), flat(rays.beam_index)
+    n_sub = np.empty(body0.size, np.int64)
+    total = kn.subcell_counts(body0, lo0, hi0, spec.bin_width, _MAX_SUBCELLS, _SUBCELL_BINS, n_sub)
+    r, energy, c, lo, hi, el, el_lo, el_hi = (np.empty(total) for _ in range(8))
+    body, beam = np.empty(total, body0.dtype), np.empty(total, beam0.dtype)
+    kn.subdivide(body0, flat(rays.range), lo0, hi0, nd, ndd, a, b, refl, flat(rays.elevation), beam0, spec.bin_width,
+                 n_sub, float(x[0]), float(x[1] - x[0]), y, alpha, spreading,
+                 r, energy, body, c, lo, hi, beam, el, el_lo, el_hi)
     return SonarRays(range=r, energy=energy, body=body, cos_incidence=c, footprint_lo=lo, footprint_hi=hi,
                      beam_index=beam, elevation=el, elevation_lo=el_lo, elevation_hi=el_hi,
                      elevation_step=rays.elevation_step)

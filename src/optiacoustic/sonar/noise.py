@@ -450,7 +450,8 @@ def _poisson_counts(mu: np.ndarray, u: np.ndarray, rng: np.random.Generator) -> 
     from ._kernels import kernels, use_numba
 
     if use_numba():
-        n = kernels().poisson_inverse(mu, u, _POISSON_INVERSION_MAX, np.empty(mu.shape, np.int64))
+        n = np.empty(mu.shape, np.int64)
+        kernels().poisson_inverse(mu, u, _POISSON_INVERSION_MAX, n)
     else:
         from scipy.stats import poisson
 
@@ -471,7 +472,9 @@ def _complex_normals(u1: np.ndarray, u2: np.ndarray, scale: np.ndarray) -> np.nd
 
     scale = np.ascontiguousarray(scale, np.float32)
     if use_numba():
-        return kernels().box_muller(u1, u2, scale, np.empty(scale.shape + (2,), np.float32))
+        out = np.empty(scale.shape + (2,), np.float32)
+        kernels().box_muller(u1, u2, scale, out)
+        return out
     r = np.sqrt(np.float32(-2.0) * np.log((1.0 - u1).astype(np.float32)))
     ang = np.float32(2.0 * np.pi) * u2
     s = scale * r
