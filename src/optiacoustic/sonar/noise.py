@@ -68,10 +68,6 @@ class NoiseModel:
             raise ValueError(f"NoiseModel.noise_floor_db: must be finite or None, got {self.noise_floor_db!r}")
         if self.reference_level is not None and not (np.isfinite(self.reference_level) and self.reference_level > 0):
             raise ValueError(f"NoiseModel.reference_level: must be > 0, got {self.reference_level!r}")
-        if not (self.clusters_per_m2 > 0):
-            raise ValueError(f"ScattererNoise.clusters_per_m2: must be > 0 per m^2 (or inf), got {self.clusters_per_m2!r}")
-        if not (np.isfinite(self.looks) and self.looks >= 1):
-            raise ValueError(f"ScattererNoise.looks: must be a finite number >= 1, got {self.looks!r}")
         if self.bottom_type is not None:
             from .distributions import BOTTOM_TYPES
 
@@ -225,6 +221,10 @@ class ScattererNoise:
             raise ValueError(f"ScattererNoise.gain: expected a DeviceGain, got {type(self.gain).__name__}")
         if not (self.density > 0):
             raise ValueError(f"ScattererNoise.density: must be > 0 scatterers/m^2 (or inf), got {self.density!r}")
+        if not (self.clusters_per_m2 > 0):
+            raise ValueError(f"ScattererNoise.clusters_per_m2: must be > 0 per m^2 (or inf), got {self.clusters_per_m2!r}")
+        if not (np.isfinite(self.looks) and self.looks >= 1):
+            raise ValueError(f"ScattererNoise.looks: must be a finite number >= 1, got {self.looks!r}")
         if self.bottom_type is not None:
             from .distributions import BOTTOM_TYPES
 
