@@ -144,6 +144,41 @@ class RayCaster:
                     self._corner_normals_f32 = out
         return self._corner_normals_f32
 
+    @property
+    def corner_normals(self) -> np.ndarray:
+        """Unit vertex normals at the corners of every triangle, ``(n_triangles, 3, 3)`` float32 (world).
+
+        Triangle ``j`` of body ``b`` is row ``triangle_offsets[b] + j``; built on first use.
+        """
+        return self._corner_normals
+
+    @property
+    def triangle_offsets(self) -> np.ndarray:
+        """Row of each body's first triangle in :attr:`corner_normals`, ``(n_bodies + 1,)`` int64."""
+        return self._tri_offset
+
+    def intersect_raw(self, origins32: np.ndarray, directions32: np.ndarray):
+        """Embree's closest hits as it reports them, for kernels that shade in one pass.
+
+        Parameters
+        ----------
+        origins32, directions32 : ndarray (N, 3) float32, C-contiguous
+            World origins (m) and *unit* directions.
+
+        Returns
+        -------
+        tfar : (N,) float32 distance (1e30 on a miss); geom : (N,) int32 body, -1 on a
+        miss; prim : (N,) int32 triangle of that body; u, v : (N,) float32 barycentric
+        weights of the triangle's second and third corners. Undefined on a miss except
+        ``geom``.
+        """
+        dists = np.full(len(origins32), _MISS_DIST, np.float32)
+        outs = self._run_chunks(origins32, directions32, dists, "INTERSECT", True, copy=False)
+        if len(outs) == 1:
+            r = outs[0]
+            return r["tfar"], r["geomID"], r["primID"], r["u"], r["v"]
+        return tuple(np.concatenate([r[k] for r in outs]) for k in ("tfar", "geomID", "primID", "u", "v"))
+
     def _run_chunks(self, origins: np.ndarray, directions: np.ndarray, dists: np.ndarray, query: str, output: bool,
                     copy: bool = True):
         n = len(origins)
