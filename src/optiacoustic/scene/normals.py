@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["smooth_shading"]
+__all__ = ["smooth_shading", "merge_vertices"]
 
 
 def _face_adjacency(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
@@ -24,11 +24,16 @@ def _face_adjacency(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.
     span = np.maximum(f, g).ravel() - lo
     n = lo.size
     D = int(span.max()) + 1 if n else 1
-    if n_vertices * D * n < 2**62:
+    bits = max(int(n).bit_length(), 1)
+    if n_vertices * D < 2 ** (62 - bits):
         # edge key and corner index packed in one int64: a plain sort (SIMD) instead of
         # an argsort, about 8x cheaper; meshes with vertex locality (grids, scans) fit
-        packed = np.sort((lo * D + span) * n + np.arange(n))
-        ks, order = packed // n, packed % n
+        packed = lo * D
+        packed += span
+        packed <<= bits
+        packed |= np.arange(n)
+        packed.sort()
+        ks, order = packed >> bits, packed & ((1 << bits) - 1)
     else:
         key = lo * D + span
         order = np.argsort(key)
@@ -104,3 +109,46 @@ def smooth_shading(vertices, faces, crease_angle: float):
     # unused vertices (and degenerate patches) get an arbitrary unit normal
     N = np.where(ln[:, None] > 0, N / np.where(ln > 0, ln, 1.0)[:, None], [0.0, 0.0, 1.0])
     return V, new_f.astype(np.int32), N
+
+
+def merge_vertices(vertices, faces, digits: int = 8):
+    """Merge vertices at the same position and drop the ones no face uses.
+
+    Positions are compared after rounding to ``digits`` decimals (trimesh's merge
+    tolerance); unlike trimesh, vertices are merged by position alone (normals and UVs in
+    the file do not keep them apart: shading normals are computed here). The kept vertices
+    stay in the order of their first use in the file's vertex list.
+
+    Returns ``(vertices (V', 3) float64, faces (F, 3) int64)``; the input arrays
+    themselves when nothing is to merge or drop.
+    """
+    V = np.asarray(vertices, float)
+    F = np.asarray(faces, np.int64)
+    used = np.zeros(len(V), bool)
+    used[F.ravel()] = True
+    idx = np.flatnonzero(used)
+    q = np.round(V[idx] * 10.0 ** digits).astype(np.int64)
+    # one 64-bit hash per position, sorted stably, then checked exactly against the positions
+    h = q[:, 0] * np.int64(-7046029254386353131) ^ q[:, 1] * np.int64(-4417276706812531889) ^ q[:, 2] * np.int64(
+        1609587929392839161)
+    order = np.argsort(h, kind="stable")
+    hs = h[order]
+    start = np.empty(len(hs), bool)
+    start[:1] = True
+    np.not_equal(hs[1:], hs[:-1], out=start[1:])
+    if start.all() and len(idx) == len(V):
+        return V, F  # nothing to merge, nothing unused
+    first = order[start][np.cumsum(start) - 1]  # each sorted entry's group representative (its first use)
+    rep = np.empty(len(idx), np.int64)
+    rep[order] = first
+    if not np.array_equal(q[rep], q):  # a hash collision (never seen): exact grouping instead
+        _, inv = np.unique(q, axis=0, return_inverse=True)
+        inv = inv.reshape(-1)
+        first_of = np.full(inv.max() + 1, len(idx), np.int64)
+        np.minimum.at(first_of, inv, np.arange(len(idx)))
+        rep = first_of[inv]
+    keep = rep == np.arange(len(idx))
+    new_id = np.cumsum(keep) - 1
+    remap = np.full(len(V), -1, np.int64)
+    remap[idx] = new_id[rep]
+    return V[idx[keep]], remap[F]
