@@ -135,10 +135,18 @@ class RayCaster:
             if not np.isfinite(reach) or reach > MAX_COORDINATE:
                 raise SceneError(f"body '{b.name}': its surface reaches {reach:.3g} m from the origin; the ray caster "
                                  f"computes in float32 and accepts coordinates up to {MAX_COORDINATE:g} m")
+        from ._embree_upload import upload_triangles
+
         self._embree = rtcore_scene.EmbreeScene()
-        for s in surfaces:
-            # Embree copies both into its own buffers: the float32 vertices are a temporary
-            TriangleMesh(self._embree, s.vertices.astype(np.float32), s.faces.astype(np.int32, copy=False))
+        for i, s in enumerate(surfaces):
+            # Embree copies both into its own buffers: the float32 vertices are a temporary.
+            # One numpy copy per buffer; TriangleMesh (element by element) where that is not possible
+            v32, f32 = s.vertices.astype(np.float32), s.faces.astype(np.int32, copy=False)
+            gid = upload_triangles(self._embree, v32, f32)
+            if gid is None:
+                TriangleMesh(self._embree, v32, f32)
+            elif gid != i:  # pragma: no cover - Embree numbers a new scene's geometries 0, 1, ...
+                raise RuntimeError(f"Embree gave body {i} the geometry id {gid}")
         # per-triangle corner normals of all bodies, concatenated; geomID i is body i
         self._tri_offset = np.cumsum([0] + [s.n_faces for s in surfaces]).astype(np.int64)
         self._corner_normals_f32 = None  # built on the first smooth cast (36 bytes per triangle)
