@@ -106,6 +106,7 @@ def test_vectorised_upload_gives_the_same_hits_as_embreex_trianglemesh(monkeypat
     from embreex.rtcore_scene import EmbreeScene
 
     tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
+    assert up._library_of(EmbreeScene()) is not None  # the wheel's Embree was found
     assert up.upload_triangles(EmbreeScene(), tri, np.array([[0, 1, 2]], np.int32)) == 0  # the fast path is taken
     monkeypatch.setattr(up, "upload_triangles", lambda *a, **k: None)  # forces TriangleMesh
     slow = RayCaster(scene)

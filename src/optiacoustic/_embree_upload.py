@@ -20,6 +20,7 @@ import ctypes
 import functools
 import glob
 import os
+import sys
 import threading
 
 import numpy as np
@@ -35,13 +36,12 @@ _HEAD = 2 * ctypes.sizeof(ctypes.c_void_p)  # PyObject_HEAD: reference count and
 _LOCK = threading.Lock()
 
 
-@functools.lru_cache(maxsize=1)
-def _library():
-    """Embree as embreex loaded it (the wheel's bundled copy), with typed entry points; None if not found."""
+@functools.lru_cache(maxsize=4)
+def _library(package_dir: str):
+    """Embree as embreex loaded it (the wheel's bundled copy next to ``package_dir``), with typed entry
+    points; None if not found."""
     try:
-        import embreex
-
-        root = os.path.dirname(os.path.dirname(os.path.abspath(embreex.__file__)))
+        root = os.path.dirname(package_dir)
         found = sorted(glob.glob(os.path.join(root, "embreex.libs", "libembree4*.so*")))
         if len(found) != 1:
             return None
@@ -61,8 +61,15 @@ def _library():
             fn = getattr(lib, name)
             fn.restype, fn.argtypes = res, args
         return lib
-    except (ImportError, OSError, AttributeError):
+    except (OSError, AttributeError):
         return None
+
+
+def _library_of(scene):
+    """The Embree library of the embreex package that made ``scene`` (no import of embreex here)."""
+    module = sys.modules.get(type(scene).__module__)
+    path = getattr(module, "__file__", None)
+    return _library(os.path.dirname(os.path.abspath(path))) if path else None
 
 
 def _scene_handle(scene) -> int | None:
@@ -95,7 +102,7 @@ def upload_triangles(scene, vertices32: np.ndarray, faces32: np.ndarray) -> int 
     vertices32 : ndarray (V, 3) float32
     faces32 : ndarray (F, 3) int32, indices into ``vertices32``
     """
-    lib = _library()
+    lib = _library_of(scene)
     if lib is None or scene.is_committed:
         return None
     with _LOCK:
