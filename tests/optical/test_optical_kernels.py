@@ -60,7 +60,8 @@ def test_compiled_frame_with_open_water_texture_spots_and_noise(monkeypatch):
 
 def test_forward_scatter_and_veil_kernels_equal_numpy(monkeypatch):
     rng = np.random.default_rng(7)
-    H, W = CAM.height, CAM.width
+    cam = PinholeCamera.from_sensor(300, 200)  # enough pixels for the two-thread binning
+    H, W = cam.height, cam.width
     depth = rng.uniform(0.5, 9.0, (H, W))
     depth[rng.random((H, W)) < 0.1] = np.inf
     src = rng.random((H, W, 3)).astype(np.float32) * np.isfinite(depth)[..., None]
@@ -70,13 +71,15 @@ def test_forward_scatter_and_veil_kernels_equal_numpy(monkeypatch):
     out = {}
     for mode in ("numpy", ""):
         monkeypatch.setenv("OAS_KERNELS", mode)
-        out[mode] = (forward_scatter(src, depth, CAM, B=0.05), backscatter(CAM, pose, depth, water, lights))
+        out[mode] = (forward_scatter(src, depth, cam, B=0.05), forward_scatter(src, depth, cam, B=0.05, threads=2),
+                     backscatter(cam, pose, depth, water, lights))
+    assert np.array_equal(out["numpy"][0], out["numpy"][1])
     for a, b in zip(out["numpy"], out[""]):
         assert np.abs(a - b).max() <= 2e-6 * np.abs(a).max()
     with pytest.raises(ValueError, match="depth"):
         bad = depth.copy()
         bad[3, 4] = np.nan
-        backscatter(CAM, pose, bad, water, lights)
+        backscatter(cam, pose, bad, water, lights)
 
 
 def test_import_and_help_stay_free_of_numba():

@@ -163,6 +163,13 @@ def compose(rho_pi, irr_clear, irr_water, irr_fwd, depth, c, G, lamp_fs,
                 fs_src_out[i, k] = _ZERO
                 fwd_out[i, k] = _ZERO
             continue
+        if irr_clear[i, 0] == 0 and irr_clear[i, 1] == 0 and irr_clear[i, 2] == 0:
+            for k in range(3):  # unlit or shadowed (the clear irradiance bounds the others): black, no exp
+                clear_out[i, k] = _ZERO
+                att_out[i, k] = _ZERO
+                fs_src_out[i, k] = _ZERO
+                fwd_out[i, k] = _ZERO
+            continue
         for k in range(3):
             rho = rho_pi[i, k]
             tc = np.exp(-r * c[k])
@@ -212,7 +219,8 @@ def bin_layers(src, depth, W, q, w, r_lo, scale, n_layers, small):  # pragma: no
             small[0, row, col, 1] += b
             small[0, row, col, 2] += c
             continue
-        t = np.log((d if hit else r_lo) / r_lo) * scale
+        # float32 log: the split between two layers is linear, so its rounding moves light by ~1e-7
+        t = np.float64(np.log(np.float32((d if hit else r_lo) / r_lo))) * scale
         k = min(max(np.floor(t), 0.0), n_layers - 2.0)
         f = np.float32(t - k)
         ki = int(k)

@@ -380,7 +380,7 @@ def backscatter(camera: PinholeCamera, pose: Pose, depth: np.ndarray, water: Wat
 
 
 def forward_scatter(source: np.ndarray, depth: np.ndarray, camera: PinholeCamera, *, B: float = 0.03,
-                    layers: int = 6) -> np.ndarray:
+                    layers: int = 6, threads: int = 1) -> np.ndarray:
     """Blur ``source`` with a Gaussian whose angular width grows with range (eq. 3.9).
 
     Parameters
@@ -398,6 +398,8 @@ def forward_scatter(source: np.ndarray, depth: np.ndarray, camera: PinholeCamera
         Number of range layers, geometrically spaced between the nearest and the farthest
         surface; a pixel's light is shared between its two nearest layers, linearly in
         log-range, so the weights sum to 1 and no light is lost or created.
+    threads : int
+        Threads for the compiled binning (1 or 2).
 
     Returns
     -------
@@ -437,9 +439,9 @@ def forward_scatter(source: np.ndarray, depth: np.ndarray, camera: PinholeCamera
     # (1 - f) of its light to layer k and f to layer k + 1
     per_layer = (layers - 1) / np.log(r_hi / r_lo) if n_layers > 1 else 0.0
     if kernels:
-        acc = np.zeros((n_layers, h, w, 3))
-        K.bin_layers(flat, d, W, q, w, r_lo, per_layer, n_layers, acc)
-        small = acc.astype(np.float32)
+        # two halves of the image on two threads, each into its own accumulator
+        accs = _halves(threads, H * W, lambda a, b: _bin_rows(K, flat, d, W, q, w, r_lo, per_layer, n_layers, a, b))
+        small = (accs[0] if len(accs) == 1 else accs[0] + accs[1]).astype(np.float32)
     else:
         if n_layers == 1:
             k = np.zeros(H * W, np.int64)
@@ -472,6 +474,17 @@ def forward_scatter(source: np.ndarray, depth: np.ndarray, camera: PinholeCamera
         return out
     big = cv2.resize(out, (w * q, h * q), interpolation=cv2.INTER_LINEAR) * np.float32(1.0 / (q * q))
     return np.ascontiguousarray(big[:H, :W])
+
+
+def _bin_rows(K, flat, d, W, q, w, r_lo, per_layer, n_layers, a, b):
+    """:func:`._kernels.bin_layers` over pixels ``[a, b)`` (cut on a row of reduced cells) into a new accumulator."""
+    H = len(d) // W
+    acc = np.zeros((n_layers, -(-H // q), w, 3))
+    # whole rows of cells per half: the kernel indexes rows from the start of what it is given
+    r0 = (a // W) // q * q
+    r1 = H if b == len(d) else (b // W) // q * q
+    K.bin_layers(flat[r0 * W:r1 * W], d[r0 * W:r1 * W], W, q, w, r_lo, per_layer, n_layers, acc[:, r0 // q:])
+    return acc
 
 
 def _gaussian(img: np.ndarray, sigma: float) -> np.ndarray:
@@ -650,6 +663,25 @@ def _shade_numpy(caster, scene, pose, o32, d32, lights, c, G, shadows, H, W, sta
     return depth2, body_all, normal, clear, attenuated, src, fwd, bs_job
 
 
+@functools.lru_cache(maxsize=1)
+def _kernel_pool():
+    """One worker thread that runs the first half of a compiled kernel while the caller runs the second."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    return ThreadPoolExecutor(max_workers=1, thread_name_prefix="oas-shade")
+
+
+def _halves(threads: int, n: int, job) -> list:
+    """``job(a, b)`` over ``[0, n)``: in two halves on two threads when ``threads > 1`` (the kernels
+    release the GIL), else at once. Returns the results."""
+    if threads <= 1 or n < 20000:
+        return [job(0, n)]
+    m = n // 2
+    first = _kernel_pool().submit(job, 0, m)
+    second = job(m, n)
+    return [first.result(), second]
+
+
 def _shade_compiled(caster, scene, pose, o32, d32, lights, c, G, shadows, H, W, start_veil):
     """:func:`_shade_numpy` with the per-pixel work in compiled kernels (:mod:`._kernels`)."""
     from . import _kernels as K
@@ -663,8 +695,12 @@ def _shade_compiled(caster, scene, pose, o32, d32, lights, c, G, shadows, H, W, 
     body = np.empty(n, np.int32)
     rho_pi = np.empty((n, 3), f32)
     inv_pi = f32(1 / np.pi)
-    hits = K.surface(o32, d32, tfar, geom, prim, u, v, caster.triangle_offsets, caster.corner_normals,
-                     body_colors(scene) * inv_pi, p, nrm, depth, body, rho_pi)
+    colors_pi = body_colors(scene) * inv_pi
+    tri_offsets, corner_normals = caster.triangle_offsets, caster.corner_normals
+    threads = caster.threads
+    hits = sum(_halves(threads, n, lambda a, b: K.surface(
+        o32[a:b], d32[a:b], tfar[a:b], geom[a:b], prim[a:b], u[a:b], v[a:b], tri_offsets, corner_normals, colors_pi,
+        p[a:b], nrm[a:b], depth[a:b], body[a:b], rho_pi[a:b])))
     if hits == 0:
         warn_if_blind(body >= 0, pose, scene, stacklevel=4)
     depth2 = depth.reshape(H, W)
@@ -678,16 +714,22 @@ def _shade_compiled(caster, scene, pose, o32, d32, lights, c, G, shadows, H, W, 
     o_sh, ldir = np.empty((n, 3), f32), np.empty((n, 3), f32)
     lim, cosg, rs = np.empty(n, f32), np.empty(n, f32), np.empty(n, f32)
     no_block = np.zeros(n, bool)
+    eps = f32(1e-3)
     for lt in lights:
-        K.shadow_rays(p, nrm, body, np.asarray(lt.position, f32), f32(1e-3), o_sh, ldir, lim, cosg, rs)
+        pos = np.asarray(lt.position, f32)
+        _halves(threads, n, lambda a, b: K.shadow_rays(p[a:b], nrm[a:b], body[a:b], pos, eps, o_sh[a:b], ldir[a:b],
+                                                       lim[a:b], cosg[a:b], rs[a:b]))
         blocked = caster.occluded_raw(o_sh, ldir, lim) if shadows and hits else no_block
         spot = 0 if lt.direction is None or lt.cone_deg is None else (1 if abs(lt.spot_exponent - 1.0) < 1e-9 else 2)
         axis = np.zeros(3, f32) if spot == 0 else np.asarray(lt.direction, f32)
-        K.add_lamp(cosg, rs, ldir, blocked, np.asarray(lt.intensity, f32), axis, f32(lt.spot_exponent), spot,
-                   c32, G32, lamp_fs, irr_clear, irr_water, irr_fwd)
+        inten, expo = np.asarray(lt.intensity, f32), f32(lt.spot_exponent)
+        _halves(threads, n, lambda a, b: K.add_lamp(cosg[a:b], rs[a:b], ldir[a:b], blocked[a:b], inten, axis, expo,
+                                                    spot, c32, G32, lamp_fs, irr_clear[a:b], irr_water[a:b],
+                                                    irr_fwd[a:b]))
     clear, att = np.empty((n, 3), f32), np.empty((n, 3), f32)
     src, fwd = np.empty((n, 3), f32), np.empty((n, 3), f32)
-    K.compose(rho_pi, irr_clear, irr_water, irr_fwd, depth, c32, G32, lamp_fs, clear, att, src, fwd)
+    _halves(threads, n, lambda a, b: K.compose(rho_pi[a:b], irr_clear[a:b], irr_water[a:b], irr_fwd[a:b], depth[a:b],
+                                               c32, G32, lamp_fs, clear[a:b], att[a:b], src[a:b], fwd[a:b]))
     if hits < n:
         nrm[body < 0] = np.nan
     img = lambda a: a.reshape(H, W, 3)  # noqa: E731
@@ -790,7 +832,7 @@ def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=N
     # (smooth, not blurred), and of what leaves the surface e^{-G R_c} - e^{-c R_c} arrives
     # blurred by the range-dependent kernel
     if fs_src is not None:
-        fwd += forward_scatter(fs_src, depth2, camera, B=options.B, layers=options.fs_layers)
+        fwd += forward_scatter(fs_src, depth2, camera, B=options.B, layers=options.fs_layers, threads=caster.threads)
 
     # ---- backscatter (eqs. 3.10-3.13)
     bs = bs_job.result()
