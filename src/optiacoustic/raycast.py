@@ -166,7 +166,8 @@ class RayCaster:
                     surfaces = self.scene.surfaces()
                     out = np.empty((int(self._tri_offset[-1]), 3, 3), np.float32)
                     for s, a, b in zip(surfaces, self._tri_offset[:-1], self._tri_offset[1:]):
-                        out[a:b] = s.normals[s.faces]
+                        # gathered from float32 normals: no float64 (n, 3, 3) temporary (72 bytes/triangle)
+                        np.take(s.normals.astype(np.float32), s.faces, axis=0, out=out[a:b])
                     self._corner_normals_f32 = out
         return self._corner_normals_f32
 
