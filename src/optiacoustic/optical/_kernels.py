@@ -15,7 +15,14 @@ Per pixel ``i`` (rays in world frame, float32):
   direction, length; length 0 where the surface faces away, which Embree rejects);
 * :func:`add_lamp` adds one lamp's irradiance (clear, narrow-beam through water, and
   forward-scattered on the lamp leg) where its shadow ray was not blocked;
-* :func:`compose` forms the image stages from albedo, irradiance and camera range.
+* :func:`compose` forms the image stages from albedo, irradiance and camera range;
+* :func:`range_span` and :func:`bin_layers` share each pixel's forward-scattered light
+  between range layers on the reduced grid of the blur;
+* :func:`veil` looks each pixel's backscatter up in the coarse slice tables.
+
+Every kernel works on any contiguous run of pixels, so the caller may split an image in
+two and run the halves on two threads (``nogil``). No bounds are checked here: the
+callers in :mod:`.render` pass arrays of matching lengths.
 """
 
 from __future__ import annotations

@@ -315,7 +315,7 @@ def backscatter(camera: PinholeCamera, pose: Pose, depth: np.ndarray, water: Wat
     options = options or OpticalOptions()
     H, W = camera.height, camera.width
     kernels = _use_kernels() and options.backscatter_step > 1
-    if kernels and isinstance(depth, np.ndarray) and depth.shape == (H, W) and depth.dtype.kind == "f":
+    if kernels and isinstance(depth, np.ndarray) and depth.shape == (H, W) and depth.dtype in (np.float32, np.float64):
         depth = np.ascontiguousarray(depth)  # validated by the kernel below
     else:
         kernels = False
@@ -409,7 +409,11 @@ def forward_scatter(source: np.ndarray, depth: np.ndarray, camera: PinholeCamera
     import cv2
 
     src = np.asarray(source, np.float32)
+    if src.ndim != 3 or src.shape[2] != 3:
+        raise ValueError(f"source: expected shape (H, W, 3), got {src.shape}")
     H, W = src.shape[:2]
+    if np.shape(depth) != (H, W):
+        raise ValueError(f"depth: expected shape {(H, W)} (the source's), got {np.shape(depth)}")
     kernels = _use_kernels()
     if kernels:
         from . import _kernels as K

@@ -16,6 +16,33 @@ import numpy as np
 __all__ = ["smooth_shading", "merge_vertices"]
 
 
+def _pool():
+    from concurrent.futures import ThreadPoolExecutor
+
+    global _POOL
+    if _POOL is None:
+        _POOL = ThreadPoolExecutor(max_workers=2, thread_name_prefix="oas-normals")
+    return _POOL
+
+
+_POOL = None
+
+
+def _face_normals(V: np.ndarray, F: np.ndarray):
+    """Area-weighted face normals ``(F, 3)`` (twice the area long) and their unit vectors."""
+    a = V[F[:, 0]]
+    e1 = V[F[:, 1]]
+    e1 -= a
+    e2 = V[F[:, 2]]
+    e2 -= a
+    fn = a  # reused: np.cross is 3x slower than the three components
+    fn[:, 0] = e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1]
+    fn[:, 1] = e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2]
+    fn[:, 2] = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    area2 = np.sqrt(np.einsum("ij,ij->i", fn, fn))
+    return fn, fn / np.where(area2 > 0, area2, 1.0)[:, None]
+
+
 def _face_adjacency(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
     """Pairs of faces ``(a, b)`` sharing an edge (consecutive ones around non-manifold edges)."""
     f = faces.astype(np.int64, copy=False)
@@ -68,19 +95,16 @@ def smooth_shading(vertices, faces, crease_angle: float):
     V = np.asarray(vertices, float)
     F = np.asarray(faces, np.int64)
     nv, nf = len(V), len(F)
-    a = V[F[:, 0]]
-    e1, e2 = V[F[:, 1]] - a, V[F[:, 2]] - a
-    fn = np.empty_like(e1)  # area-weighted face normals (np.cross is 3x slower)
-    fn[:, 0] = e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1]
-    fn[:, 1] = e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2]
-    fn[:, 2] = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-    area2 = np.sqrt(np.einsum("ij,ij->i", fn, fn))
-    unit = fn / np.where(area2 > 0, area2, 1.0)[:, None]
+    # face normals on a second thread while this one finds the edge neighbours (numpy
+    # releases the GIL; a large mesh's build has the other core free at this point)
+    side = _pool().submit(_face_normals, V, F) if crease_angle > 0 and nf >= 200_000 else None
+    if crease_angle > 0:
+        fa, fb = _face_adjacency(F, nv)
+    fn, unit = side.result() if side is not None else _face_normals(V, F)
     if crease_angle > 0:
         from scipy.sparse import coo_matrix
         from scipy.sparse.csgraph import connected_components
 
-        fa, fb = _face_adjacency(F, nv)
         smooth = np.einsum("ij,ij->i", unit[fa], unit[fb]) > np.cos(crease_angle)
         g = coo_matrix((np.ones(int(smooth.sum()), np.int8), (fa[smooth], fb[smooth])), shape=(nf, nf))
         _, patch = connected_components(g, directed=False)
@@ -102,9 +126,17 @@ def smooth_shading(vertices, faces, crease_angle: float):
     n_out = len(V)
     new_f = new_f.reshape(nf, 3)
     N = np.empty((n_out, 3))
-    for j in range(3):
+    corners = [np.ascontiguousarray(new_f[:, k]) for k in range(3)]  # one copy each, not one per channel
+
+    def channel(j):
         w = np.ascontiguousarray(fn[:, j])
-        N[:, j] = sum(np.bincount(new_f[:, k], weights=w, minlength=n_out) for k in range(3))
+        N[:, j] = sum(np.bincount(c, weights=w, minlength=n_out) for c in corners)
+
+    if nf >= 200_000:
+        list(_pool().map(channel, range(3)))
+    else:
+        for j in range(3):
+            channel(j)
     ln = np.sqrt(np.einsum("ij,ij->i", N, N))
     # unused vertices (and degenerate patches) get an arbitrary unit normal
     N = np.where(ln[:, None] > 0, N / np.where(ln > 0, ln, 1.0)[:, None], [0.0, 0.0, 1.0])
