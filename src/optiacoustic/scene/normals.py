@@ -11,21 +11,19 @@ neighbours across edges under the crease angle, like any other faces.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 __all__ = ["smooth_shading", "merge_vertices"]
 
 
+@functools.lru_cache(maxsize=1)
 def _pool():
+    """Two worker threads for the large arrays of a mesh build (numpy releases the GIL)."""
     from concurrent.futures import ThreadPoolExecutor
 
-    global _POOL
-    if _POOL is None:
-        _POOL = ThreadPoolExecutor(max_workers=2, thread_name_prefix="oas-normals")
-    return _POOL
-
-
-_POOL = None
+    return ThreadPoolExecutor(max_workers=2, thread_name_prefix="oas-normals")
 
 
 def _face_normals(V: np.ndarray, F: np.ndarray):
@@ -46,16 +44,18 @@ def _face_normals(V: np.ndarray, F: np.ndarray):
 def _face_adjacency(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
     """Pairs of faces ``(a, b)`` sharing an edge (consecutive ones around non-manifold edges)."""
     f = faces.astype(np.int64, copy=False)
-    g = np.roll(f, -1, axis=1)
+    g = f[:, [1, 2, 0]]  # each corner's next corner: edges (f, g)
     lo = np.minimum(f, g).ravel()
-    span = np.maximum(f, g).ravel() - lo
+    span = np.maximum(f, g, out=g).ravel()  # in place: few large temporaries
+    span -= lo
     n = lo.size
     D = int(span.max()) + 1 if n else 1
     bits = max(int(n).bit_length(), 1)
     if n_vertices * D < 2 ** (62 - bits):
         # edge key and corner index packed in one int64: a plain sort (SIMD) instead of
         # an argsort, about 8x cheaper; meshes with vertex locality (grids, scans) fit
-        packed = lo * D
+        packed = lo
+        packed *= D
         packed += span
         packed <<= bits
         packed |= np.arange(n)
