@@ -171,41 +171,6 @@ class RayCaster:
                     self._corner_normals_f32 = out
         return self._corner_normals_f32
 
-    @property
-    def corner_normals(self) -> np.ndarray:
-        """Unit vertex normals at the corners of every triangle, ``(n_triangles, 3, 3)`` float32 (world).
-
-        Triangle ``j`` of body ``b`` is row ``triangle_offsets[b] + j``; built on first use.
-        """
-        return self._corner_normals
-
-    @property
-    def triangle_offsets(self) -> np.ndarray:
-        """Row of each body's first triangle in :attr:`corner_normals`, ``(n_bodies + 1,)`` int64."""
-        return self._tri_offset
-
-    def intersect_raw(self, origins32: np.ndarray, directions32: np.ndarray):
-        """Embree's closest hits as it reports them, for kernels that shade in one pass.
-
-        Parameters
-        ----------
-        origins32, directions32 : ndarray (N, 3) float32, C-contiguous
-            World origins (m) and *unit* directions.
-
-        Returns
-        -------
-        tfar : (N,) float32 distance (1e30 on a miss); geom : (N,) int32 body, -1 on a
-        miss; prim : (N,) int32 triangle of that body; u, v : (N,) float32 barycentric
-        weights of the triangle's second and third corners. Undefined on a miss except
-        ``geom``.
-        """
-        dists = np.full(len(origins32), _MISS_DIST, np.float32)
-        outs = self._run_chunks(origins32, directions32, dists, "INTERSECT", True, copy=False)
-        if len(outs) == 1:
-            r = outs[0]
-            return r["tfar"], r["geomID"], r["primID"], r["u"], r["v"]
-        return tuple(np.concatenate([r[k] for r in outs]) for k in ("tfar", "geomID", "primID", "u", "v"))
-
     def _run_chunks(self, origins: np.ndarray, directions: np.ndarray, dists: np.ndarray, query: str, output: bool,
                     copy: bool = True):
         n = len(origins)
@@ -332,6 +297,33 @@ class RayCaster:
             nrm = cat("Ng")
         nrm /= np.sqrt(np.einsum("ij,ij->i", nrm, nrm))[:, None] + np.float32(1e-30)
         return tfar, geom, prim, nrm
+
+    def intersect_raw(self, origins32: np.ndarray, directions32: np.ndarray, max_distance32: np.ndarray | None = None,
+                      *, normals: bool = True):
+        """Embree's closest-hit output as it comes, over the worker threads: the lowest-level query.
+
+        Parameters as :meth:`cast_raw`. Returns ``(distance, body, triangle, u, v, Ng)``:
+        ``(N,)`` float32 distance (``>= max_distance`` on a miss), ``(N,)`` int32 body
+        (``-1`` on a miss) and triangle, ``(N,)`` float32 barycentric ``u, v`` of the hit
+        (corners 1 and 2), and the unnormalised geometric normal ``(N, 3)`` float32 (``None``
+        without ``normals``). Smooth normals are ``(1 - u - v) n0 + u n1 + v n2`` of
+        :attr:`corner_normals` row ``triangle_offset[body] + triangle``.
+        """
+        n = len(origins32)
+        dists = np.full(n, _MISS_DIST, np.float32) if max_distance32 is None else max_distance32
+        outs = self._run_chunks(origins32, directions32, dists, "INTERSECT", True, copy=False)
+        cat = (lambda k: outs[0][k]) if len(outs) == 1 else (lambda k: np.concatenate([r[k] for r in outs]))
+        return cat("tfar"), cat("geomID"), cat("primID"), cat("u"), cat("v"), cat("Ng") if normals else None
+
+    @property
+    def corner_normals(self) -> np.ndarray:
+        """Per-triangle corner normals of all bodies, ``(n_triangles, 3, 3)`` float32 (read-only use)."""
+        return self._corner_normals
+
+    @property
+    def triangle_offset(self) -> np.ndarray:
+        """Row of each body's first triangle in :attr:`corner_normals`, ``(n_bodies + 1,)`` int64."""
+        return self._tri_offset
 
     def occluded_raw(self, origins32: np.ndarray, directions32: np.ndarray, max_distance32: np.ndarray) -> np.ndarray:
         """:meth:`occluded` with no validation: float32 ``(N, 3)`` unit directions, ``(N,)`` limits."""

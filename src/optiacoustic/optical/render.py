@@ -692,7 +692,7 @@ def _shade_compiled(caster, scene, pose, o32, d32, lights, c, G, shadows, H, W, 
 
     f32 = np.float32
     n = len(d32)
-    tfar, geom, prim, u, v = caster.intersect_raw(o32, d32)
+    tfar, geom, prim, u, v, _ = caster.intersect_raw(o32, d32, normals=False)
     p = np.empty((n, 3), f32)
     nrm = np.empty((n, 3), f32)
     depth = np.empty(n, f32)
@@ -700,7 +700,7 @@ def _shade_compiled(caster, scene, pose, o32, d32, lights, c, G, shadows, H, W, 
     rho_pi = np.empty((n, 3), f32)
     inv_pi = f32(1 / np.pi)
     colors_pi = body_colors(scene) * inv_pi
-    tri_offsets, corner_normals = caster.triangle_offsets, caster.corner_normals
+    tri_offsets, corner_normals = caster.triangle_offset, caster.corner_normals
     threads = caster.threads
     hits = sum(_halves(threads, n, lambda a, b: K.surface(
         o32[a:b], d32[a:b], tfar[a:b], geom[a:b], prim[a:b], u[a:b], v[a:b], tri_offsets, corner_normals, colors_pi,
