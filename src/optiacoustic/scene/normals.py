@@ -60,13 +60,17 @@ def _face_adjacency(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, np.
         packed <<= bits
         packed |= np.arange(n)
         packed.sort()
-        ks, order = packed >> bits, packed & ((1 << bits) - 1)
+        order = np.bitwise_and(packed, (1 << bits) - 1, out=span)  # in place: span is spent
+        ks = np.right_shift(packed, bits, out=packed)
     else:
         key = lo * D + span
         order = np.argsort(key)
         ks = key[order]
     same = np.flatnonzero(ks[1:] == ks[:-1])
-    return order[same] // 3, order[same + 1] // 3
+    fa, fb = order[same], order[same + 1]
+    fa //= 3
+    fb //= 3
+    return fa, fb
 
 
 def smooth_shading(vertices, faces, crease_angle: float):
