@@ -92,6 +92,13 @@ class MatchOptions:
         Second assignment pass with the neighbours' depth agreement in the cost.
     use_acoustic : bool
         Use the seabed and shadow evidence (off: epipolar distance and uniqueness only).
+    method : {"arc", "corners"}
+        ``"arc"`` (default): each sonar feature searches its own epipolar arc, inside the
+        elevation interval of the seabed and shadow evidence, for the middle of the longest
+        edge-free run of pixels (:mod:`.arc_search`); ``"corners"``: OpenCV corners gated by
+        the epipolar distance and assigned globally (the first design, kept for comparison).
+    arc_threshold : float
+        Gradient (gray levels per px) below which an arc pixel is edge-free.
     cfar, keypoints : detector options.
     """
 
@@ -104,8 +111,14 @@ class MatchOptions:
     corner_weight: float = 0.46
     smoothness: bool = False
     use_acoustic: bool = True
+    method: str = "arc"
+    arc_threshold: float = 3.0
     cfar: CfarOptions = field(default_factory=CfarOptions)
     keypoints: KeypointOptions = field(default_factory=KeypointOptions)
+
+    def __post_init__(self):
+        if self.method not in ("arc", "corners"):
+            raise ValueError(f"MatchOptions.method: expected 'arc' or 'corners', got {self.method!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -341,6 +354,9 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
                                options=opt.cfar)
     if len(sf) == 0:
         return _empty("no sonar features: CFAR found no echo standing out of its background")
+    if opt.method == "arc":
+        out = _match_arcs(sf, cam_img, img_s, r_bins, th_beams, rig, noise, opt)
+        return _finish(out, second, motion, rig, noise, opt, min_score)
     cf = detect_camera_features(cam_img, opt.keypoints)
     if len(cf) == 0:
         return _empty("no camera features: the image has no corners (blank or too turbid)", sf)
@@ -445,10 +461,96 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     out = Matches(cf.pixels[cols[ch]], sf.ranges[rows[ch]], sf.azimuths[rows[ch]], P[ch], score[order], cost[ch],
                   rows[ch], cols[ch], sf, cf, seabed,
                   f"{ch.size} matches of {len(sf)} sonar and {len(cf)} camera features", feats)
+    return _finish(out, second, motion, rig, noise, opt, min_score)
+
+
+def _finish(out, second, motion, rig, noise, opt, min_score) -> Matches:
+    """Two-view check (when asked for) and the score threshold."""
+    if not out:
+        return out
+    n = len(out)
     if second is not None:
         out = _two_view(out, second, motion, rig, noise, opt)
     res = out.above(min_score)
     if not res:
-        return _empty(f"nothing reliable: {ch.size} tentative matches, none with score >= {min_score}",
-                      sf, cf, seabed)
+        return _empty(f"nothing reliable: {n} tentative matches, none with score >= {min_score}",
+                      out.sonar_features, out.camera_features, out.seabed)
     return res
+
+
+#: Logistic model of P(correct) for the arc search's matches: intercept and weights of the
+#: standardised :func:`arc_score_features` (log SNR, elevation interval width in degrees,
+#: visible arc length in px, log edge-free run length in px, position of the choice in the
+#: interval, shadow behind the echo, onset or peak). Fitted by
+#: ``experiments.matching.calibrate_score()`` on random scenes seeded 5000-5023, disjoint
+#: from every scene the experiment and the tests evaluate on.
+ARC_SCORE_MODEL = dict(
+    weights=(-0.067, 0.156, -0.383, -0.267, 0.818, 0.461, 0.436, -0.198),
+    mean=(2.8569, 5.5396, 89.6247, 3.5824, 0.5315, 0.8569, 0.4647),
+    std=(0.6222, 3.2937, 48.9931, 1.1038, 0.1908, 0.3502, 0.4988),
+)
+
+
+def arc_score_features(feats: dict) -> np.ndarray:
+    """The arc score model's inputs ``(N, 7)`` from a :attr:`Matches.features` mapping."""
+    return np.column_stack([np.log(np.maximum(feats["snr"], 1e-6)), np.rad2deg(feats["elevation_span"]),
+                            feats["visible_px"], np.log(np.maximum(feats["run_px"], 1e-3)), feats["position"],
+                            feats["shadowed"].astype(float), feats["kind"]])
+
+
+def _logistic(X, model):
+    w = np.asarray(model["weights"], float)
+    z = w[0] + ((X - np.asarray(model["mean"])) / np.asarray(model["std"])) @ w[1:]
+    return 1.0 / (1.0 + np.exp(-z))
+
+
+def _match_arcs(sf, cam_img, img_s, r_bins, th_beams, rig, noise, opt) -> Matches:
+    """Every sonar feature takes the middle of the longest edge-free run of its arc (:mod:`.arc_search`)."""
+    from ..geometry.projection import camera_from_sonar
+    from .arc_search import gradient_image, search_arcs
+    from .camera_features import to_gray8
+
+    if np.ptp(to_gray8(cam_img)) == 0:
+        return _empty("no camera features: the image is blank (or too turbid to show anything)", sf)
+    half = rig.fov_elevation / 2
+    lo = np.full(len(sf), -half)
+    hi = np.full(len(sf), half)
+    shadowed = np.zeros(len(sf), bool)
+    seabed = None
+    if opt.use_acoustic:
+        seabed = fit_seabed(img_s, r_bins, th_beams, rig.fov_elevation)
+        if seabed:
+            cells = np.zeros(img_s.shape, bool)
+            cells[sf.bins, sf.beams] = True
+            low_map, high_map, shadow_map = elevation_maps(img_s, r_bins, th_beams, seabed, rig.fov_elevation,
+                                                           cells=cells)
+            lo, hi = low_map[sf.bins, sf.beams], high_map[sf.bins, sf.beams]
+            shadowed = shadow_map[sf.bins, sf.beams]
+    grad = gradient_image(cam_img)
+    from .sonar_features import ONSET
+
+    frac = np.where(sf.kind == ONSET, 0.7, 0.5)
+    ch = search_arcs(rig, sf.ranges, sf.azimuths, lo, hi, grad, fraction=frac, threshold=opt.arc_threshold)
+    if not ch.found.any():
+        return _empty(f"no candidates: no sonar feature's arc (of {len(sf)}) crosses an edge-free stretch of the "
+                      f"image inside its elevation interval", sf, None, seabed)
+    rows = np.nonzero(ch.found)[0]
+    px = ch.pixels[rows]
+    s_px = noise.sigma_pixel or 0.5
+    s_r = np.full(rows.size, noise.sigma_range) if noise.sigma_range else sf.sigma_range[rows]
+    s_a = np.full(rows.size, noise.sigma_azimuth) if noise.sigma_azimuth else sf.sigma_azimuth[rows]
+    ref = rc.refine(rig, px, sf.ranges[rows], sf.azimuths[rows], sigma_pixel=float(s_px),
+                    sigma_range=float(np.median(s_r)), sigma_azimuth=float(np.median(s_a)), max_iter=10)
+    P = np.where(ref.valid[:, None], ref.points,
+                 camera_from_sonar(rig, sf.ranges[rows], sf.azimuths[rows], ch.elevations[rows]))
+    cf = CameraFeatures(px, np.full(rows.size, float(s_px)), ch.run_px[rows])
+    feats = dict(snr=sf.snr[rows], kind=sf.kind[rows], elevation_span=(hi - lo)[rows], shadowed=shadowed[rows],
+                 visible_px=ch.visible_px[rows], run_px=ch.run_px[rows], position=ch.position[rows],
+                 elevation=ch.elevations[rows], epipolar_chi2=np.nan_to_num(ref.cost, nan=0.0))
+    score = _logistic(arc_score_features(feats), ARC_SCORE_MODEL)
+    order = np.argsort(-score, kind="stable")
+    feats = {k: np.asarray(v)[order] for k, v in feats.items()}
+    cam_idx = np.arange(rows.size)[order]
+    return Matches(px[order], sf.ranges[rows[order]], sf.azimuths[rows[order]], P[order], score[order],
+                   -np.log(np.maximum(score[order], 1e-12)), rows[order], cam_idx, sf, cf, seabed,
+                   f"{rows.size} matches of {len(sf)} sonar features (arc search)", feats)
