@@ -28,18 +28,27 @@ class _Frame:
     spec: object
 
 
-def test_precision_above_bound_and_baseline(pairs):
-    ev = [evaluate_pair(*p) for p in pairs]
+@pytest.fixture(scope="module")
+def evals(pairs):
+    """Both methods on the seeded pairs, scored by the depth maps."""
+    from optiacoustic.matching import MatchOptions
+
+    return ([evaluate_pair(*p) for p in pairs], [evaluate_pair(*p, options=MatchOptions(method="corners")) for p in pairs])
+
+
+def test_precision_above_bound_and_baseline(evals):
+    ev = evals[0]
     ok = np.concatenate([e["ok"] for e in ev])
     base = np.concatenate([e["base_ok"] for e in ev])
     n_vis = sum(e["n_visible"] for e in ev)
     assert n_vis >= 10 and ok.size >= 10
     precision, base_precision = ok.mean(), base.mean()
-    # Bound of the strict criterion (within one bin and one beam), set below the experiment's
-    # figure on other scenes; the baseline (nearest feature to each conic) is far lower.
-    assert precision >= 0.15
-    assert precision >= base_precision + 0.1
-    assert ok.sum() / n_vis >= 0.2  # recall
+    # Bound of the strict criterion (within one bin and one beam), set well below the
+    # experiment's figure on 25 other scenes (0.49 at recall 0.49); the baseline (nearest
+    # corner to each conic) is far lower.
+    assert precision >= 0.3
+    assert precision >= base_precision + 0.2
+    assert ok.sum() / n_vis >= 0.3  # recall
 
 
 def test_matched_points_are_near_the_truth(pairs):
@@ -250,12 +259,11 @@ def test_visible_identity(pairs):
     assert not far.any()
 
 
-def test_arc_search_beats_the_first_design_and_baseline(pairs):
-    """On the seeded scenes both methods are scored by the depth map; the arc search is no worse than corners."""
+def test_arc_search_beats_the_first_design(evals):
+    """On the seeded scenes both methods are scored by the depth map; the arc search finds more correct matches."""
     from optiacoustic.matching import MatchOptions
 
-    ev_arc = [evaluate_pair(*p) for p in pairs]
-    ev_cor = [evaluate_pair(*p, options=MatchOptions(method="corners")) for p in pairs]
+    ev_arc, ev_cor = evals
     n_vis = sum(e["n_visible"] for e in ev_arc)
     assert n_vis == sum(e["n_visible"] for e in ev_cor)  # the denominator does not depend on the method
     tp_arc = sum(int(e["ok"].sum()) for e in ev_arc)
