@@ -365,8 +365,9 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
          [["arc search (default)", fmt(p_all), fmt(float(rec[0]))],
           ["epipolar-gated corners + assignment (first design)", fmt(float(c_prec[0])), fmt(float(c_rec[0]))],
           ["baseline: nearest corner to each conic", fmt(b_prec), fmt(b_rec)],
-          [f"arc search, score >= {op['threshold']:.3f} (highest recall at precision >= 0.95)",
-           fmt(op["precision"]), fmt(op["recall"])]]),
+          [f"arc search, score >= {op['threshold']:.3f} (highest recall at precision >= 0.95)"
+           if op["n"] else "arc search: precision >= 0.95 at no score threshold", fmt(op["precision"]),
+           fmt(op["recall"])]]),
         ("Per scene", ["scene", "visible", "matches", "correct", "baseline matches", "baseline correct"],
          per_scene),
         ("Turbidity", ["water", "visible", "prec@cut", "rec@cut", "prec all", "rec all", "base prec", "base rec"],
