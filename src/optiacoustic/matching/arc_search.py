@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ArcChoice", "gradient_image", "search_arcs"]
+__all__ = ["ArcChoice", "gradient_image", "search_arcs", "stretched"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -47,6 +47,9 @@ class ArcChoice:
     visible_px : ndarray, shape (N,)
         Length (px) of the arc's stretch inside the interval and the image.
     found : ndarray of bool, shape (N,)
+    contrast : ndarray, shape (N,)
+        RGB distance (of the [0, 1] stretched image) between the chosen pixel and the seabed
+        just in front (NaN without ``colours`` or where that seabed point is not in the image).
     """
 
     pixels: np.ndarray
@@ -55,6 +58,7 @@ class ArcChoice:
     position: np.ndarray
     visible_px: np.ndarray
     found: np.ndarray
+    contrast: np.ndarray = None
 
 
 def gradient_image(camera_image, sigma: float = 1.0) -> np.ndarray:
@@ -75,6 +79,13 @@ def gradient_image(camera_image, sigma: float = 1.0) -> np.ndarray:
     return np.hypot(gx, gy)
 
 
+def stretched(camera_image) -> np.ndarray:
+    """The camera image scaled to [0, 1] between its 0.5 and 99.5 percentiles (all channels together), float32."""
+    img = np.asarray(camera_image, np.float32)[..., :3]
+    lo, hi = np.percentile(img, [0.5, 99.5])
+    return np.clip((img - lo) / max(float(hi - lo), 1e-12), 0.0, 1.0)
+
+
 def _longest_runs(flat: np.ndarray):
     """Start and length of the longest run of True in each row of ``flat`` ``(N, n)``."""
     n = flat.shape[1]
@@ -87,7 +98,8 @@ def _longest_runs(flat: np.ndarray):
 
 
 def search_arcs(rig, ranges, azimuths, low, high, gradient, *, fraction=0.5,
-                margin: float = float(np.deg2rad(0.25)), threshold: float = 3.0, n_samples: int = 400) -> ArcChoice:
+                margin: float = float(np.deg2rad(0.25)), threshold: float = 3.0, n_samples: int = 400,
+                colours=None, min_contrast: float = 0.0) -> ArcChoice:
     """For every sonar feature, a pixel of the longest edge-free run of its arc inside ``[low, high]``.
 
     Parameters
@@ -108,6 +120,12 @@ def search_arcs(rig, ranges, azimuths, low, high, gradient, *, fraction=0.5,
         A sample is edge-free when the gradient there is below this (gray levels per px).
     n_samples : int
         Elevation samples across the whole aperture.
+    colours : ndarray, shape (H, W, 3), optional
+        The camera image stretched to [0, 1] (:func:`stretched`): with ``min_contrast``,
+        pixels whose colour is within ``min_contrast`` (RGB distance) of the seabed's just
+        below the interval (at ``low - 0.5 deg``, in front of the object) are not taken: they
+        show the seabed, not the echo's surface.
+    min_contrast : float
 
     Returns
     -------
@@ -120,7 +138,7 @@ def search_arcs(rig, ranges, azimuths, low, high, gradient, *, fraction=0.5,
     N = r.size
     nan = np.full(N, np.nan)
     if N == 0:
-        return ArcChoice(np.zeros((0, 2)), nan, nan, nan, nan, np.zeros(0, bool))
+        return ArcChoice(np.zeros((0, 2)), nan, nan, nan, nan, np.zeros(0, bool), nan)
     half = rig.fov_elevation / 2
     phis = np.linspace(-half, half, n_samples)
     P = camera_from_sonar(rig, r[:, None], th[:, None], phis[None, :])  # (N, n, 3)
@@ -134,6 +152,17 @@ def search_arcs(rig, ranges, azimuths, low, high, gradient, *, fraction=0.5,
     ui = np.clip(np.rint(np.nan_to_num(uv[..., 0])).astype(int), 0, W - 1)
     vi = np.clip(np.rint(np.nan_to_num(uv[..., 1])).astype(int), 0, H - 1)
     flat = inside & (gradient[vi, ui] < threshold)
+    contrast = np.full(N, np.nan)
+    if colours is not None:
+        P_ref = camera_from_sonar(rig, r, th, np.clip(lo[:, 0] + margin - np.deg2rad(0.5), -half, half))
+        uv_ref = cam.project(P_ref)
+        ok_ref = (P_ref[:, 2] > 0) & cam.in_image(uv_ref)
+        ur = np.clip(np.rint(np.nan_to_num(uv_ref[:, 0])).astype(int), 0, W - 1)
+        vr = np.clip(np.rint(np.nan_to_num(uv_ref[:, 1])).astype(int), 0, H - 1)
+        ref = colours[vr, ur]  # (N, 3)
+        dist = np.linalg.norm(colours[vi, ui] - ref[:, None, :], axis=-1)  # (N, n)
+        if min_contrast > 0:
+            flat &= ~ok_ref[:, None] | (dist > min_contrast)
     start, length = _longest_runs(flat)
     found = length > 0
     frac = np.broadcast_to(np.asarray(fraction, float), (N,))
@@ -151,4 +180,6 @@ def search_arcs(rig, ranges, azimuths, low, high, gradient, *, fraction=0.5,
     with np.errstate(invalid="ignore", divide="ignore"):
         pos = np.where(width > 1e-9, (phi - lo[:, 0] - margin) / width, 0.5)
     px = np.where(found[:, None], uv[rows, mid], np.nan)
-    return ArcChoice(px, phi, run_px, pos, visible_px, found)
+    if colours is not None:
+        contrast = np.where(ok_ref & found, dist[rows, mid], np.nan)
+    return ArcChoice(px, phi, run_px, pos, visible_px, found, contrast)
