@@ -271,3 +271,23 @@ def test_arc_search_beats_the_first_design(evals):
     assert tp_arc >= tp_cor
     with pytest.raises(ValueError, match="method"):
         MatchOptions(method="sift")
+
+
+def test_arc_search_skips_seabed_coloured_pixels(pairs):
+    """Analytic: two flat bands, the longer one coloured like the seabed just below the interval: the other is taken."""
+    from optiacoustic.matching.arc_search import search_arcs
+
+    _, _, rig = pairs[0]
+    r, th = np.array([6.5]), np.deg2rad([3.0])
+    half = rig.fov_elevation / 2
+    H, W = rig.camera.height, rig.camera.width
+    G = np.full((H, W), 10.0)
+    G[100:141] = 0.0   # short band
+    G[200:301] = 0.0   # long band
+    C = np.zeros((H, W, 3), np.float32)
+    C[200:] = 0.5      # the long band and everything below it share the "seabed" colour
+    lo = np.array([-half + np.deg2rad(1.0)])
+    free = search_arcs(rig, r, th, lo, np.array([half]), G, colours=C, min_contrast=0.0)
+    skip = search_arcs(rig, r, th, lo, np.array([half]), G, colours=C, min_contrast=0.1)
+    assert 200 <= free.pixels[0, 1] <= 300 and 100 <= skip.pixels[0, 1] <= 140
+    assert free.contrast[0] < 1e-6 and skip.contrast[0] > 0.4
