@@ -101,8 +101,11 @@ class MatchOptions:
         Gradient (gray levels per px) below which an arc pixel is edge-free.
     seabed_contrast : float
         Arc pixels whose colour (image stretched to [0, 1]) is within this RGB distance of the
-        seabed's just in front of the echo are not taken (training scenes 5000-5015: precision
-        0.48 to 0.55 at the same recall).
+        seabed's just in front of the echo are not taken. Off by default: at 0.03 it raised
+        precision on the random training scenes (0.48 to 0.55 at the same recall) but on the
+        experiment's scenes it removed most matches of the built-in scenes whose objects share
+        the seabed's colour and, in Jerlov 1C-3C water, where all colours converge to the
+        water's, recall fell from 0.72 to 0.38.
     cfar, keypoints : detector options.
     """
 
@@ -117,7 +120,7 @@ class MatchOptions:
     use_acoustic: bool = True
     method: str = "arc"
     arc_threshold: float = 3.0
-    seabed_contrast: float = 0.03
+    seabed_contrast: float = 0.0
     cfar: CfarOptions = field(default_factory=CfarOptions)
     keypoints: KeypointOptions = field(default_factory=KeypointOptions)
 
@@ -487,25 +490,23 @@ def _finish(out, second, motion, rig, noise, opt, min_score) -> Matches:
 #: standardised :func:`arc_score_features` (log SNR, elevation interval width in degrees and
 #: its squared distance from 4.5 deg, visible arc length in px, log edge-free run length in
 #: px and its squared distance from log 55 px, position of the choice in the interval, shadow
-#: behind the echo, onset or peak, log of 1 + the other matches within 6 px, colour distance
-#: to the seabed in front, 1 where unknown). Fitted by
+#: behind the echo, onset or peak, log of 1 + the other matches within 6 px). Fitted by
 #: ``experiments.matching.calibrate_score()`` on random scenes seeded 5000-5023, disjoint
 #: from every scene the experiment and the tests evaluate on.
 ARC_SCORE_MODEL = dict(
-    weights=(-0.073, 0.157, 0.111, -0.248, -0.112, -0.221, -1.461, 0.567, -0.082, -0.12, -0.517, 0.016),
-    mean=(2.8975, 6.0954, 11.111, 97.8606, 3.66, 1.3179, 0.5625, 0.9394, 0.4654, 0.1814, 0.3397),
-    std=(0.6211, 2.9267, 15.3827, 43.5815, 1.0965, 3.1347, 0.1881, 0.2386, 0.4988, 0.3636, 0.2218),
+    weights=(-0.13, 0.122, 0.126, -0.531, 0.106, -0.147, -0.688, 0.603, -0.217, -0.229, -0.544),
+    mean=(2.8569, 5.5396, 11.9292, 89.6247, 3.5824, 1.3928, 0.5315, 0.8569, 0.4647, 0.2357),
+    std=(0.6222, 3.2937, 14.8695, 48.9931, 1.1038, 2.8108, 0.1908, 0.3502, 0.4988, 0.4785),
 )
 
 
 def arc_score_features(feats: dict) -> np.ndarray:
-    """The arc score model's inputs ``(N, 11)`` from a :attr:`Matches.features` mapping."""
+    """The arc score model's inputs ``(N, 10)`` from a :attr:`Matches.features` mapping."""
     span = np.rad2deg(feats["elevation_span"])
     run = np.log(np.maximum(feats["run_px"], 1e-3))
     return np.column_stack([np.log(np.maximum(feats["snr"], 1e-6)), span, (span - 4.5) ** 2,
                             feats["visible_px"], run, (run - 4.0) ** 2, feats["position"],
-                            feats["shadowed"].astype(float), feats["kind"], np.log1p(feats["crowding"]),
-                            np.minimum(feats["seabed_contrast"], 1.0)])
+                            feats["shadowed"].astype(float), feats["kind"], np.log1p(feats["crowding"])])
 
 
 def _logistic(X, model):
@@ -537,7 +538,7 @@ def _match_arcs(sf, cam_img, img_s, r_bins, th_beams, rig, noise, opt) -> Matche
             lo, hi = low_map[sf.bins, sf.beams], high_map[sf.bins, sf.beams]
             shadowed = shadow_map[sf.bins, sf.beams]
     grad = gradient_image(cam_img)
-    colours = stretched(cam_img)
+    colours = stretched(cam_img) if opt.seabed_contrast > 0 else None
     from .sonar_features import ONSET
 
     frac = np.where(sf.kind == ONSET, 0.7, 0.5)
