@@ -33,7 +33,8 @@ def evals(pairs):
     """Both methods on the seeded pairs, scored by the depth maps."""
     from optiacoustic.matching import MatchOptions
 
-    return ([evaluate_pair(*p) for p in pairs], [evaluate_pair(*p, options=MatchOptions(method="corners")) for p in pairs])
+    corners = MatchOptions(method="corners")
+    return [evaluate_pair(*p) for p in pairs], [evaluate_pair(*p, options=corners) for p in pairs]
 
 
 def test_precision_above_bound_and_baseline(evals):

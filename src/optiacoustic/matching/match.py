@@ -565,7 +565,8 @@ def _match_arcs(sf, cam_img, img_s, r_bins, th_beams, rig, noise, opt) -> Matche
     feats = dict(snr=sf.snr[rows], kind=sf.kind[rows], elevation_span=(hi - lo)[rows], shadowed=shadowed[rows],
                  visible_px=ch.visible_px[rows], run_px=ch.run_px[rows], position=ch.position[rows],
                  elevation=ch.elevations[rows], crowding=crowding,
-                 seabed_contrast=np.nan_to_num(ch.contrast[rows], nan=1.0), epipolar_chi2=np.nan_to_num(ref.cost, nan=0.0))
+                 seabed_contrast=np.nan_to_num(ch.contrast[rows], nan=1.0),
+                 epipolar_chi2=np.nan_to_num(ref.cost, nan=0.0))
     score = _logistic(arc_score_features(feats), ARC_SCORE_MODEL)
     order = np.argsort(-score, kind="stable")
     feats = {k: np.asarray(v)[order] for k, v in feats.items()}
