@@ -184,6 +184,60 @@ def _pr(evals, thresholds=None):
     return np.array(prec), np.array(rec), np.array(n), n_vis, np.asarray(thresholds, float)
 
 
+def _arc_profiles_figure(path, sonar, optical, rig, m, n_rows: int = 6):
+    """Along-arc profiles of some matches: image gradient, where the pixel's true point is within tolerance, the choice.
+
+    Evaluation only (reads the depth map): for each match, its arc's pixels from the bottom to
+    the top of the elevation aperture; green where the pixel's true point projects within one
+    bin and one beam of the feature, magenta the true point's range minus the feature's (bins).
+    """
+    import matplotlib.pyplot as plt
+
+    from .._atomic import savefig
+    from ..geometry.projection import camera_from_sonar, to_pixels, to_sonar
+    from ..matching import truth
+    from ..matching.arc_search import gradient_image
+
+    bw = float(np.median(np.diff(sonar.ranges)))
+    aw = float(np.median(np.diff(sonar.azimuths)))
+    ok = truth.correct(rig, optical.depth, m.pixels, m.ranges, m.azimuths, bin_width=bw, beam_width=aw)
+    pick = list(np.nonzero(ok)[0][: n_rows // 2]) + list(np.nonzero(~ok)[0][: n_rows - n_rows // 2])
+    half = rig.fov_elevation / 2
+    phis = np.linspace(-half, half, 600)
+    G = gradient_image(optical.image)
+    fig, axes = plt.subplots(len(pick), 1, figsize=(9, 1.6 * len(pick) + 0.6), sharex=True, squeeze=False)
+    for ax, i in zip(axes[:, 0], pick):
+        P = camera_from_sonar(rig, np.full(phis.size, m.ranges[i]), np.full(phis.size, m.azimuths[i]), phis)
+        pp = to_pixels(rig, P)
+        uv = np.where(pp.in_image[:, None], pp.pixels, 0.0)
+        Pt = truth.pixel_points(rig, optical.depth, uv)
+        sp = to_sonar(rig, np.where(np.isfinite(Pt), Pt, 0.0))
+        dr = np.where(pp.in_image & np.all(np.isfinite(Pt), -1), (sp.ranges - m.ranges[i]) / bw, np.nan)
+        good = (np.abs(dr) <= 1) & (np.abs(sp.azimuths - m.azimuths[i]) <= aw)
+        ui = np.clip(np.rint(uv[:, 0]).astype(int), 0, G.shape[1] - 1)
+        vi = np.clip(np.rint(uv[:, 1]).astype(int), 0, G.shape[0] - 1)
+        deg = np.rad2deg(phis)
+        ax.fill_between(deg, 0, 10 * good, color="#3cb44b", alpha=0.35, lw=0)
+        ax.plot(deg, np.where(pp.in_image, np.minimum(G[vi, ui], 10), np.nan), color="#4363d8", lw=0.8)
+        lo = m.features["elevation"][i] - m.features["position"][i] * m.features["elevation_span"][i]
+        ax.axvspan(np.rad2deg(lo), np.rad2deg(lo + m.features["elevation_span"][i]), color="0.85", zorder=0)
+        ax.axvline(np.rad2deg(m.features["elevation"][i]), color="k" if ok[i] else "#e6194b", lw=1.5)
+        ax2 = ax.twinx()
+        ax2.plot(deg, np.clip(dr, -20, 20), color="#f032e6", lw=0.7)
+        ax2.axhline(0, color="#f032e6", lw=0.4, ls=":")
+        ax2.set_ylim(-21, 21)
+        ax.set_ylim(0, 10)
+        ax.set_ylabel(f"#{i} {'ok' if ok[i] else 'wrong'}", fontsize=8)
+    axes[-1, 0].set_xlabel("elevation along the feature's arc (deg)")
+    fig.suptitle("Arc profiles: image gradient (blue, left axis), pixels whose true point is within 1 bin and 1 beam "
+                 "(green),\ntrue range - feature range in bins (magenta, right axis), acoustic elevation interval "
+                 "(grey), the matcher's choice (black: right, red: wrong)", fontsize=8)
+    fig.tight_layout()
+    out = savefig(fig, path, dpi=100)
+    plt.close(fig)
+    return out
+
+
 def _operating_point(evals, target: float = 0.95) -> dict:
     """The lowest score threshold whose precision is >= ``target`` (every distinct score tried), and the AUC."""
     n_vis = sum(e["n_visible"] for e in evals)
@@ -235,7 +289,8 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     from ..matching import MatchOptions
 
     evals, evals_corners, per_scene = [], [], []
-    first = None
+    first = profile = None
+    profile_name = ""
     for k, sc in enumerate(all_scenes):
         s, o, rig = simulate_pair(sc, "thesis", "default", seed + k)
         e = evaluate_pair(s, o, rig)
@@ -246,6 +301,8 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
                           int(np.sum(e["base_ok"]))])
         if first is None:
             first = (sc.name, s, o, m, e["correct"])
+        if profile is None and sc.name.startswith("random") and m:
+            profile, profile_name = (s, o, rig, m), sc.name
     prec, rec, npt, n_vis, thresholds = _pr(evals)
     b_prec, b_rec, b_n = _baseline(evals)
     c_prec, c_rec, _, c_vis, _ = _pr(evals_corners, [0.0])
@@ -274,6 +331,10 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     f_ex = draw_matches(out_dir / "matching_example.png", s0.image, s0.ranges, s0.azimuths, o0.image, m0,
                         title=name0, correct=c0)
     figures.append((f_ex, f"Matches on {name0}, colour = score, x = wrong by the depth-map ground truth."))
+    if profile is not None:
+        f_ar = _arc_profiles_figure(out_dir / "matching_arcs.png", *profile)
+        figures.append((f_ar, f"Along-arc profiles of matches on {profile_name} (evaluation only: reads the depth "
+                              "map): where the correct pixels lie against the edge-free runs the matcher chose."))
 
     # 2. Turbidity and sonar noise (on a subset of scenes).
     sub = all_scenes[: 1 if quick else 8]
