@@ -1,6 +1,10 @@
-"""Automatic opti-acoustic correspondence: features, epipolar gating, evidence, global assignment.
+"""Automatic opti-acoustic correspondence: sonar features, their arcs in the image, evidence, score.
 
-Pipeline of :func:`match` (docs/matching.md):
+The default method (``MatchOptions(method="arc")``, :func:`_match_arcs`) chooses the camera
+pixel for each sonar feature: its epipolar arc, narrowed to the elevation interval the seabed
+and the shadows allow (:mod:`.acoustic`), is searched for the longest edge-free run of pixels
+(:mod:`.arc_search`), the surface the echo comes from as the camera sees it. The first design
+(``method="corners"``) is kept for comparison; its pipeline (docs/matching.md):
 
 1. features in each image (:mod:`.sonar_features`, :mod:`.camera_features`), each with its
    measurement uncertainty;
@@ -302,7 +306,7 @@ def _two_view(out: Matches, second, motion, rig, noise, opt) -> Matches:
 
 def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, options: MatchOptions | None = None,
           min_score: float = 0.25, second=None, motion=None) -> Matches:
-    """Match sonar features to camera features of one synchronised pair.
+    """Match sonar features to camera pixels of one synchronised pair.
 
     Parameters
     ----------
