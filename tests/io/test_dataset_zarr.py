@@ -192,16 +192,29 @@ def _done_count(path: Path) -> int:
         if (path / "sonar" / "done" / "c").exists() else 0
 
 
-def test_kill_9_at_any_moment_then_resume(reference, tmp_path):
+@pytest.fixture(scope="module")
+def reference24(tmp_path_factory):
+    """24 frames (16 sonar, 8 camera) rendered in this process, uninterrupted."""
+    d = tmp_path_factory.mktemp("ref24")
+    cfg = _write_config(d / "cfg.yaml", {**SMALL, "duration": 4.0})
+    write_dataset(cfg, d / "ref.zarr", workers=0)
+    return cfg, d / "ref.zarr"
+
+
+def _cli(cfg: Path, out: Path, workers: int) -> list:
+    return [sys.executable, "-c", "from optiacoustic.cli import main; main()", "dataset", str(cfg), "--out", str(out),
+            "--workers", str(workers), "--quiet"]
+
+
+_ENV = {**os.environ, "PYTHONPATH": f"{SRC}{os.pathsep}{os.environ.get('PYTHONPATH', '')}", "OAS_THREADS": "1"}
+
+
+def test_kill_9_at_any_moment_then_resume(reference24, tmp_path):
     """SIGKILL the whole run at several moments, rerun the same command, compare frame by frame."""
-    cfg_data = {**SMALL, "duration": 4.0}
-    cfg = _write_config(tmp_path / "cfg.yaml", cfg_data)
-    ref = tmp_path / "ref.zarr"
-    write_dataset(cfg, ref, workers=0)
+    cfg, ref = reference24
     out = tmp_path / "killed.zarr"
-    env = {**os.environ, "PYTHONPATH": f"{SRC}{os.pathsep}{os.environ.get('PYTHONPATH', '')}", "OAS_THREADS": "1"}
-    cmd = [sys.executable, "-c", "from optiacoustic.cli import main; main()", "dataset", str(cfg), "--out", str(out),
-           "--workers", "0", "--quiet"]
+    env = _ENV
+    cmd = _cli(cfg, out, 0)
     total = 24
     kills = []
     # kill while the store is being created, then after a few frames, then mid-run
@@ -224,3 +237,85 @@ def test_kill_9_at_any_moment_then_resume(reference, tmp_path):
     assert sum(rep.skipped.values()) + rep.frames_written == total
     assert not list(out.rglob("*.partial"))
     _assert_identical(_arrays(ref), _arrays(out))
+
+
+def _group(pgid: int) -> list:
+    """Processes of process group ``pgid`` still alive (zombies excluded), as (pid, command line)."""
+    import psutil
+
+    alive = []
+    for p in psutil.process_iter(["pid", "status", "cmdline"]):
+        try:
+            if os.getpgid(p.pid) == pgid and p.info["status"] != psutil.STATUS_ZOMBIE:
+                alive.append((p.pid, " ".join(p.info["cmdline"] or [])[:100]))
+        except (ProcessLookupError, psutil.Error):
+            pass
+    return alive
+
+
+def _wait_group_gone(pgid: int, seconds: float = 60.0) -> list:
+    t0 = time.monotonic()
+    while _group(pgid) and time.monotonic() - t0 < seconds:
+        time.sleep(0.1)
+    return _group(pgid)
+
+
+def test_kill_9_a_two_worker_dask_run_then_resume(reference24, tmp_path):
+    """A real `oas dataset --workers 2` (local Dask cluster of 2 processes) SIGKILLed mid-way, then rerun.
+
+    Only the command's own process is killed (scheduler, nannies and client live there): its
+    worker processes must exit by themselves, the rerun must render exactly the frames that
+    were not done, and the result must equal an uninterrupted run frame by frame.
+    """
+    cfg, ref = reference24
+    out = tmp_path / "dask.zarr"
+    total = 24
+    proc = subprocess.Popen(_cli(cfg, out, 2), env=_ENV, start_new_session=True, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    try:
+        t0 = time.monotonic()
+        while proc.poll() is None and _done_count(out) < 4 and time.monotonic() - t0 < 180:
+            time.sleep(0.005)
+        assert proc.poll() is None, f"the run ended before it could be killed: {proc.stderr.read().decode()[-2000:]}"
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+        # no stray Dask worker outlives the command that started it
+        stray = _wait_group_gone(proc.pid)
+        assert not stray, f"processes left after SIGKILL of the run: {stray}"
+    finally:
+        if _group(proc.pid):
+            os.killpg(proc.pid, signal.SIGKILL)
+    done_at_kill = _done_count(out)  # counted once every writer is gone
+    assert 0 < done_at_kill < total, done_at_kill
+    finished = _chunk_stamps(out)  # every chunk file of the frames done at the kill
+    rerun = subprocess.Popen(_cli(cfg, out, 2), env=_ENV, start_new_session=True, stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
+    try:
+        _, err = rerun.communicate(timeout=300)
+    finally:
+        stray = _wait_group_gone(rerun.pid, 10.0)
+        if stray:
+            os.killpg(rerun.pid, signal.SIGKILL)
+    assert rerun.returncode == 0, err[-2000:]
+    assert not stray, f"processes left after the run ended: {stray}"
+    # finished frames were not recomputed (their files untouched); every frame is there once
+    assert {k: v for k, v in _chunk_stamps(out).items() if k in finished} == finished
+    assert _done_count(out) == total
+    assert not list(out.rglob("*.partial"))
+    _assert_identical(_arrays(ref), _arrays(out))
+
+
+def _chunk_stamps(path: Path) -> dict:
+    """(inode, mtime) of every chunk file of every frame whose done flag is set, by relative path."""
+    root = zarr.open_group(str(path), mode="r")
+    stamps = {}
+    for sensor in ("sonar", "camera"):
+        for k in np.flatnonzero(root[sensor]["done"][:]):
+            for f in (path / sensor).glob(f"*/c/{k}/**/*"):
+                if f.is_file():
+                    st = f.stat()
+                    stamps[str(f.relative_to(path))] = (st.st_ino, st.st_mtime_ns)
+            f = path / sensor / "done" / "c" / str(k)
+            st = f.stat()
+            stamps[str(f.relative_to(path))] = (st.st_ino, st.st_mtime_ns)
+    return stamps
