@@ -161,27 +161,31 @@ def _builds():
     from optiacoustic import raycast
     from optiacoustic.io import dataset
 
-    return dataset.BUILDS["sequences"], len(raycast._CASTERS)
+    return dataset.BUILDS["sequences"], dataset.BUILDS["scenes"], len(raycast._CASTERS)
 
 
 def test_one_and_two_workers_give_identical_output(reference, tmp_path):
     """Real Dask: a one-worker cluster, then the same cluster grown to two, via --scheduler's path."""
-    from distributed import Client, LocalCluster
+    from distributed import Client
+
+    from optiacoustic.io import local_cluster
 
     cfg, ref, _ = reference
-    env = {"OAS_THREADS": "1", "OMP_NUM_THREADS": "1"}
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None, env=env,
-                      silence_logs=40) as cluster:
+    with local_cluster(1) as cluster:
         r1 = write_dataset(cfg, tmp_path / "w1.zarr", scheduler=cluster.scheduler_address)
         cluster.scale(2)
         cluster.wait_for_workers(2)
         r2 = write_dataset(cfg, tmp_path / "w2.zarr", scheduler=cluster.scheduler_address)
+        # another configuration of the same scene: a new sequence, the same scene and BVH
+        other = _write_config(tmp_path / "other.yaml", {**SMALL, "duration": 0.5})
+        r3 = write_dataset(other, tmp_path / "w3.zarr", scheduler=cluster.scheduler_address)
         with Client(cluster) as client:
             builds = client.run(_builds)
-    # each worker resolved the scene (and built its BVH) once, the first worker once for both outputs
-    assert sorted(builds.values()) == [(1, 1), (1, 1)], builds
+    # each worker resolved each configuration once and the scene (and built its BVH) once,
+    # the first worker once for both outputs of the first configuration
+    assert sorted(builds.values()) == [(2, 1, 1), (2, 1, 1)], builds
     assert r1.workers == 1 and r2.workers == 2
-    assert r1.frames_written == r2.frames_written == 12
+    assert r1.frames_written == r2.frames_written == 12 and r3.frames_written == 3
     a = _arrays(ref)
     _assert_identical(a, _arrays(tmp_path / "w1.zarr"))
     _assert_identical(a, _arrays(tmp_path / "w2.zarr"))

@@ -243,7 +243,10 @@ def _context_locked(path: str, fingerprint: str, config: dict, base_dir: str):
     arrays = _STORES.get((path, fingerprint))
     if arrays is None:
         root = zarr.open_group(path, mode="r+")
-        arrays = {s: {n: a for n, a in root[s].arrays()} for s in SENSORS if s in root}
+        # every chunk is written, even one equal to the fill value: no scan of each frame for
+        # "empty", and a done frame always has all its chunk files
+        arrays = {s: {n: a.with_config({"write_empty_chunks": True}) for n, a in root[s].arrays()}
+                  for s in SENSORS if s in root}
         _keep_latest(_STORES, 4)
         _STORES[(path, fingerprint)] = arrays
     return seq, arrays
