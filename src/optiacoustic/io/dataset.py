@@ -258,10 +258,8 @@ def warm_worker(path: str, fingerprint: str, config: dict, base_dir: str) -> int
     Called on every worker before the first frame, so that workers warm up in parallel
     and the first frames are not delayed by it. Returns this process's id.
     """
-    from ..raycast import caster_for
-
     seq, _ = _context(path, fingerprint, config, base_dir)
-    caster_for(seq.scene)
+    seq.prepare()
     return os.getpid()
 
 
