@@ -42,6 +42,24 @@ def _rss():
     return psutil.Process().memory_info().rss
 
 
+def _cpu() -> float:
+    import psutil
+
+    t = psutil.Process().cpu_times()
+    return t.user + t.system
+
+
+def cpu_split(cfg: dict, out: Path, cluster) -> tuple:
+    """``(rep, seconds, worker CPU s, CPU s of this process)`` of one run: this process holds the
+    scheduler, the nannies and the client of a local cluster, i.e. everything but the rendering."""
+    from distributed import Client
+
+    with Client(cluster) as c:
+        w0, m0 = sum(c.run(_cpu).values()), _cpu()
+        rep, dt, _ = _run(cfg, out, cluster)
+        return rep, dt, sum(c.run(_cpu).values()) - w0, _cpu() - m0
+
+
 def _run(cfg: dict, out: Path, cluster, sample_memory: bool = False, log=None):
     """One write_dataset on ``cluster``; with ``sample_memory``, each worker's RSS every second."""
     from distributed import Client
@@ -104,20 +122,27 @@ def run() -> list[dict]:
         cfg = _config(pairs)
         rates = {1: [], 2: []}
         reps = {}
+        cpu = {1: [], 2: []}
         for i in range(repeat):
             for n in (1, 2):
                 with local_cluster(n) as cluster:
                     # warm every worker (imports, BVH) on a one-pair dataset of the same scene
                     _run(_config(1), tmp / f"warm{n}-{i}.zarr", cluster)
-                    rep, dt, _ = _run(cfg, tmp / f"w{n}-{i}.zarr", cluster)
+                    rep, dt, cw, cm = cpu_split(cfg, tmp / f"w{n}-{i}.zarr", cluster)
                 rates[n].append(pairs / dt)
                 reps[n] = rep
+                cpu[n].append((cw / pairs, cm / pairs))
         r1, r2 = float(np.median(rates[1])), float(np.median(rates[2]))
         ratios = ", ".join(f"{b / a:.2f}" for a, b in zip(rates[1], rates[2]))
         rows.append(dict(name="pairs/s, 1 worker", value=r1, unit="pairs/s", reference="", ratio=None,
                          note=f"{pairs} pairs, incl. writing; median of {repeat}"))
         rows.append(dict(name="pairs/s, 2 workers", value=r2, unit="pairs/s", reference="1 worker",
                          ratio=r2 / r1, note=f"target >= 1.7; each run's ratio: {ratios}"))
+        cw2, cm2 = (float(np.median([c[j] for c in cpu[2]])) for j in (0, 1))
+        rows.append(dict(name="CPU outside the workers per pair (2 workers)", value=1e3 * cm2, unit="ms",
+                         reference="workers' CPU per pair", ratio=cm2 / cw2,
+                         note=f"scheduler, nannies, client; workers {1e3 * cw2:.0f} ms CPU/pair; "
+                              "with W workers on W cores, W x speed is reached only while this stays small"))
         r = reps[2]
         rows.append(dict(name="share of frame time writing (2 workers)", value=100 * r.write_s / (r.render_s + r.write_s),
                          unit="%", reference="", ratio=None,
