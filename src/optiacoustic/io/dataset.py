@@ -350,9 +350,9 @@ def local_cluster(n: int):
     from distributed import LocalCluster
 
     env = {"OAS_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    with dask.config.set(_LEAN_DASK):  # the nannies pass this configuration to their worker processes
+    with dask.config.set(_LEAN_DASK):  # for the scheduler, made here; each nanny passes `config` to its worker
         return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                            env=env, silence_logs=40)
+                            env=env, silence_logs=40, config=dict(_LEAN_DASK))
 
 
 def _default_workers() -> int:
