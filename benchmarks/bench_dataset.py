@@ -104,10 +104,12 @@ def memory_run(pairs: int, tmp: Path, log=None) -> dict:
         _run(_config(1), tmp / "warm-long.zarr", cluster)
         _, dt, samples = _run(_config(pairs), tmp / "long.zarr", cluster, sample_memory=True, log=log)
     total = 2 * pairs
-    at10 = next(s for s in samples if s[1] >= 0.1 * total)
-    end = samples[-1]
-    return {"rss_10": max(at10[2].values()), "rss_end": max(end[2].values()),
-            "rss_peak": max(max(s[2].values()) for s in samples), "seconds": dt, "pairs": pairs}
+    big = [(d, max(r.values())) for _, d, r in samples]  # the largest worker at each sample
+    # RSS moves by a frame's arrays from one sample to the next: average over a tenth of the frames
+    near10 = [m for d, m in big if 0.05 * total <= d <= 0.15 * total] or [next(m for d, m in big if d >= 0.1 * total)]
+    last = [m for d, m in big if d >= 0.9 * total]
+    return {"rss_10": float(np.mean(near10)), "rss_end": float(np.mean(last)), "rss_peak": max(m for _, m in big),
+            "seconds": dt, "pairs": pairs}
 
 
 def run() -> list[dict]:
@@ -152,9 +154,10 @@ def run() -> list[dict]:
         rows.append(dict(name="bytes per pair on disk", value=size / pairs, unit="B", reference="uncompressed arrays",
                          ratio=size / raw, note="noisy float32 images compress little"))
         m = memory_run(long_pairs, tmp)
-        rows.append(dict(name=f"worker RSS at the end of a {long_pairs}-pair run", value=m["rss_end"] / 2**20,
-                         unit="MiB (largest worker)", reference="same at 10 % of the frames",
-                         ratio=m["rss_end"] / m["rss_10"], note="flat = ratio near 1"))
+        rows.append(dict(name=f"worker RSS over the last 10 % of a {long_pairs}-pair run", value=m["rss_end"] / 2**20,
+                         unit="MiB (largest worker)", reference="same over 5-15 % of the frames",
+                         ratio=m["rss_end"] / m["rss_10"],
+                         note=f"flat = ratio near 1; peak {m['rss_peak'] / 2**20:.0f} MiB"))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return rows
