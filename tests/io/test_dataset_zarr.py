@@ -327,3 +327,22 @@ def _chunk_stamps(path: Path) -> dict:
             st = f.stat()
             stamps[str(f.relative_to(path))] = (st.st_ino, st.st_mtime_ns)
     return stamps
+
+
+def test_tasks_batch_small_frames_and_cover_every_frame_once(tmp_path):
+    """Dask tasks: small frames batched (at most TASK_PIXELS a task), big ones alone, each frame once."""
+    from optiacoustic.io.dataset import TASK_PIXELS, _batches
+
+    seq = Sequence({**SMALL, "duration": 40.0}, base_dir=tmp_path)  # 160 sonar, 80 camera frames
+    todo = sorted((float(seq.schedule(s).times[k]), s, k) for s in ("sonar", "camera") for k in range(len(seq.schedule(s))))
+    tasks = _batches(seq, todo, n_workers=2)
+    got = sorted((s, k) for s, ks in tasks for k in ks)
+    assert got == sorted((s, k) for _, s, k in todo)  # every frame exactly once
+    sizes = {s: max(len(ks) for t, ks in tasks if t == s) for s in ("sonar", "camera")}
+    assert sizes["sonar"] == min(TASK_PIXELS // (96 * 48), 160 // 8) and sizes["camera"] == min(TASK_PIXELS // (72 * 48), 80 // 8)
+    firsts = [float(seq.schedule(s).times[ks[0]]) for s, ks in tasks]
+    assert firsts == sorted(firsts)  # in time order
+    # thesis-size frames go one per task
+    big = Sequence({**SMALL, "rig": "thesis", "duration": 4.0}, base_dir=tmp_path)
+    todo = [(float(big.schedule(s).times[k]), s, k) for s in ("sonar", "camera") for k in range(len(big.schedule(s)))]
+    assert all(len(ks) == 1 for _, ks in _batches(big, todo, n_workers=1))
