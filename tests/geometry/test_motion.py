@@ -193,6 +193,112 @@ def test_bundle_jacobians_match_finite_differences():
             assert np.allclose(fd, Jp[:, :, i], rtol=1e-5, atol=1e-4 * np.abs(Jp).max())
 
 
+def _fd_check(prob, blk, th0, p, h=1e-7):
+    """The block's analytic J_theta and J_p against central differences at ``(th0, p)``."""
+    def res(th, p):
+        R_, c_, pl_ = prob.unpack(th)
+        m = pl_[blk.plane] if blk.model == "plane" else None
+        return prob._residual(blk, p, m, R_, c_, th[:3], want_theta=True)
+
+    e, Jp, Jt = res(th0, p)
+    for i in range(th0.size):
+        dt = np.zeros(th0.size)
+        dt[i] = h
+        fd = (res(th0 + dt, p)[0] - res(th0 - dt, p)[0]) / (2 * h)
+        assert np.allclose(fd, Jt[:, :, i], rtol=1e-5, atol=1e-4 * np.abs(Jt).max()), i
+    for i in range(p.shape[1]):
+        dp = np.zeros_like(p)
+        dp[:, i] = h
+        fd = (res(th0, p + dp)[0] - res(th0, p - dp)[0]) / (2 * h)
+        assert np.allclose(fd, Jp[:, :, i], rtol=1e-5, atol=1e-4 * np.abs(Jp).max()), i
+
+
+def test_bundle_jacobians_match_finite_differences_two_planes_and_free_points():
+    # seeded random points spread over two planes (each point's own plane columns only), and
+    # the five-point path's free 3D points
+    rng = np.random.default_rng(11)
+    D = views(rng, plane_points(rng, 4000, PLANE_C, PLANE_N, 3.0), n_opt=30, n_son=10, noise=1.0)
+    d = motion._data(RIG, D["p1"], D["p2"], D["s1"], D["s2"], SP, SR, SA)
+    n, dist = plane_truth(D["c1"], PLANE_C, PLANE_N)
+    m = np.stack([n / dist, n / dist + [0.1, -0.05, 0.08]])
+    lo, ls = rng.integers(0, 2, 30), rng.integers(0, 2, 10)
+    prob, bo, bs, _, _ = motion._problem(d, lo, ls, "plane", D["R_o"], m)
+    th0 = motion._theta(D["t_o"], m) + rng.normal(0, 0.01, 12)
+    for blk in (bo, bs):
+        _fd_check(prob, blk, th0, rng.normal(0, 0.3, (blk.n, 2)))
+    prob, bo, bs, _, _ = motion._problem(d, lo, ls, "free", D["R_o"], np.zeros((0, 3)))
+    th0 = motion._theta(D["t_o"], np.zeros((0, 3))) + rng.normal(0, 0.01, 6)
+    for blk in (bo, bs):
+        _fd_check(prob, blk, th0, rng.normal(0, 0.3, (blk.n, 3)) + [0, 0, 1.5])
+
+
+def test_point_sensitivity_matches_finite_differences_of_the_point_optimum():
+    # The warm start of every evaluation moves each point to first order,
+    # dp/dtheta = -(J_p^T J_p)^-1 J_p^T J_theta (implicit function theorem; Gauss-Newton's is
+    # exact where the residuals vanish): noise-free matches, the points re-solved at
+    # theta +- h agree with it.
+    rng = np.random.default_rng(12)
+    D = views(rng, plane_points(rng, 4000, PLANE_C, PLANE_N, 3.0), n_opt=20, n_son=8)
+    d = motion._data(RIG, D["p1"], D["p2"], D["s1"], D["s2"], SP, SR, SA)
+    n, dist = plane_truth(D["c1"], PLANE_C, PLANE_N)
+    m = (n / dist)[None]
+    prob, bo, bs, _, _ = motion._problem(d, np.zeros(20, int), np.zeros(8, int), "plane", D["R_o"], m)
+    prob.inner_rtol, prob.inner = 0.0, 50
+    th0 = motion._theta(D["t_o"], m)
+    h = 1e-6
+    for blk in (bo, bs):
+        p0, e, Jp, Jt = prob.solve_points(blk, th0, want_theta=True)
+        assert np.max(np.abs(e)) < 1e-6  # at the truth
+        S = -np.linalg.solve(np.einsum("nri,nrj->nij", Jp, Jp), np.einsum("nri,nrj->nij", Jp, Jt))
+        for i in range(th0.size):
+            dt = np.zeros(th0.size)
+            dt[i] = h
+            Rv, cv, pl = prob.unpack(th0 + dt)
+            pp, _ = prob._lm(blk, p0, pl[blk.plane], Rv, cv, dt[:3], blk.meas)
+            Rv, cv, pl = prob.unpack(th0 - dt)
+            pm, _ = prob._lm(blk, p0, pl[blk.plane], Rv, cv, -dt[:3], blk.meas)
+            fd = (pp - pm) / (2 * h)
+            assert np.allclose(fd, S[:, :, i], rtol=1e-4, atol=1e-5 * np.abs(S).max()), i
+
+
+def test_rotation_of_one_vector_equals_scipy_and_the_batched_form():
+    # exp_so3 of a single vector takes Rodrigues' formula (no scipy call per evaluation)
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(14)
+    W = rng.normal(size=(40, 3)) * np.repeat([1e-12, 1e-8, 1e-4, 0.3, 3.0], 8)[:, None]
+    single = np.array([B.exp_so3(w) for w in W])
+    assert np.allclose(single, Rotation.from_rotvec(W).as_matrix(), rtol=0, atol=1e-14)
+    assert np.allclose(single, B.exp_so3(W), rtol=0, atol=1e-14)
+    assert np.allclose(B.log_so3(single[16:32]), W[16:32], rtol=1e-9, atol=0)  # (angles below pi)
+
+
+def test_vectorised_point_solve_equals_scipy_point_by_point():
+    # the batched per-point Levenberg-Marquardt (its active set shrinking as points converge)
+    # finds each point's optimum: scipy's least_squares on every point alone agrees
+    from scipy.optimize import least_squares
+
+    rng = np.random.default_rng(13)
+    D = views(rng, plane_points(rng, 4000, PLANE_C, PLANE_N, 3.0), n_opt=25, n_son=10, noise=1.0)
+    d = motion._data(RIG, D["p1"], D["p2"], D["s1"], D["s2"], SP, SR, SA)
+    n, dist = plane_truth(D["c1"], PLANE_C, PLANE_N)
+    m = (n / dist)[None]
+    prob, bo, bs, _, _ = motion._problem(d, np.zeros(25, int), np.zeros(10, int), "plane", D["R_o"], m)
+    th = motion._theta(D["t_o"], m) + rng.normal(0, 0.003, 9)  # not the truth: residuals do not vanish
+    Rv, cv, pl = prob.unpack(th)
+    for blk in (bo, bs):
+        p0 = np.asarray(blk.init(Rv, cv, pl, blk.plane), float)
+        p0 = p0[:, 0] if p0.ndim == 3 else p0
+        p, cost = prob._lm(blk, p0, pl[blk.plane], Rv, cv, th[:3], blk.meas)
+        for i in range(blk.n):
+            def f(x, i=i):
+                return prob._residual(blk, x[None], pl[blk.plane][i:i + 1], Rv, cv, th[:3],
+                                      meas=blk.meas[i:i + 1])[0][0]
+            ref = least_squares(f, p0[i], method="lm", xtol=1e-14, ftol=1e-14, gtol=1e-14)
+            assert cost[i] <= 2 * ref.cost * (1 + 1e-6) + 1e-12  # as good as scipy's minimum
+            assert cost[i] > 0  # (noise in the data)
+
+
 # --------------------------------------------------------------------------- noise-free recovery
 def test_noise_free_single_plane_is_recovered_exactly():
     rng = np.random.default_rng(5)

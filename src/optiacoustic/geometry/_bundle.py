@@ -23,6 +23,10 @@ evaluation, and the outer problem sees the *reduced* residual with the Kaufman J
 ``(I - J_p J_p^+) J_theta``: variable projection. At the optimum
 ``(J_red^T J_red)^{-1}`` is the Schur complement of the full bundle adjustment's
 information matrix, i.e. the marginal covariance of ``(w, c, m_1..m_k)``.
+
+Each evaluation starts every point where the last one left it, moved to first order with
+``theta`` (``dp/dtheta = -H_pp^{-1} H_ptheta``, which the Kaufman Jacobian needs anyway); a
+point whose Gauss-Newton step promises nothing then costs one residual evaluation.
 """
 
 from __future__ import annotations
@@ -33,7 +37,6 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from ..frames import skew
 
 __all__: list[str] = []
 
@@ -42,7 +45,20 @@ __all__: list[str] = []
 def exp_so3(w) -> np.ndarray:
     """Rotation matrix of the rotation vector ``w`` (rad), ``(..., 3) -> (..., 3, 3)``."""
     w = np.asarray(w, float)
+    if w.shape == (3,):  # Rodrigues' formula: one vector, without scipy's per-call overhead
+        a2 = float(w @ w)
+        W = _skew3(w)
+        if a2 < 1e-14:
+            return np.eye(3) + W + 0.5 * (W @ W)
+        a = np.sqrt(a2)
+        return np.eye(3) + (np.sin(a) / a) * W + ((1.0 - np.cos(a)) / a2) * (W @ W)
     return Rotation.from_rotvec(w.reshape(-1, 3)).as_matrix().reshape(w.shape[:-1] + (3, 3))
+
+
+def _skew3(w) -> np.ndarray:
+    """``[w]_x`` of one 3-vector."""
+    x, y, z = float(w[0]), float(w[1]), float(w[2])
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 def log_so3(R) -> np.ndarray:
@@ -54,8 +70,8 @@ def log_so3(R) -> np.ndarray:
 def left_jacobian(w) -> np.ndarray:
     """Left Jacobian of SO(3): ``exp(w + d) ~ exp(J_l(w) d) exp(w)``."""
     w = np.asarray(w, float)
-    a = float(np.linalg.norm(w))
-    W = skew(w)
+    a = float(np.sqrt(w @ w))
+    W = _skew3(w)
     if a < 1e-7:
         return np.eye(3) + 0.5 * W + W @ W / 6.0
     return np.eye(3) + (1 - np.cos(a)) / a**2 * W + (a - np.sin(a)) / a**3 * (W @ W)
@@ -119,31 +135,6 @@ class Block:
         return 2 if self.model == "plane" else 3
 
 
-def point_from_params(p, m):
-    """Reference-frame points ``X (N, 3)`` from per-point parameters, with ``dX/dp`` and ``dX/dm``.
-
-    Plane model: ``p = (x, y)``, ``X = q / (m . q)`` with ``q = (x, y, 1)``;
-    ``dX/dp = (I - X m^T)[:, :2] / s`` and ``dX/dm = -X X^T`` (``s = m . q``).
-    Free model (``m is None``): ``X = p``.
-    """
-    if m is None:
-        N = p.shape[0]
-        return p.copy(), np.broadcast_to(np.eye(3), (N, 3, 3)), None
-    s = m[:, 0] * p[:, 0] + m[:, 1] * p[:, 1] + m[:, 2]
-    N = p.shape[0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / s
-        X = np.empty((N, 3))
-        X[:, :2] = p * inv[:, None]
-        X[:, 2] = inv
-        # (I - X m^T)[:, :2] / s
-        dXdp = X[:, :, None] * (-m[:, None, :2] * inv[:, None, None])
-        dXdp[:, 0, 0] += inv
-        dXdp[:, 1, 1] += inv
-    dXdm = -X[:, :, None] * X[:, None, :]
-    return X, dXdp, dXdm
-
-
 class Problem:
     """The reduced (variable projection) least-squares problem; see the module docstring.
 
@@ -157,6 +148,15 @@ class Problem:
         The variable rotation is ``exp(w) R_ref``.
     inner_iterations : int
         Gauss-Newton steps of the per-point solve.
+
+    Attributes
+    ----------
+    inner_rtol : float
+        A point's own solve also stops, without its last step, once Gauss-Newton predicts at
+        most this fraction of its cost left to gain (0: only the classic tests; see
+        ``docs/derivations.md``, "Motion estimation: the bundle's Jacobians").
+    ftol : float
+        ``least_squares``'s relative tolerance on the cost (default 1e-8).
     """
 
     def __init__(self, K, blocks, n_planes, R_ref, inner_iterations=10):
@@ -165,78 +165,100 @@ class Problem:
         self.k = int(n_planes)
         self.R_ref = np.asarray(R_ref, float)
         self.inner = int(inner_iterations)
+        self.inner_rtol = 0.0  # see _lm
+        self.ftol = 1e-8  # the outer solve's relative cost tolerance
         self.n_theta = 6 + 3 * self.k
         self._cache_key = None
         self._cache = None
         self._warm = {}
+        self._sens = {}
+        self._jl_key = self._jl = None
+        self._unpack_key = self._unpacked = None
         self.warm_start = True
         self._branches_fixed = False
 
     # ---------------------------------------------------------------- parameters
     def unpack(self, theta):
         theta = np.asarray(theta, float)
-        w, c = theta[:3], theta[3:6]
-        planes = theta[6:].reshape(self.k, 3)
-        return exp_so3(w) @ self.R_ref, c, planes
+        key = theta.tobytes()
+        if self._unpack_key != key:  # (called once per block and per point solve)
+            w, c = theta[:3].copy(), theta[3:6].copy()
+            planes = theta[6:].reshape(self.k, 3).copy()
+            self._unpack_key, self._unpacked = key, (exp_so3(w) @ self.R_ref, c, planes)
+        return self._unpacked
 
     # ---------------------------------------------------------------- per-point model
     def _residual(self, block: Block, p, m, Rv, cv, w, want_theta=False, meas=None, plane=None):
         """Whitened residuals ``(N, 2C)`` with ``J_p (N, 2C, n_p)`` and optionally ``J_theta``.
 
         ``meas`` and ``plane`` default to the block's (they are passed when the points are
-        replicated for several starts).
+        replicated for several starts, or for a subset of them). The chain rule is spelt out
+        per row with outer products (no batched small matrix products): see
+        ``docs/derivations.md``, "Motion estimation: the bundle's Jacobians".
         """
         meas = block.meas if meas is None else meas
-        X, dXdp, dXdm = point_from_params(p, m)
-        N = X.shape[0]
+        N = p.shape[0]
         C = len(block.channels)
         e = np.empty((N, 2 * C))
-        Jc = np.empty((N, 2 * C, 3))  # d e / d Y, times the channel's A (or L)
+        JX = np.empty((N, 2 * C, 3))  # d e / d X (reference frame)
         if want_theta:
             Jt = np.zeros((N, 2 * C, self.n_theta))
-            Jl = left_jacobian(w)
-            RX = X @ Rv.T  # (N, 3)
-        fx, fy = self.K[0], self.K[1]
+            Jl = self._left_jacobian(w)
+        fx, fy, cx, cy = self.K
         with np.errstate(divide="ignore", invalid="ignore"):
+            if m is None:
+                X = p
+            else:  # X = q / (m . q), q = (x, y, 1)
+                inv = 1.0 / (m[:, 0] * p[:, 0] + m[:, 1] * p[:, 1] + m[:, 2])
+                X = np.empty((N, 3))
+                X[:, :2] = p * inv[:, None]
+                X[:, 2] = inv
+            RX = X @ Rv.T if want_theta or any(ch.moving for ch in block.channels) else None
             for i, ch in enumerate(block.channels):
-                A = ch.A @ Rv if ch.moving else ch.A
-                Y = X @ A.T + ((ch.A @ cv + ch.b) if ch.moving else ch.b)
-                s0, s1 = block.sigma[i]
-                # rows of d e / d Y, contracted with ch.A directly (outer products, no
-                # batched 2x3 @ 3x3 products)
                 L = ch.A
+                Y = (RX + cv) @ L.T + ch.b if ch.moving else X @ L.T + ch.b
+                s0, s1 = block.sigma[i]
+                # rows of d e / d Y contracted with L: d e / d (R X + c) for a moving channel,
+                # d e / d X for a fixed one, (N, 3) each
                 if ch.kind == "camera":
                     iz = 1.0 / Y[:, 2]
                     x, y = Y[:, 0] * iz, Y[:, 1] * iz
-                    e[:, 2 * i] = (fx * x + (self.K[2] - meas[:, i, 0])) / s0
-                    e[:, 2 * i + 1] = (fy * y + (self.K[3] - meas[:, i, 1])) / s1
+                    e[:, 2 * i] = (fx * x + (cx - meas[:, i, 0])) / s0
+                    e[:, 2 * i + 1] = (fy * y + (cy - meas[:, i, 1])) / s1
                     a0, a1 = (fx / s0) * iz, (fy / s1) * iz
-                    Jc[:, 2 * i] = a0[:, None] * (L[0] - x[:, None] * L[2])
-                    Jc[:, 2 * i + 1] = a1[:, None] * (L[1] - y[:, None] * L[2])
+                    g0 = a0[:, None] * (L[0] - x[:, None] * L[2])
+                    g1 = a1[:, None] * (L[1] - y[:, None] * L[2])
                 else:
                     rho2 = Y[:, 0] ** 2 + Y[:, 1] ** 2
                     r = np.sqrt(rho2 + Y[:, 2] ** 2)
                     e[:, 2 * i] = (r - meas[:, i, 0]) / s0
                     e[:, 2 * i + 1] = wrap(np.arctan2(Y[:, 0], Y[:, 1]) - meas[:, i, 1]) / s1
-                    Jc[:, 2 * i] = (Y / (r * s0)[:, None]) @ L
+                    g0 = (Y * (1.0 / (r * s0))[:, None]) @ L
                     k = 1.0 / (rho2 * s1)
-                    Jc[:, 2 * i + 1] = (Y[:, 1] * k)[:, None] * L[0] - (Y[:, 0] * k)[:, None] * L[1]
-                if want_theta and ch.moving:
-                    Jci = Jc[:, 2 * i:2 * i + 2]
-                    # d Y / d w = -L [R X]_x J_l, and a^T [v]_x = (a x v)^T
-                    Jt[:, 2 * i:2 * i + 2, 0:3] = np.cross(RX[:, None, :], Jci) @ Jl
-                    Jt[:, 2 * i:2 * i + 2, 3:6] = Jci
-            # d e / d X: moving channels see X through R_var
-            JX = Jc.copy() if want_theta else Jc
-            for i, ch in enumerate(block.channels):
+                    g1 = (Y[:, 1] * k)[:, None] * L[0] - (Y[:, 0] * k)[:, None] * L[1]
                 if ch.moving:
-                    JX[:, 2 * i:2 * i + 2] = JX[:, 2 * i:2 * i + 2] @ Rv
-            Jp = JX @ dXdp
+                    JX[:, 2 * i] = g0 @ Rv
+                    JX[:, 2 * i + 1] = g1 @ Rv
+                    if want_theta:
+                        # d (R X) / d w = -[R X]_x J_l, and a^T [v]_x = (a x v)^T
+                        Jt[:, 2 * i, 0:3] = _cross(RX, g0) @ Jl
+                        Jt[:, 2 * i + 1, 0:3] = _cross(RX, g1) @ Jl
+                        Jt[:, 2 * i, 3:6] = g0
+                        Jt[:, 2 * i + 1, 3:6] = g1
+                else:
+                    JX[:, 2 * i] = g0
+                    JX[:, 2 * i + 1] = g1
+            if m is None:
+                Jp = JX
+            else:
+                # dX/dp = (I - X m^T)[:, :2] / s and dX/dm = -X X^T, through v = (d e / d X) X
+                v = np.einsum("nri,ni->nr", JX, X)
+                Jp = (JX[:, :, :2] - v[:, :, None] * m[:, None, :2]) * inv[:, None, None]
         if not want_theta:
             return e, Jp, None
         plane = block.plane if plane is None else plane
-        if dXdm is not None:
-            Jm = JX @ dXdm  # (N, 2C, 3)
+        if m is not None:
+            Jm = -v[:, :, None] * X[:, None, :]  # (N, 2C, 3)
             if self.k == 1:
                 Jt[:, :, 6:9] = Jm
             else:
@@ -245,46 +267,68 @@ class Problem:
                 Jt[np.arange(N)[:, None, None], rows[None, :, None], cols[:, None, :]] = Jm
         return e, Jp, Jt
 
-    def _lm(self, block, p, m, Rv, cv, w, meas):
-        """Vectorised per-point Levenberg-Marquardt from ``p``; returns ``(p, cost)``."""
-        e, Jp, _ = self._residual(block, p, m, Rv, cv, w, meas=meas)
-        cost = np.sum(e * e, 1)
-        cost = np.where(np.isfinite(cost), cost, np.inf)
+    def _left_jacobian(self, w):
+        key = np.asarray(w, float).tobytes()
+        if self._jl_key != key:
+            self._jl_key, self._jl = key, left_jacobian(w)
+        return self._jl
+
+    def _lm(self, block, p, m, Rv, cv, w, meas, e=None, Jp=None):
+        """Vectorised per-point Levenberg-Marquardt from ``p``; returns ``(p, cost)``.
+
+        A point leaves the iteration once it has converged (Gauss-Newton predicts a negligible
+        decrease: it takes that step and stops; or its step or gain is negligible; or its
+        damping has blown up), so the later iterations only evaluate the points still moving.
+        ``e, Jp``: the residuals and their Jacobian at ``p``, when known.
+        """
+        p = np.array(p, float)
+        if e is None:
+            e, Jp, _ = self._residual(block, p, m, Rv, cv, w, meas=meas)
+        cost = np.einsum("nr,nr->n", e, e)
+        cost[~np.isfinite(cost)] = np.inf
         N = p.shape[0]
         lam = np.full(N, 1e-6)
-        eye = np.eye(p.shape[1])
+        act = np.arange(N)  # the points still iterating; e, Jp hold their rows only
         for _ in range(self.inner):
             H = np.einsum("nri,nrj->nij", Jp, Jp)
             g = np.einsum("nri,nr->ni", Jp, e)
             D = np.diagonal(H, axis1=1, axis2=2)
-            Hd = H + (lam[:, None] * np.maximum(D, 1e-300 + 1e-12 * D.max(1, keepdims=True)))[:, :, None] * eye
-            with np.errstate(invalid="ignore", over="ignore"):
-                try:
-                    dp = np.linalg.solve(Hd, -g[..., None])[..., 0]
-                except np.linalg.LinAlgError:
-                    dp = np.zeros_like(p)
-            dp = np.where(np.all(np.isfinite(dp), 1)[:, None], dp, 0.0)
-            # Gauss-Newton's predicted decrease; when negligible everywhere, take the step
-            # without a trial evaluation and stop
+            D = np.maximum(D, 1e-300 + 1e-12 * D.max(1, keepdims=True))
+            dp = -_solve_small(H, g, lam[act, None] * D)
+            # Gauss-Newton's predicted decrease; where negligible, take the step without a
+            # trial evaluation and stop
             pred = -np.einsum("ni,ni->n", g, dp)
-            if np.all(pred <= 1e-10 * cost + 1e-16):
-                return p + dp, cost
-            pt = p + dp
-            et, Jpt, _ = self._residual(block, pt, m, Rv, cv, w, meas=meas)
-            ct = np.sum(et * et, 1)
-            ok = np.isfinite(ct) & (ct <= cost)
-            gain = np.where(ok, cost - ct, 0.0)
-            p = np.where(ok[:, None], pt, p)
+            conv = pred <= 1e-10 * cost[act] + 1e-16
+            # near enough (``inner_rtol``): at most that fraction of the cost is left to gain,
+            # to second order; the step itself may be long where the point is poorly
+            # determined, so it is not taken
+            near = pred <= self.inner_rtol * cost[act]
+            if conv.any() or near.any():
+                p[act[conv]] += dp[conv]
+                run = ~(conv | near)
+                act, e, Jp, dp = act[run], e[run], Jp[run], dp[run]
+                if act.size == 0:
+                    break
+            pt = p[act] + dp
+            et, Jpt, _ = self._residual(block, pt, None if m is None else m[act], Rv, cv, w, meas=meas[act])
+            ct = np.einsum("nr,nr->n", et, et)
+            c0 = cost[act]
+            ok = np.isfinite(ct) & (ct <= c0)
+            gain = np.where(ok, c0 - ct, 0.0)
+            p[act[ok]] = pt[ok]
             e = np.where(ok[:, None], et, e)
             Jp = np.where(ok[:, None, None], Jpt, Jp)
-            cost = np.where(ok, ct, cost)
-            lam = np.where(ok, np.maximum(lam * 0.1, 1e-12), np.minimum(lam * 10.0, 1e12))
+            cost[act[ok]] = ct[ok]
+            la = np.where(ok, np.maximum(lam[act] * 0.1, 1e-12), np.minimum(lam[act] * 10.0, 1e12))
+            lam[act] = la
             # a point is done when its step is negligible or its damping has blown up
             step = np.max(np.abs(dp), axis=1)
-            done = ((step <= 1e-9 * (1 + np.max(np.abs(p), axis=1))) | (ok & (gain <= 1e-12 * cost + 1e-24))
-                    | (lam >= 1e8))
+            done = ((step <= 1e-9 * (1 + np.max(np.abs(p[act]), axis=1))) | (ok & (gain <= 1e-12 * cost[act] + 1e-24))
+                    | (la >= 1e8))
             if done.all():
                 break
+            run = ~done
+            act, e, Jp = act[run], e[run], Jp[run]
         return p, cost
 
     def solve_points(self, block: Block, theta, plane=None, want_theta=False):
@@ -306,7 +350,20 @@ class Problem:
         N = block.n
         warm = self._warm.get(id(block)) if (own and self.warm_start) else None
         if warm is not None and (self._branches_fixed or not block.multi_start):
-            p0 = warm
+            warm = p0 = self._predict(block, warm, theta)
+            if want_theta:  # where the prediction is already the optimum, one evaluation
+                e, Jp, Jt = self._residual(block, p0, m, Rv, cv, w, True, plane=plane)
+                run = ~_converged(e, Jp, max(1e-10, self.inner_rtol))
+                if run.any():  # the others: their own iterations, from there
+                    p0 = p0.copy()
+                    sub = (None if m is None else m[run]), block.meas[run]
+                    p0[run], _ = self._lm(block, p0[run], sub[0], Rv, cv, w, sub[1], e[run], Jp[run])
+                    e, Jp, Jt = e.copy(), Jp.copy(), Jt.copy()
+                    e[run], Jp[run], Jt[run] = self._residual(block, p0[run], sub[0], Rv, cv, w, True, sub[1],
+                                                              plane[run])
+                if np.all(np.isfinite(p0)):
+                    self._warm[id(block)] = p0
+                return p0, e, Jp, Jt
         else:
             p0 = np.asarray(block.init(Rv, cv, planes, plane), float)
         if p0.ndim == 2:
@@ -327,6 +384,16 @@ class Problem:
             self._warm[id(block)] = p
         return p, e, Jp, Jt
 
+    def _predict(self, block, warm, theta):
+        """``warm`` moved to first order to ``theta``: ``p + dp/dtheta (theta - theta_0)``, with
+        ``dp/dtheta = -H_pp^{-1} H_ptheta`` (the optimum's sensitivity, implicit function
+        theorem) stored by the evaluation at ``theta_0`` that produced ``warm``."""
+        s = self._sens.get(id(block))
+        if s is None or s[0] is not warm:
+            return warm
+        dp = -(s[2] @ (np.asarray(theta, float) - s[1]))
+        return np.where(np.isfinite(dp), warm + dp, warm)
+
     # ---------------------------------------------------------------- outer problem
     def _evaluate(self, theta):
         key = np.asarray(theta, float).tobytes()
@@ -336,10 +403,14 @@ class Problem:
         for b in self.blocks:
             _, e, Jp, Jt = self.solve_points(b, theta, want_theta=True)
             H = np.einsum("nri,nrj->nij", Jp, Jp)
-            H = H + (1e-12 * np.trace(H, axis1=1, axis2=2) + 1e-300)[:, None, None] * np.eye(Jp.shape[2])
+            tr = 1e-12 * np.trace(H, axis1=1, axis2=2) + 1e-300
             G = np.einsum("nri,nrj->nij", Jp, Jt)
+            Y = _solve_small(H, G, np.repeat(tr[:, None], H.shape[1], 1), bad=np.nan)  # (such J: zeroed below)
             with np.errstate(invalid="ignore", over="ignore"):
-                Jred = Jt - Jp @ np.linalg.solve(H, G)
+                Jred = Jt - np.einsum("nri,nit->nrt", Jp, Y)
+            p = self._warm.get(id(b))
+            if p is not None:  # the sensitivity of this solution, for the next evaluation's start
+                self._sens[id(b)] = (p, np.array(theta, float), Y)
             es.append(e.reshape(-1))
             Js.append(Jred.reshape(-1, self.n_theta))
         e = np.concatenate(es) if es else np.zeros(0)
@@ -355,13 +426,22 @@ class Problem:
     def jacobian(self, theta):
         return self._evaluate(theta)[1]
 
-    def solve(self, theta0, max_nfev=100):
-        """Minimise the reduced cost from ``theta0``; returns the scipy result."""
+    def solve(self, theta0, max_nfev=100, starts=None):
+        """Minimise the reduced cost from ``theta0``; returns the scipy result.
+
+        Every point's branch is chosen at the start, unless ``starts`` (one ``(N, n_params)``
+        array per block: every point's optimum at ``theta0``, its branch chosen) are given.
+        """
         self._branches_fixed = False
         self._warm = {}
         self._cache_key = None
-        for b in self.blocks:  # choose every point's branch at the start
-            self.solve_points(b, theta0)
+        if starts is None:
+            for b in self.blocks:  # choose every point's branch at the start
+                self.solve_points(b, theta0)
+        else:
+            if [np.shape(p) for p in starts] != [(b.n, b.n_params) for b in self.blocks]:
+                raise ValueError("starts: expected one (N, n_params) array per non-empty block")
+            self._warm = {id(b): np.array(p, float) for b, p in zip(self.blocks, starts)}
         self._branches_fixed = True
         try:
             return self._least_squares(theta0, max_nfev)
@@ -370,13 +450,71 @@ class Problem:
 
     def _least_squares(self, theta0, max_nfev):
         return least_squares(self.residuals, np.asarray(theta0, float), jac=self.jacobian, method="lm",
-                             x_scale="jac", ftol=1e-8, xtol=1e-10, gtol=1e-10, max_nfev=max_nfev)
+                             x_scale="jac", ftol=self.ftol, xtol=1e-10, gtol=1e-10, max_nfev=max_nfev)
+
+    def adopt_points(self, other: "Problem") -> None:
+        """Start every block's points from ``other``'s last solution (the same blocks, in order),
+        following its branches: the points of a solve warm-start a problem built afresh at its
+        optimum (e.g. with the rotation re-referenced there)."""
+        self._warm = {id(b): other._warm[id(o)] for b, o in zip(self.blocks, other.blocks) if id(o) in other._warm}
+        self._branches_fixed = True
+        self._cache_key = None
 
     def point_chi2(self, block: Block, theta, plane=None):
         """Reduced chi-square of every point of ``block`` (under ``plane`` indices if given)."""
         _, e, _, _ = self.solve_points(block, theta, plane=plane)
         c = np.sum(e * e, axis=1)
         return np.where(np.isfinite(c), c, np.inf)
+
+
+def _cross(a, b):
+    """Row-wise cross product of two (N, 3) arrays (``np.cross`` without its axis handling)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
+
+
+def _solve_small(H, B, damping=None, bad=0.0):
+    """``(H + diag(damping))^{-1} B`` for a batch of small symmetric systems.
+
+    ``H (N, n, n)``, ``B (N, n)`` or ``(N, n, m)``, ``damping (N, n)``. Two unknowns (a point
+    on a plane) by the closed form, more by ``numpy.linalg.solve``; a system that is singular
+    or not finite gives ``bad``.
+    """
+    n = H.shape[1]
+    vec = B.ndim == 2
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        if n == 2:
+            a, b, c = H[:, 0, 0], H[:, 0, 1], H[:, 1, 1]
+            if damping is not None:
+                a, c = a + damping[:, 0], c + damping[:, 1]
+            inv = 1.0 / (a * c - b * b)
+            x = np.empty(B.shape)
+            if not vec:
+                a, b, c, inv = a[:, None], b[:, None], c[:, None], inv[:, None]
+            x[:, 0] = (c * B[:, 0] - b * B[:, 1]) * inv
+            x[:, 1] = (a * B[:, 1] - b * B[:, 0]) * inv
+        else:
+            Hd = H if damping is None else H + damping[:, :, None] * np.eye(n)
+            try:
+                x = np.linalg.solve(Hd, B[..., None])[..., 0] if vec else np.linalg.solve(Hd, B)
+            except np.linalg.LinAlgError:
+                x = np.full(B.shape, np.nan)
+    ok = np.all(np.isfinite(x.reshape(x.shape[0], -1)), 1)
+    return np.where(ok.reshape((-1,) + (1,) * (x.ndim - 1)), x, bad)
+
+
+def _converged(e, Jp, rtol) -> np.ndarray:
+    """Points for which Gauss-Newton predicts a gain of at most ``rtol`` of their cost, (N,)."""
+    cost = np.einsum("nr,nr->n", e, e)
+    H = np.einsum("nri,nrj->nij", Jp, Jp)
+    g = np.einsum("nri,nr->ni", Jp, e)
+    tr = 1e-12 * np.trace(H, axis1=1, axis2=2) + 1e-300
+    pred = np.einsum("ni,ni->n", g, _solve_small(H, g, np.repeat(tr[:, None], H.shape[1], 1)))
+    ok = np.isfinite(cost) & np.all(np.isfinite(g), 1)
+    return ok & (pred <= rtol * cost + 1e-16)
 
 
 def covariance_from_jacobian(J) -> tuple[np.ndarray, bool]:

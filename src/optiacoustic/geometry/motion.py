@@ -769,28 +769,52 @@ def _triangulate_sonar(d: _Data, idx, R_o, t_o):
 def _problem(d: _Data, labels_o, labels_s, model, R_ref, planes_m, which="inliers"):
     bo, bs, io, is_ = _blocks(d, labels_o, labels_s, model, which)
     k = len(planes_m) if model == "plane" else 0
-    return B.Problem(d.K, [bo, bs], k, R_ref), bo, bs, io, is_
+    prob = B.Problem(d.K, [bo, bs], k, R_ref)
+    # a point's own solve stops within 1e-8 of its cost (to second order): the chi-squares
+    # only meet thresholds, and the joint solve refines the points anyway
+    prob.inner_rtol = 1e-8
+    # the outer solve stops when the cost falls by less than 1e-6 of itself: a few 1e-4 of a
+    # chi-square of a few hundred, i.e. parameters within a few hundredths of their standard
+    # deviation of the minimum (1e-8 spent most evaluations creeping along a flat valley)
+    prob.ftol = 1e-6
+    return prob, bo, bs, io, is_
 
 
 def _theta(t_o, planes_m):
     return np.concatenate([np.zeros(3), t_o, np.asarray(planes_m, float).reshape(-1)])
 
 
-def _chi2_all(d: _Data, model, R_o, t_o, planes_m):
-    """Reduced chi-square of every match under every plane (or the free model): ``(P, N_o), (P, M)``."""
+def _chi2_all(d: _Data, model, R_o, t_o, planes_m, points=False):
+    """Reduced chi-square of every match under every plane (or the free model): ``(P, N_o), (P, M)``.
+
+    With ``points=True`` also the per-point parameters at those optima, ``((P, N_o, n_p),
+    (P, M, n_p))``: the start of a fit at this state (see :func:`_starts`).
+    """
     k = len(planes_m) if model == "plane" else 1
     lo = np.zeros(d.n_o, int)
     ls = np.zeros(d.n_s, int)
     prob, bo, bs, _, _ = _problem(d, lo, ls, model, R_o, planes_m, which="all")
     th = _theta(t_o, planes_m if model == "plane" else np.zeros((0, 3)))
+    n_p = 2 if model == "plane" else 3
     co = np.full((k, d.n_o), np.inf)
     cs = np.full((k, d.n_s), np.inf)
+    po = np.full((k, d.n_o, n_p), np.nan)
+    ps = np.full((k, d.n_s, n_p), np.nan)
     for j in range(k):
-        if d.n_o:
-            co[j] = prob.point_chi2(bo, th, plane=np.full(d.n_o, j))
-        if d.n_s:
-            cs[j] = prob.point_chi2(bs, th, plane=np.full(d.n_s, j))
-    return co, cs
+        for blk, c, p, n in ((bo, co, po, d.n_o), (bs, cs, ps, d.n_s)):
+            if n:
+                p[j], e, _, _ = prob.solve_points(blk, th, plane=np.full(n, j))
+                c2 = np.sum(e * e, axis=1)
+                c[j] = np.where(np.isfinite(c2), c2, np.inf)
+    return (co, cs, (po, ps)) if points else (co, cs)
+
+
+def _starts(points, lo, ls):
+    """Starts of a fit with labels ``lo, ls``: each inlier's parameters on its plane, from
+    :func:`_chi2_all` at the fit's start (one array per non-empty block, as the problem's)."""
+    po, ps = points
+    io, is_ = np.flatnonzero(lo >= 0), np.flatnonzero(ls >= 0)
+    return [x for x in (po[lo[io], io], ps[ls[is_], is_]) if x.shape[0] > 0]
 
 
 def _relabel(co, cs, thr):
@@ -801,27 +825,36 @@ def _relabel(co, cs, thr):
     return lo.astype(int), ls.astype(int)
 
 
-def _ml_loop(d: _Data, model, R_o, t_o, planes_m, lo, ls, thr, max_iterations, info=None, max_nfev=100):
+def _ml_loop(d: _Data, model, R_o, t_o, planes_m, lo, ls, thr, max_iterations, info=None, max_nfev=100,
+             points=None):
     """Maximum likelihood with relabelling until the labels settle; returns the new state.
 
+    The state is ``(R_o, t_o, planes_m, lo, ls, iterations, cost, problem)``, ``problem``
+    being the last fit's (its points at the optimum, for :func:`_finish`), or None.
     ``info`` (a dict), when given, receives ``"chi2"``: the per-match chi-squares
-    ``(co, cs)`` of :func:`_chi2_all` at the returned state, when they were computed there.
+    ``(co, cs)`` of :func:`_chi2_all` at the returned state, when they were computed there,
+    and ``"points"``: the per-match parameters there. ``points``: such parameters at the
+    given state (the first fit starts from them instead of solving every point afresh).
     """
     planes_m = np.asarray(planes_m, float).reshape(-1, 3)
     it = 0
     res = None
     co = cs = None
+    last = None
     for it in range(1, max_iterations + 1):
         prob, _, _, _, _ = _problem(d, lo, ls, model, R_o, planes_m)
-        sol = prob.solve(_theta(t_o, planes_m if model == "plane" else np.zeros((0, 3))), max_nfev=max_nfev)
+        starts = None if points is None else _starts(points, lo, ls)
+        sol = prob.solve(_theta(t_o, planes_m if model == "plane" else np.zeros((0, 3))), max_nfev=max_nfev,
+                         starts=starts)
         R_new, t_new, pm = prob.unpack(sol.x)
         if not (np.all(np.isfinite(R_new)) and np.all(np.isfinite(t_new)) and np.all(np.isfinite(pm))):
             break
         R_o, t_o = R_new, t_new
+        last = prob
         if model == "plane":
             planes_m = pm
         res = float(2 * sol.cost)
-        co, cs = _chi2_all(d, model, R_o, t_o, planes_m)
+        co, cs, points = _chi2_all(d, model, R_o, t_o, planes_m, points=True)
         nlo, nls = _relabel(co, cs, thr)
         if (nls >= 0).sum() == 0:
             nls = ls  # never drop the last sonar match: it carries the scale
@@ -836,7 +869,8 @@ def _ml_loop(d: _Data, model, R_o, t_o, planes_m, lo, ls, thr, max_iterations, i
         co = cs = None  # the state returned is that of the last fit, with the old labels
     if info is not None and co is not None:
         info["chi2"] = (co, cs)
-    return R_o, t_o, planes_m, lo, ls, it, res
+        info["points"] = points
+    return R_o, t_o, planes_m, lo, ls, it, res, last
 
 
 def _points_for(d: _Data, R_o, t_o):
@@ -1032,7 +1066,7 @@ def _estimate_homography(d, thr_px, conf, iters, p_in, max_it, planes, rng):
     sols = all_sols if h_best == 0 else [t[2] for t in trials if t[6] == h_best]
     j = pick[0]
     stages = [best["initial"]]
-    R_o, t_o, pm, lo, ls, it, cost = best["planar"]
+    R_o, t_o, pm, lo, ls, it, cost, prob = best["planar"]
     stages.append(_stage(d, "planar", R_o, t_o, pm, lo, ls, it, cost if cost is not None else np.nan))
     max_planes = 4 if planes == "auto" else int(planes)
     total_it = it
@@ -1045,11 +1079,11 @@ def _estimate_homography(d, thr_px, conf, iters, p_in, max_it, planes, rng):
         lo2, ls2 = _relabel(co, cs, thr2)
         if np.sum(lo2 == pm2.shape[0] - 1) < 3:
             break
-        R_o, t_o, pm, lo, ls, it, cost = _ml_loop(d, "plane", R_o, t_o, pm2, lo2, ls2, thr2, max_it)
+        R_o, t_o, pm, lo, ls, it, cost, prob = _ml_loop(d, "plane", R_o, t_o, pm2, lo2, ls2, thr2, max_it)
         total_it += it
     if pm.shape[0] > 1:
         stages.append(_stage(d, "clustered", R_o, t_o, pm, lo, ls, total_it, cost if cost is not None else np.nan))
-    return _finish(d, "homography", R_o, t_o, pm, lo, ls, stages, sols, cands, j, supports)
+    return _finish(d, "homography", R_o, t_o, pm, lo, ls, stages, sols, cands, j, supports, prob)
 
 
 _LOOSE = 4.0  # the first relabelling's threshold, in units of the final one
@@ -1084,7 +1118,7 @@ def _start_planar(d: _Data, trial, thr2, max_it, screen=False, loose=None, gradu
         # (a capped number of evaluations: an interpretation that needs more is not the one)
         state = _ml_loop(d, "plane", R_o, t_o, m0[None], lo, ls, _LOOSE * thr2, max_it, info, max_nfev=_LOOSE_NFEV)
         chi = info["chi2"] if "chi2" in info else _chi2_all(d, "plane", state[0], state[1], state[2])
-        loose = dict(state=state, chi2=chi, exact="chi2" in info,
+        loose = dict(state=state, chi2=chi, exact="chi2" in info, points=info.get("points"),
                      score=float(np.minimum(chi[0].min(0), thr2).sum() + np.minimum(chi[1].min(0), thr2).sum()))
     if screen:
         return loose
@@ -1098,7 +1132,7 @@ def _start_planar(d: _Data, trial, thr2, max_it, screen=False, loose=None, gradu
         planar, (co, cs) = state, loose["chi2"]
     else:
         info = {}
-        planar = _ml_loop(d, "plane", R_o, t_o, pm, lo, ls, thr2, max_it, info)
+        planar = _ml_loop(d, "plane", R_o, t_o, pm, lo, ls, thr2, max_it, info, points=loose.get("points"))
         co, cs = info["chi2"] if "chi2" in info else _chi2_all(d, "plane", planar[0], planar[1], planar[2])
     score = float(np.minimum(co.min(0), thr2).sum() + np.minimum(cs.min(0), thr2).sum())
     return dict(trial=trial, initial=initial, planar=planar, score=score)
@@ -1167,16 +1201,19 @@ def _estimate_essential(d, thr_px, conf, iters, p_in, max_it):
     ls = np.where(son_inl, 0, -1)
     ls[j] = 0
     stages = [_stage(d, "initial", R_o, t_o, np.zeros((0, 3)), lo, ls, 0, np.nan)]
-    R_o, t_o, _, lo, ls, it, cost = _ml_loop(d, "free", R_o, t_o, np.zeros((0, 3)), lo, ls, thr1, max_it)
+    R_o, t_o, _, lo, ls, it, cost, prob = _ml_loop(d, "free", R_o, t_o, np.zeros((0, 3)), lo, ls, thr1, max_it)
     stages.append(_stage(d, "essential", R_o, t_o, np.zeros((0, 3)), lo, ls, it, cost if cost is not None else np.nan))
     mono = (MonocularSolution(stages[0].R_o, t_dir, np.full(3, np.nan)),)
-    return _finish(d, "essential", R_o, t_o, np.zeros((0, 3)), lo, ls, stages, mono, cands, j, (support,))
+    return _finish(d, "essential", R_o, t_o, np.zeros((0, 3)), lo, ls, stages, mono, cands, j, (support,), prob)
 
 
-def _finish(d, model, R_o, t_o, pm, lo, ls, stages, mono, cands, j, supports):
+def _finish(d, model, R_o, t_o, pm, lo, ls, stages, mono, cands, j, supports, prob=None):
     kind = "plane" if model == "homography" else "free"
-    prob, bo, bs, _, _ = _problem(d, lo, ls, kind, R_o, pm)
     th = _theta(t_o, pm if kind == "plane" else np.zeros((0, 3)))
+    last = prob
+    prob, bo, bs, _, _ = _problem(d, lo, ls, kind, R_o, pm)
+    if last is not None:  # the last fit's, at this state: its points are at the optimum
+        prob.adopt_points(last)
     e = prob.residuals(th)
     J = prob.jacobian(th)
     cov, full = B.covariance_from_jacobian(J)
