@@ -35,6 +35,21 @@ def default_threads() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def _release_freed_memory() -> None:
+    """Hand the heap memory freed by a large build back to the system (glibc only; else nothing).
+
+    Building a large mesh frees hundreds of MB of temporaries that glibc keeps mapped
+    (resident) for reuse; ``malloc_trim`` returns them, so a process's resident set is
+    what the scene holds, not what its build once needed.
+    """
+    try:
+        import ctypes
+
+        ctypes.CDLL(None).malloc_trim(0)
+    except (AttributeError, OSError):  # pragma: no cover - not glibc
+        pass
+
+
 _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
 
@@ -120,15 +135,26 @@ class RayCaster:
             if not np.isfinite(reach) or reach > MAX_COORDINATE:
                 raise SceneError(f"body '{b.name}': its surface reaches {reach:.3g} m from the origin; the ray caster "
                                  f"computes in float32 and accepts coordinates up to {MAX_COORDINATE:g} m")
+        from ._embree_upload import upload_triangles
+
         self._embree = rtcore_scene.EmbreeScene()
-        for s in surfaces:
-            TriangleMesh(self._embree, s.vertices.astype(np.float32), s.faces.astype(np.int32))
+        for i, s in enumerate(surfaces):
+            # Embree copies both into its own buffers: the float32 vertices are a temporary.
+            # One numpy copy per buffer; TriangleMesh (element by element) where that is not possible
+            v32, f32 = s.vertices.astype(np.float32), s.faces.astype(np.int32, copy=False)
+            gid = upload_triangles(self._embree, v32, f32)
+            if gid is None:
+                TriangleMesh(self._embree, v32, f32)
+            elif gid != i:  # pragma: no cover - Embree numbers a new scene's geometries 0, 1, ...
+                raise RuntimeError(f"Embree gave body {i} the geometry id {gid}")
         # per-triangle corner normals of all bodies, concatenated; geomID i is body i
         self._tri_offset = np.cumsum([0] + [s.n_faces for s in surfaces]).astype(np.int64)
         self._corner_normals_f32 = None  # built on the first smooth cast (36 bytes per triangle)
         self._lock = threading.Lock()
         # commit now, single-threaded, so that concurrent casts never race on it
         self._embree.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
+        if self._tri_offset[-1] >= 100_000:
+            _release_freed_memory()
 
     # ------------------------------------------------------------------ internals
     @property
@@ -140,7 +166,8 @@ class RayCaster:
                     surfaces = self.scene.surfaces()
                     out = np.empty((int(self._tri_offset[-1]), 3, 3), np.float32)
                     for s, a, b in zip(surfaces, self._tri_offset[:-1], self._tri_offset[1:]):
-                        out[a:b] = s.normals[s.faces]
+                        # gathered from float32 normals: no float64 (n, 3, 3) temporary (72 bytes/triangle)
+                        np.take(s.normals.astype(np.float32), s.faces, axis=0, out=out[a:b])
                     self._corner_normals_f32 = out
         return self._corner_normals_f32
 
@@ -270,6 +297,33 @@ class RayCaster:
             nrm = cat("Ng")
         nrm /= np.sqrt(np.einsum("ij,ij->i", nrm, nrm))[:, None] + np.float32(1e-30)
         return tfar, geom, prim, nrm
+
+    def intersect_raw(self, origins32: np.ndarray, directions32: np.ndarray, max_distance32: np.ndarray | None = None,
+                      *, normals: bool = True):
+        """Embree's closest-hit output as it comes, over the worker threads: the lowest-level query.
+
+        Parameters as :meth:`cast_raw`. Returns ``(distance, body, triangle, u, v, Ng)``:
+        ``(N,)`` float32 distance (``>= max_distance`` on a miss), ``(N,)`` int32 body
+        (``-1`` on a miss) and triangle, ``(N,)`` float32 barycentric ``u, v`` of the hit
+        (corners 1 and 2), and the unnormalised geometric normal ``(N, 3)`` float32 (``None``
+        without ``normals``). Smooth normals are ``(1 - u - v) n0 + u n1 + v n2`` of
+        :attr:`corner_normals` row ``triangle_offset[body] + triangle``.
+        """
+        n = len(origins32)
+        dists = np.full(n, _MISS_DIST, np.float32) if max_distance32 is None else max_distance32
+        outs = self._run_chunks(origins32, directions32, dists, "INTERSECT", True, copy=False)
+        cat = (lambda k: outs[0][k]) if len(outs) == 1 else (lambda k: np.concatenate([r[k] for r in outs]))
+        return cat("tfar"), cat("geomID"), cat("primID"), cat("u"), cat("v"), cat("Ng") if normals else None
+
+    @property
+    def corner_normals(self) -> np.ndarray:
+        """Per-triangle corner normals of all bodies, ``(n_triangles, 3, 3)`` float32 (read-only use)."""
+        return self._corner_normals
+
+    @property
+    def triangle_offset(self) -> np.ndarray:
+        """Row of each body's first triangle in :attr:`corner_normals`, ``(n_bodies + 1,)`` int64."""
+        return self._tri_offset
 
     def occluded_raw(self, origins32: np.ndarray, directions32: np.ndarray, max_distance32: np.ndarray) -> np.ndarray:
         """:meth:`occluded` with no validation: float32 ``(N, 3)`` unit directions, ``(N,)`` limits."""
