@@ -2,19 +2,22 @@
 
 from __future__ import annotations
 
+import numpy as np
 from _timing import median_ms
 
 TITLE = "Automatic opti-acoustic matching"
 DESCRIPTION = ("`matching.match` on one simulated pair of `thesis_scene1` (BlueView P900-90 750 x 512 polar "
                "image, 600 x 400 camera, thesis water, default sonar noise), target <= 1 s per pair; against "
-               "simulating that pair (`simulate_rig`: both sensors) and against its stages (OpenCV corners, "
-               "CFAR sonar features, the epipolar gate).")
+               "simulating that pair (`simulate_rig`: both sensors) and against its stages (CFAR sonar features, "
+               "the arc search; for the first design, corners and the epipolar gate).")
 
 
 def run() -> list[dict]:
     from optiacoustic import scenes
     from optiacoustic.experiments.matching import _rig_for, simulate_pair
-    from optiacoustic.matching import detect_camera_features, detect_sonar_features, match
+    from optiacoustic.matching import MatchOptions, detect_camera_features, detect_sonar_features, match
+    from optiacoustic.matching.acoustic import elevation_maps, fit_seabed
+    from optiacoustic.matching.arc_search import gradient_image, search_arcs
     from optiacoustic.matching.gating import mahalanobis_sq
     from optiacoustic.optical import Water
     from optiacoustic.simulation import simulate_rig
@@ -23,6 +26,8 @@ def run() -> list[dict]:
     s, o, rig = simulate_pair(scene)
     spec = s.spec
     t_match = median_ms(lambda: match(s, o.image, rig), repeat=7, warmup=1)
+    corners = MatchOptions(method="corners")
+    t_corners = median_ms(lambda: match(s, o.image, rig, options=corners), repeat=5, warmup=1)
     _, sp = _rig_for(scene.view.eye, scene.view.target)
     water = Water.preset("thesis")
     t_sim = median_ms(lambda: simulate_rig(scene, rig, sp, water=water, seed=0), repeat=5, warmup=1)
@@ -35,17 +40,33 @@ def run() -> list[dict]:
                                beamwidth=spec.beamwidth_azimuth)
     t_gate = median_ms(lambda: mahalanobis_sq(rig, cf.pixels, cf.sigma_pixel, sf.ranges, sf.azimuths,
                                               sf.sigma_range, sf.sigma_azimuth), repeat=7, warmup=1)
+    plane = fit_seabed(s.image, s.ranges, s.azimuths, rig.fov_elevation)
+    cells = np.zeros(s.image.shape, bool)
+    cells[sf.bins, sf.beams] = True
+    lo, hi, _ = elevation_maps(s.image, s.ranges, s.azimuths, plane, rig.fov_elevation, cells=cells)
+    t_acou = median_ms(lambda: elevation_maps(s.image, s.ranges, s.azimuths, fit_seabed(
+        s.image, s.ranges, s.azimuths, rig.fov_elevation), rig.fov_elevation, cells=cells), repeat=7, warmup=1)
+    t_arc = median_ms(lambda: search_arcs(rig, sf.ranges, sf.azimuths, lo[sf.bins, sf.beams], hi[sf.bins, sf.beams],
+                                          gradient_image(o.image)), repeat=7, warmup=1)
     m = match(s, o.image, rig, min_score=0.0)
-    note = f"{len(sf)} sonar x {len(cf)} camera features, {len(m)} matches"
+    note = f"{len(sf)} sonar features, {len(m)} matches (arc search)"
     return [
         dict(name="match one pair", value=t_match / 1e3, unit="s", reference="target 1 s", ratio=t_match / 1e3,
              note=note),
+        dict(name="match one pair, first design (corners)", value=t_corners / 1e3, unit="s", reference="target 1 s",
+             ratio=t_corners / 1e3, note=f"{len(sf)} sonar x {len(cf)} camera features"),
+        dict(name="seabed plane + elevation intervals", value=t_acou, unit="ms", reference="match",
+             ratio=t_acou / t_match, note="at the sonar features' cells"),
+        dict(name="arc search (gradient image + all arcs)", value=t_arc, unit="ms", reference="match",
+             ratio=t_arc / t_match, note="400 elevation samples per arc"),
         dict(name="match / simulate the pair", value=t_match, unit="ms", reference="simulate_rig (both sensors)",
              ratio=t_match / t_sim, note=f"simulate_rig {t_sim:.0f} ms"),
-        dict(name="camera corners (OpenCV)", value=t_cam, unit="ms", reference="match", ratio=t_cam / t_match,
+        dict(name="camera corners (OpenCV)", value=t_cam, unit="ms", reference="match (arc search)",
+             ratio=t_cam / t_match,
              note="CLAHE + goodFeaturesToTrack + cornerSubPix"),
         dict(name="sonar CFAR features", value=t_son, unit="ms", reference="match", ratio=t_son / t_match,
              note="peaks and onsets"),
-        dict(name="epipolar gate (all pairs)", value=t_gate, unit="ms", reference="match", ratio=t_gate / t_match,
+        dict(name="epipolar gate (all pairs)", value=t_gate, unit="ms", reference="match (arc search)",
+             ratio=t_gate / t_match,
              note=f"{len(sf) * len(cf)} pairs"),
     ]

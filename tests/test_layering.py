@@ -14,6 +14,8 @@ PKG = Path(__file__).resolve().parents[1] / "src" / "optiacoustic"
 FORBIDDEN = {
     "optiacoustic.frames": ["optiacoustic.scene", "optiacoustic.sonar", "optiacoustic.optical", "optiacoustic.geometry"],
     "optiacoustic.scene": ["optiacoustic.raycast", "optiacoustic.sonar", "optiacoustic.optical", "optiacoustic.geometry"],
+    "optiacoustic._embree_upload": ["optiacoustic.scene", "optiacoustic.sonar", "optiacoustic.optical",
+                                    "optiacoustic.simulation", "optiacoustic.geometry"],
     "optiacoustic.raycast": ["optiacoustic.sonar", "optiacoustic.optical", "optiacoustic.simulation", "optiacoustic.geometry", "optiacoustic.fusion"],
     # the two sensor simulators are siblings: neither imports the other nor the rig layer above them
     "optiacoustic.sonar": ["optiacoustic.optical", "optiacoustic.simulation", "optiacoustic.geometry", "optiacoustic.fusion",

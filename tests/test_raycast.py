@@ -93,3 +93,28 @@ def test_bad_input(caster):
         caster.cast(np.zeros(3), [0, 1, 0], max_distance=-1)
     with pytest.raises(TypeError):
         RayCaster("not a scene")
+
+
+def test_vectorised_upload_gives_the_same_hits_as_embreex_trianglemesh(monkeypatch):
+    """The ctypes upload (one numpy copy per buffer) against embreex's own element-by-element upload."""
+    import optiacoustic._embree_upload as up
+    from optiacoustic import scenes
+    from optiacoustic.raycast import RayCaster
+
+    scene = scenes.get("thesis_scene1")
+    fast = RayCaster(scene)
+    from embreex.rtcore_scene import EmbreeScene
+
+    tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float32)
+    assert up._library_of(EmbreeScene()) is not None  # the wheel's Embree was found
+    assert up.upload_triangles(EmbreeScene(), tri, np.array([[0, 1, 2]], np.int32)) == 0  # the fast path is taken
+    monkeypatch.setattr(up, "upload_triangles", lambda *a, **k: None)  # forces TriangleMesh
+    slow = RayCaster(scene)
+    rng = np.random.default_rng(11)
+    o = np.column_stack([rng.uniform(-5, 5, (20000, 2)), rng.uniform(0.3, 4.0, 20000)])
+    d = rng.normal(size=o.shape)
+    a, b = fast.cast(o, d), slow.cast(o, d)
+    assert 0.2 < a.hit.mean() < 0.9
+    assert np.array_equal(a.distance, b.distance) and np.array_equal(a.body, b.body)
+    assert np.array_equal(a.triangle, b.triangle)
+    assert np.array_equal(a.normal, b.normal, equal_nan=True)

@@ -203,3 +203,36 @@ def test_smooth_shading_splits_creases_and_keeps_smooth_parts_smooth():
     v3, f3, n3 = smooth_shading(ball.vertices, ball.faces, np.deg2rad(30))
     assert len(v3) == len(ball.vertices)
     assert np.min(np.einsum("ij,ij->i", n3, v3 / np.linalg.norm(v3, axis=1, keepdims=True))) > 0.999
+
+
+def test_merge_vertices_matches_trimesh_and_keeps_the_triangles():
+    from optiacoustic.scene.normals import merge_vertices
+
+    ball = trimesh.creation.icosphere(subdivisions=3)
+    rng = np.random.default_rng(5)
+    # an unindexed soup (as STL stores it), shuffled, plus unused vertices
+    soup = ball.vertices[ball.faces].reshape(-1, 3)
+    perm = rng.permutation(len(soup))
+    V = np.concatenate([soup[perm], rng.normal(size=(7, 3))])
+    F = np.argsort(perm).reshape(-1, 3)
+    v, f = merge_vertices(V, F)
+    assert np.array_equal(v[f], V[F])  # the same triangles, corner for corner
+    assert len(v) == len(ball.vertices)  # the merge trimesh does (position only: the soup has no normals)
+    ref = trimesh.Trimesh(V, F)  # process=True merges and drops unused vertices
+    assert len(ref.vertices) == len(v)
+    assert np.array_equal(np.unique(v.round(12), axis=0), np.unique(ref.vertices.round(12), axis=0))
+    # an already indexed mesh with nothing to merge comes back as it is
+    v2, f2 = merge_vertices(ball.vertices, ball.faces)
+    assert v2 is ball.vertices or np.array_equal(v2, ball.vertices)
+    assert np.array_equal(f2, ball.faces)
+
+
+def test_mesh_file_reads_as_a_merged_surface(tmp_path):
+    from optiacoustic.scene import Mesh
+
+    box = trimesh.creation.box((1.0, 2.0, 3.0))
+    path = tmp_path / "box.stl"  # STL stores every triangle's corners separately
+    box.export(path)
+    s = Mesh(file=str(path)).tessellate()
+    assert s.n_faces == 12 and len(s.vertices) == 24  # merged to 8, then split along the 12 sharp edges
+    assert Body("b", Mesh(file=str(path))).surface() is s  # identity pose and scale: no copy

@@ -35,6 +35,21 @@ def default_threads() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def _release_freed_memory() -> None:
+    """Hand the heap memory freed by a large build back to the system (glibc only; else nothing).
+
+    Building a large mesh frees hundreds of MB of temporaries that glibc keeps mapped
+    (resident) for reuse; ``malloc_trim`` returns them, so a process's resident set is
+    what the scene holds, not what its build once needed.
+    """
+    try:
+        import ctypes
+
+        ctypes.CDLL(None).malloc_trim(0)
+    except (AttributeError, OSError):  # pragma: no cover - not glibc
+        pass
+
+
 _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
 
@@ -120,15 +135,26 @@ class RayCaster:
             if not np.isfinite(reach) or reach > MAX_COORDINATE:
                 raise SceneError(f"body '{b.name}': its surface reaches {reach:.3g} m from the origin; the ray caster "
                                  f"computes in float32 and accepts coordinates up to {MAX_COORDINATE:g} m")
+        from ._embree_upload import upload_triangles
+
         self._embree = rtcore_scene.EmbreeScene()
-        for s in surfaces:
-            TriangleMesh(self._embree, s.vertices.astype(np.float32), s.faces.astype(np.int32))
+        for i, s in enumerate(surfaces):
+            # Embree copies both into its own buffers: the float32 vertices are a temporary.
+            # One numpy copy per buffer; TriangleMesh (element by element) where that is not possible
+            v32, f32 = s.vertices.astype(np.float32), s.faces.astype(np.int32, copy=False)
+            gid = upload_triangles(self._embree, v32, f32)
+            if gid is None:
+                TriangleMesh(self._embree, v32, f32)
+            elif gid != i:  # pragma: no cover - Embree numbers a new scene's geometries 0, 1, ...
+                raise RuntimeError(f"Embree gave body {i} the geometry id {gid}")
         # per-triangle corner normals of all bodies, concatenated; geomID i is body i
         self._tri_offset = np.cumsum([0] + [s.n_faces for s in surfaces]).astype(np.int64)
         self._corner_normals_f32 = None  # built on the first smooth cast (36 bytes per triangle)
         self._lock = threading.Lock()
         # commit now, single-threaded, so that concurrent casts never race on it
         self._embree.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
+        if self._tri_offset[-1] >= 100_000:
+            _release_freed_memory()
 
     # ------------------------------------------------------------------ internals
     @property
@@ -140,7 +166,8 @@ class RayCaster:
                     surfaces = self.scene.surfaces()
                     out = np.empty((int(self._tri_offset[-1]), 3, 3), np.float32)
                     for s, a, b in zip(surfaces, self._tri_offset[:-1], self._tri_offset[1:]):
-                        out[a:b] = s.normals[s.faces]
+                        # gathered from float32 normals: no float64 (n, 3, 3) temporary (72 bytes/triangle)
+                        np.take(s.normals.astype(np.float32), s.faces, axis=0, out=out[a:b])
                     self._corner_normals_f32 = out
         return self._corner_normals_f32
 

@@ -158,30 +158,38 @@ def test_unknown_scene_water_and_short_trajectory(tmp_path):
 
 
 def _builds():
+    import dask
+
     from optiacoustic import raycast
     from optiacoustic.io import dataset
 
-    return dataset.BUILDS["sequences"], len(raycast._CASTERS)
+    # the last: the lean Dask settings reached this worker, also one added by scale()
+    return (dataset.BUILDS["sequences"], dataset.BUILDS["scenes"], len(raycast._CASTERS),
+            dask.config.get("distributed.worker.profile.enabled"))
 
 
 def test_one_and_two_workers_give_identical_output(reference, tmp_path):
     """Real Dask: a one-worker cluster, then the same cluster grown to two, via --scheduler's path."""
-    from distributed import Client, LocalCluster
+    from distributed import Client
+
+    from optiacoustic.io import local_cluster
 
     cfg, ref, _ = reference
-    env = {"OAS_THREADS": "1", "OMP_NUM_THREADS": "1"}
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None, env=env,
-                      silence_logs=40) as cluster:
+    with local_cluster(1) as cluster:
         r1 = write_dataset(cfg, tmp_path / "w1.zarr", scheduler=cluster.scheduler_address)
         cluster.scale(2)
         cluster.wait_for_workers(2)
         r2 = write_dataset(cfg, tmp_path / "w2.zarr", scheduler=cluster.scheduler_address)
+        # another configuration of the same scene: a new sequence, the same scene and BVH
+        other = _write_config(tmp_path / "other.yaml", {**SMALL, "duration": 0.5})
+        r3 = write_dataset(other, tmp_path / "w3.zarr", scheduler=cluster.scheduler_address)
         with Client(cluster) as client:
             builds = client.run(_builds)
-    # each worker resolved the scene (and built its BVH) once, the first worker once for both outputs
-    assert sorted(builds.values()) == [(1, 1), (1, 1)], builds
+    # each worker resolved each configuration once and the scene (and built its BVH) once,
+    # the first worker once for both outputs of the first configuration
+    assert sorted(builds.values()) == [(2, 1, 1, False), (2, 1, 1, False)], builds
     assert r1.workers == 1 and r2.workers == 2
-    assert r1.frames_written == r2.frames_written == 12
+    assert r1.frames_written == r2.frames_written == 12 and r3.frames_written == 3
     a = _arrays(ref)
     _assert_identical(a, _arrays(tmp_path / "w1.zarr"))
     _assert_identical(a, _arrays(tmp_path / "w2.zarr"))
@@ -192,16 +200,29 @@ def _done_count(path: Path) -> int:
         if (path / "sonar" / "done" / "c").exists() else 0
 
 
-def test_kill_9_at_any_moment_then_resume(reference, tmp_path):
+@pytest.fixture(scope="module")
+def reference24(tmp_path_factory):
+    """24 frames (16 sonar, 8 camera) rendered in this process, uninterrupted."""
+    d = tmp_path_factory.mktemp("ref24")
+    cfg = _write_config(d / "cfg.yaml", {**SMALL, "duration": 4.0})
+    write_dataset(cfg, d / "ref.zarr", workers=0)
+    return cfg, d / "ref.zarr"
+
+
+def _cli(cfg: Path, out: Path, workers: int) -> list:
+    return [sys.executable, "-c", "from optiacoustic.cli import main; main()", "dataset", str(cfg), "--out", str(out),
+            "--workers", str(workers), "--quiet"]
+
+
+_ENV = {**os.environ, "PYTHONPATH": f"{SRC}{os.pathsep}{os.environ.get('PYTHONPATH', '')}", "OAS_THREADS": "1"}
+
+
+def test_kill_9_at_any_moment_then_resume(reference24, tmp_path):
     """SIGKILL the whole run at several moments, rerun the same command, compare frame by frame."""
-    cfg_data = {**SMALL, "duration": 4.0}
-    cfg = _write_config(tmp_path / "cfg.yaml", cfg_data)
-    ref = tmp_path / "ref.zarr"
-    write_dataset(cfg, ref, workers=0)
+    cfg, ref = reference24
     out = tmp_path / "killed.zarr"
-    env = {**os.environ, "PYTHONPATH": f"{SRC}{os.pathsep}{os.environ.get('PYTHONPATH', '')}", "OAS_THREADS": "1"}
-    cmd = [sys.executable, "-c", "from optiacoustic.cli import main; main()", "dataset", str(cfg), "--out", str(out),
-           "--workers", "0", "--quiet"]
+    env = _ENV
+    cmd = _cli(cfg, out, 0)
     total = 24
     kills = []
     # kill while the store is being created, then after a few frames, then mid-run
@@ -224,3 +245,104 @@ def test_kill_9_at_any_moment_then_resume(reference, tmp_path):
     assert sum(rep.skipped.values()) + rep.frames_written == total
     assert not list(out.rglob("*.partial"))
     _assert_identical(_arrays(ref), _arrays(out))
+
+
+def _group(pgid: int) -> list:
+    """Processes of process group ``pgid`` still alive (zombies excluded), as (pid, command line)."""
+    import psutil
+
+    alive = []
+    for p in psutil.process_iter(["pid", "status", "cmdline"]):
+        try:
+            if os.getpgid(p.pid) == pgid and p.info["status"] != psutil.STATUS_ZOMBIE:
+                alive.append((p.pid, " ".join(p.info["cmdline"] or [])[:100]))
+        except (ProcessLookupError, psutil.Error):
+            pass
+    return alive
+
+
+def _wait_group_gone(pgid: int, seconds: float = 60.0) -> list:
+    t0 = time.monotonic()
+    while _group(pgid) and time.monotonic() - t0 < seconds:
+        time.sleep(0.1)
+    return _group(pgid)
+
+
+def test_kill_9_a_two_worker_dask_run_then_resume(reference24, tmp_path):
+    """A real `oas dataset --workers 2` (local Dask cluster of 2 processes) SIGKILLed mid-way, then rerun.
+
+    Only the command's own process is killed (scheduler, nannies and client live there): its
+    worker processes must exit by themselves, the rerun must render exactly the frames that
+    were not done, and the result must equal an uninterrupted run frame by frame.
+    """
+    cfg, ref = reference24
+    out = tmp_path / "dask.zarr"
+    total = 24
+    proc = subprocess.Popen(_cli(cfg, out, 2), env=_ENV, start_new_session=True, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    try:
+        t0 = time.monotonic()
+        while proc.poll() is None and _done_count(out) < 4 and time.monotonic() - t0 < 180:
+            time.sleep(0.005)
+        assert proc.poll() is None, f"the run ended before it could be killed: {proc.stderr.read().decode()[-2000:]}"
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+        # no stray Dask worker outlives the command that started it
+        stray = _wait_group_gone(proc.pid)
+        assert not stray, f"processes left after SIGKILL of the run: {stray}"
+    finally:
+        if _group(proc.pid):
+            os.killpg(proc.pid, signal.SIGKILL)
+    done_at_kill = _done_count(out)  # counted once every writer is gone
+    assert 0 < done_at_kill < total, done_at_kill
+    finished = _chunk_stamps(out)  # every chunk file of the frames done at the kill
+    rerun = subprocess.Popen(_cli(cfg, out, 2), env=_ENV, start_new_session=True, stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)
+    try:
+        _, err = rerun.communicate(timeout=300)
+    finally:
+        stray = _wait_group_gone(rerun.pid, 10.0)
+        if stray:
+            os.killpg(rerun.pid, signal.SIGKILL)
+    assert rerun.returncode == 0, err[-2000:]
+    assert not stray, f"processes left after the run ended: {stray}"
+    # finished frames were not recomputed (their files untouched); every frame is there once
+    assert {k: v for k, v in _chunk_stamps(out).items() if k in finished} == finished
+    assert _done_count(out) == total
+    assert not list(out.rglob("*.partial"))
+    _assert_identical(_arrays(ref), _arrays(out))
+
+
+def _chunk_stamps(path: Path) -> dict:
+    """(inode, mtime) of every chunk file of every frame whose done flag is set, by relative path."""
+    root = zarr.open_group(str(path), mode="r")
+    stamps = {}
+    for sensor in ("sonar", "camera"):
+        for k in np.flatnonzero(root[sensor]["done"][:]):
+            for f in (path / sensor).glob(f"*/c/{k}/**/*"):
+                if f.is_file():
+                    st = f.stat()
+                    stamps[str(f.relative_to(path))] = (st.st_ino, st.st_mtime_ns)
+            f = path / sensor / "done" / "c" / str(k)
+            st = f.stat()
+            stamps[str(f.relative_to(path))] = (st.st_ino, st.st_mtime_ns)
+    return stamps
+
+
+def test_tasks_batch_small_frames_and_cover_every_frame_once(tmp_path):
+    """Dask tasks: small frames batched (at most TASK_PIXELS a task), big ones alone, each frame once."""
+    from optiacoustic.io.dataset import TASK_PIXELS, _batches
+
+    seq = Sequence({**SMALL, "duration": 40.0}, base_dir=tmp_path)  # 160 sonar, 80 camera frames
+    todo = sorted((float(seq.schedule(s).times[k]), s, k) for s in ("sonar", "camera") for k in range(len(seq.schedule(s))))
+    tasks = _batches(seq, todo, n_workers=2)
+    got = sorted((s, k) for s, ks in tasks for k in ks)
+    assert got == sorted((s, k) for _, s, k in todo)  # every frame exactly once
+    sizes = {s: max(len(ks) for t, ks in tasks if t == s) for s in ("sonar", "camera")}
+    assert sizes["sonar"] == min(TASK_PIXELS // (96 * 48), 160 // 8) and sizes["camera"] == min(TASK_PIXELS // (72 * 48), 80 // 8)
+    firsts = [float(seq.schedule(s).times[ks[0]]) for s, ks in tasks]
+    assert firsts == sorted(firsts)  # in time order
+    # thesis-size frames go one per task
+    big = Sequence({**SMALL, "rig": "thesis", "duration": 4.0}, base_dir=tmp_path)
+    todo = [(float(big.schedule(s).times[k]), s, k) for s in ("sonar", "camera") for k in range(len(big.schedule(s)))]
+    assert all(len(ks) == 1 for _, ks in _batches(big, todo, n_workers=1))

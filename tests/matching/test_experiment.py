@@ -10,7 +10,7 @@ from optiacoustic import experiments
 def test_matching_experiment(tmp_path):
     res = experiments.run("matching", tmp_path, quick=True)
     data = json.loads((tmp_path / "results.json").read_text())
-    assert data["name"] == "matching" and len(res.figures) == 3
+    assert data["name"] == "matching" and len(res.figures) == 4
     for path, caption in res.figures:
         assert path.is_file() and path.stat().st_size > 10_000 and caption
     n = res.numbers

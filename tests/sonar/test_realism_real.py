@@ -2,9 +2,9 @@
 
 The profiles in ``optiacoustic/data/sonar_profiles`` were fitted by ``oas sensor-fit`` on frame 0
 of each sample (the Oculus sample has one ping; the ARIS sample six frames). Here each real
-frame is compared with a frame simulated from the profile; the targets of issue 10 that the
-model reaches are asserted, the ones it misses are marked xfail with the measured value (the
-numbers are in the issue note and docs/physics.md).
+frame is compared with a frame simulated from the profile and the targets of issue 10 are
+asserted (numbers in docs/physics.md 4.5). The ARIS frames 1-3 are held out: the profile
+was fitted on frame 0 only.
 """
 
 from pathlib import Path
@@ -47,10 +47,9 @@ def test_aris_profile_holds_on_the_frames_it_was_not_fitted_on(aris):
 
 
 def test_aris_intensity_distribution(aris):
+    """Two-sample KS distance of the normalised intensities <= 0.05, fitted and held-out frames."""
     ks = [c.ks for c in aris]
-    if max(ks) > 0.05:
-        pytest.xfail(f"KS distance real vs simulated {min(ks):.3f}-{max(ks):.3f} > 0.05 (target missed)")
-    assert max(ks) <= 0.05
+    assert max(ks) <= 0.05, ks
 
 
 def test_oculus_profile_reproduces_its_ping(oculus):
@@ -64,11 +63,7 @@ def test_oculus_profile_reproduces_its_ping(oculus):
 def test_oculus_targets(oculus, name):
     s = oculus.scores()[name]
     if name == "ks_distance":
-        if not s["met"]:
-            pytest.xfail(f"KS distance real vs simulated {s['error']:.3f} > 0.05 (target missed)")
         assert s["error"] <= 0.05
         return
     bound = {"onset_width": 0.25, "speckle_contrast": 0.10}[name]
-    if abs(s["error"]) > bound:
-        pytest.xfail(f"{name}: real {s['real']:.4g}, simulated {s['sim']:.4g} ({100 * s['error']:+.1f} %, target +-{100 * bound:.0f} %)")
-    assert abs(s["error"]) <= bound
+    assert abs(s["error"]) <= bound, s

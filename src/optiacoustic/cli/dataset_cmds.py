@@ -21,7 +21,8 @@ def _progress_bar():
             return Text("  -  frames/s" if speed is None else f"{speed:6.2f} frames/s")
 
     return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), Rate(),
-                    TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(), console=console, transient=False)
+                    TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(), console=console, transient=False,
+                    refresh_per_second=4)  # the scheduler shares this process: redraw sparingly
 
 
 @app.command("dataset")

@@ -120,7 +120,7 @@ def second_view(scene, seed=0, water="thesis", shift=(0.3, 0.25, 0.0)):
 def evaluate_pair(sonar, optical, rig, *, options=None):
     """Match one pair and score it against the depth-map truth; also the baseline on the same features."""
     from ..geometry import reconstruct as rc
-    from ..matching import match, truth
+    from ..matching import detect_camera_features, match, truth
     from ..matching.gating import mahalanobis_sq
 
     bin_w = float(np.median(np.diff(sonar.ranges)))
@@ -129,13 +129,17 @@ def evaluate_pair(sonar, optical, rig, *, options=None):
     out = dict(n_visible=0, score=np.zeros(0), ok=np.zeros(0, bool), base_ok=np.zeros(0, bool), err=np.zeros(0),
                ok3=np.zeros(0, bool), base_ok3=np.zeros(0, bool),
                err_true=np.zeros(0), matches=m, correct=np.zeros(0, bool))
-    sf, cf = m.sonar_features, m.camera_features
-    if sf is None or cf is None or len(sf) == 0 or len(cf) == 0:
+    sf = m.sonar_features
+    # The baseline's (and the "true matches"') camera features: OpenCV corners, whatever the matcher used.
+    cf = detect_camera_features(optical.image)
+    if sf is None or len(sf) == 0 or len(cf) == 0:
         return out
     T = truth.true_pairs(rig, optical.depth, cf.pixels, sf.ranges, sf.azimuths, bin_width=bin_w, beam_width=beam_w)
-    out["n_visible"] = int(T.any(1).sum())
+    # Visible in both sensors: some pixel of the feature's arc sees its point (any detector).
+    out["n_visible"] = int(truth.visible(rig, optical.depth, sf.ranges, sf.azimuths, bin_width=bin_w,
+                                         beam_width=beam_w).sum())
     if m:
-        ok = T[m.sonar_index, m.camera_index]
+        ok = truth.correct(rig, optical.depth, m.pixels, m.ranges, m.azimuths, bin_width=bin_w, beam_width=beam_w)
         out["score"], out["ok"], out["correct"] = m.score, ok, ok
         P_true = truth.pixel_points(rig, optical.depth, m.pixels)
         out["err"] = np.linalg.norm(m.points - P_true, axis=-1)
@@ -180,6 +184,85 @@ def _pr(evals, thresholds=None):
     return np.array(prec), np.array(rec), np.array(n), n_vis, np.asarray(thresholds, float)
 
 
+def _arc_profiles_figure(path, sonar, optical, rig, m, n_rows: int = 6):
+    """Along-arc profiles of some matches: image gradient, where the pixel's true point is within tolerance, the choice.
+
+    Evaluation only (reads the depth map): for each match, its arc's pixels from the bottom to
+    the top of the elevation aperture; green where the pixel's true point projects within one
+    bin and one beam of the feature, magenta the true point's range minus the feature's (bins).
+    """
+    import matplotlib.pyplot as plt
+
+    from .._atomic import savefig
+    from ..geometry.projection import camera_from_sonar, to_pixels, to_sonar
+    from ..matching import truth
+    from ..matching.arc_search import gradient_image
+
+    bw = float(np.median(np.diff(sonar.ranges)))
+    aw = float(np.median(np.diff(sonar.azimuths)))
+    ok = truth.correct(rig, optical.depth, m.pixels, m.ranges, m.azimuths, bin_width=bw, beam_width=aw)
+    pick = list(np.nonzero(ok)[0][: n_rows // 2]) + list(np.nonzero(~ok)[0][: n_rows - n_rows // 2])
+    half = rig.fov_elevation / 2
+    phis = np.linspace(-half, half, 600)
+    G = gradient_image(optical.image)
+    fig, axes = plt.subplots(len(pick), 1, figsize=(9, 1.6 * len(pick) + 0.6), sharex=True, squeeze=False)
+    for ax, i in zip(axes[:, 0], pick):
+        P = camera_from_sonar(rig, np.full(phis.size, m.ranges[i]), np.full(phis.size, m.azimuths[i]), phis)
+        pp = to_pixels(rig, P)
+        uv = np.where(pp.in_image[:, None], pp.pixels, 0.0)
+        Pt = truth.pixel_points(rig, optical.depth, uv)
+        sp = to_sonar(rig, np.where(np.isfinite(Pt), Pt, 0.0))
+        dr = np.where(pp.in_image & np.all(np.isfinite(Pt), -1), (sp.ranges - m.ranges[i]) / bw, np.nan)
+        good = (np.abs(dr) <= 1) & (np.abs(sp.azimuths - m.azimuths[i]) <= aw)
+        ui = np.clip(np.rint(uv[:, 0]).astype(int), 0, G.shape[1] - 1)
+        vi = np.clip(np.rint(uv[:, 1]).astype(int), 0, G.shape[0] - 1)
+        deg = np.rad2deg(phis)
+        ax.fill_between(deg, 0, 10 * good, color="#3cb44b", alpha=0.35, lw=0)
+        ax.plot(deg, np.where(pp.in_image, np.minimum(G[vi, ui], 10), np.nan), color="#4363d8", lw=0.8)
+        lo = m.features["elevation"][i] - m.features["position"][i] * m.features["elevation_span"][i]
+        ax.axvspan(np.rad2deg(lo), np.rad2deg(lo + m.features["elevation_span"][i]), color="0.85", zorder=0)
+        ax.axvline(np.rad2deg(m.features["elevation"][i]), color="k" if ok[i] else "#e6194b", lw=1.5)
+        ax2 = ax.twinx()
+        ax2.plot(deg, np.clip(dr, -20, 20), color="#f032e6", lw=0.7)
+        ax2.axhline(0, color="#f032e6", lw=0.4, ls=":")
+        ax2.set_ylim(-21, 21)
+        ax.set_ylim(0, 10)
+        ax.set_ylabel(f"#{i} {'ok' if ok[i] else 'wrong'}", fontsize=8)
+    axes[-1, 0].set_xlabel("elevation along the feature's arc (deg)")
+    fig.suptitle("Arc profiles: image gradient (blue, left axis), pixels whose true point is within 1 bin and 1 beam "
+                 "(green),\ntrue range - feature range in bins (magenta, right axis), acoustic elevation interval "
+                 "(grey), the matcher's choice (black: right, red: wrong)", fontsize=8)
+    fig.tight_layout()
+    out = savefig(fig, path, dpi=100)
+    plt.close(fig)
+    return out
+
+
+def _operating_point(evals, target: float = 0.95) -> dict:
+    """The lowest score threshold whose precision is >= ``target`` (every distinct score tried), and the AUC."""
+    n_vis = sum(e["n_visible"] for e in evals)
+    score = np.concatenate([e["score"] for e in evals]) if evals else np.zeros(0)
+    ok = np.concatenate([e["ok"] for e in evals]) if evals else np.zeros(0, bool)
+    out = dict(target_precision=target, threshold=float("nan"), precision=float("nan"), recall=0.0, n=0,
+               auc=float("nan"))
+    if score.size == 0 or n_vis == 0:
+        return out
+    order = np.argsort(-score, kind="stable")
+    tp = np.cumsum(ok[order])
+    n = np.arange(1, score.size + 1)
+    p = tp / n
+    good = np.nonzero(p >= target)[0]
+    if good.size:
+        i = int(good[-1])
+        out.update(threshold=float(score[order][i]), precision=float(p[i]), recall=float(tp[i] / n_vis), n=int(n[i]))
+    if 0 < ok.sum() < ok.size:
+        from scipy.stats import rankdata
+
+        rk = rankdata(score)
+        out["auc"] = float((rk[ok].sum() - ok.sum() * (ok.sum() + 1) / 2) / (ok.sum() * (~ok).sum()))
+    return out
+
+
 def _baseline(evals):
     n_vis = sum(e["n_visible"] for e in evals)
     ok = np.concatenate([e["base_ok"] for e in evals]) if evals else np.zeros(0, bool)
@@ -197,31 +280,41 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    builtins = _builtin_scenes()[: 1 if quick else None]
+    # Quick mode (tests): two small random scenes, no built-in (thesis_scene1 alone costs seconds to simulate).
+    builtins = [] if quick else _builtin_scenes()
     n_random = 2 if quick else 20
     randoms = [random_scene(seed * 1000 + i) for i in range(n_random)]
     all_scenes = builtins + randoms
 
     # 1. Thesis water and the default sonar noise: the headline precision-recall.
-    evals, per_scene = [], []
-    first = None
+    from ..matching import MatchOptions
+
+    evals, evals_corners, per_scene = [], [], []
+    first = profile = None
+    profile_name = ""
     for k, sc in enumerate(all_scenes):
         s, o, rig = simulate_pair(sc, "thesis", "default", seed + k)
         e = evaluate_pair(s, o, rig)
         evals.append(e)
+        evals_corners.append(evaluate_pair(s, o, rig, options=MatchOptions(method="corners")))
         m = e["matches"]
         per_scene.append([sc.name, e["n_visible"], len(e["ok"]), int(np.sum(e["ok"])), len(e["base_ok"]),
                           int(np.sum(e["base_ok"]))])
         if first is None:
             first = (sc.name, s, o, m, e["correct"])
+        if profile is None and sc.name.startswith("random") and m:
+            profile, profile_name = (s, o, rig, m), sc.name
     prec, rec, npt, n_vis, thresholds = _pr(evals)
     b_prec, b_rec, b_n = _baseline(evals)
+    c_prec, c_rec, _, c_vis, _ = _pr(evals_corners, [0.0])
+    op = _operating_point(evals)
     ok_target = np.nonzero((rec >= 0.5) & (prec >= 0.95))[0]
     best_at_half = np.nanmax(np.where(rec >= 0.5, prec, np.nan)) if np.any(rec >= 0.5) else float("nan")
     i05 = int(np.argmin(np.abs(thresholds - SCORE_CUT)))
 
     fig, ax = plt.subplots(figsize=(5.5, 4.5))
-    ax.plot(rec, prec, "o-", color="#4363d8", label="matcher (score threshold swept)")
+    ax.plot(rec, prec, "o-", color="#4363d8", label="arc search (score threshold swept)")
+    ax.plot([c_rec[0]], [c_prec[0]], "D", color="#3cb44b", ms=8, label="first design: gated corners + assignment")
     ax.plot([b_rec], [b_prec], "s", color="#e6194b", ms=9, label="baseline: nearest camera feature to each conic")
     ax.axhline(0.95, color="0.6", ls=":", lw=1)
     ax.axvline(0.5, color="0.6", ls=":", lw=1)
@@ -239,6 +332,10 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     f_ex = draw_matches(out_dir / "matching_example.png", s0.image, s0.ranges, s0.azimuths, o0.image, m0,
                         title=name0, correct=c0)
     figures.append((f_ex, f"Matches on {name0}, colour = score, x = wrong by the depth-map ground truth."))
+    if profile is not None:
+        f_ar = _arc_profiles_figure(out_dir / "matching_arcs.png", *profile)
+        figures.append((f_ar, f"Along-arc profiles of matches on {profile_name} (evaluation only: reads the depth "
+                              "map): where the correct pixels lie against the edge-free runs the matcher chose."))
 
     # 2. Turbidity and sonar noise (on a subset of scenes).
     sub = all_scenes[: 1 if quick else 8]
@@ -312,6 +409,8 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
         precision_at_score_cut=float(prec[i05]), recall_at_score_cut=float(rec[i05]),
         precision_all_assigned=p_all, recall_all_assigned=float(rec[0]),
         best_precision_at_recall_0_5=best_at_half, target_met=bool(ok_target.size),
+        operating_point_precision_0_95=op,
+        corners_precision_all_assigned=float(c_prec[0]), corners_recall_all_assigned=float(c_rec[0]),
         baseline_precision=b_prec, baseline_recall=b_rec, baseline_n=b_n, precision_ratio_to_baseline=ratio,
         median_error_auto_m=med_auto, median_error_true_matches_m=med_true,
         two_view=two_view, three_bins_three_beams=loose,
@@ -324,6 +423,13 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     tables = [
         ("Precision-recall (thesis water, default sonar noise)", ["score >=", "matches", "precision", "recall"],
          [[f"{t:.3f}", int(n_), fmt(p_), fmt(r_)] for t, n_, p_, r_ in zip(thresholds[::2], npt[::2], prec[::2], rec[::2])]),
+        ("Methods (thesis water, default sonar noise, all assigned matches)", ["method", "precision", "recall"],
+         [["arc search (default)", fmt(p_all), fmt(float(rec[0]))],
+          ["epipolar-gated corners + assignment (first design)", fmt(float(c_prec[0])), fmt(float(c_rec[0]))],
+          ["baseline: nearest corner to each conic", fmt(b_prec), fmt(b_rec)],
+          [f"arc search, score >= {op['threshold']:.3f} (highest recall at precision >= 0.95)"
+           if op["n"] else "arc search: precision >= 0.95 at no score threshold", fmt(op["precision"]),
+           fmt(op["recall"])]]),
         ("Per scene", ["scene", "visible", "matches", "correct", "baseline matches", "baseline correct"],
          per_scene),
         ("Turbidity", ["water", "visible", "prec@cut", "rec@cut", "prec all", "rec all", "base prec", "base rec"],
@@ -341,17 +447,22 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
         ("Reconstruction error (median, m)", ["automatic matches", "same number of true matches"],
          [[fmt(med_auto), fmt(med_true)]]),
     ]
-    summary = (f"{len(all_scenes)} scenes, {n_vis} sonar features visible in both sensors: all assigned matches have "
+    summary = (f"{len(all_scenes)} scenes, {n_vis} sonar features visible in both sensors (some pixel of the "
+               f"feature's arc sees its point): arc search, all assigned matches have "
                f"precision {p_all:.2f} at recall {rec[0]:.2f} (score >= {thresholds[i05]:.2f}: {prec[i05]:.2f} at "
                f"{rec[i05]:.2f}); the "
                f"nearest-conic baseline {b_prec:.2f} at {b_rec:.2f} ({ratio:.1f}x better precision). Target "
                f"(precision >= 0.95 at recall >= 0.5) {'met' if ok_target.size else 'NOT met'}. Median 3D error "
-               f"{med_auto:.2f} m (automatic) vs {med_true:.3f} m (true matches).")
+               f"{med_auto:.2f} m (automatic) vs {med_true:.3f} m (true matches). First design (corners): "
+               f"{c_prec[0]:.2f} at {c_rec[0]:.2f}. Precision >= 0.95 reached at recall {op['recall']:.2f} "
+               f"({op['n']} matches); score AUC {op['auc']:.2f}.")
     return ExperimentResult(NAME, figures, numbers, summary, tables)
 
 
-def calibrate_score(seeds=range(5000, 5024), *, ridge: float = 1.0) -> dict:
-    """Refit ``matching.match.SCORE_MODEL``: logistic regression of correctness on the match evidence.
+def calibrate_score(seeds=range(5000, 5024), *, ridge: float = 1.0, method: str = "arc") -> dict:
+    """Refit ``matching.match.ARC_SCORE_MODEL`` (``method="arc"``) or ``SCORE_MODEL`` (``"corners"``).
+
+    Logistic regression of correctness on the match evidence.
 
     Runs the matcher on random scenes seeded ``seeds`` (thesis water, default sonar noise),
     labels each assigned match by the depth-map truth and fits the logistic model with a
@@ -365,14 +476,17 @@ def calibrate_score(seeds=range(5000, 5024), *, ridge: float = 1.0) -> dict:
     """
     from scipy.optimize import minimize
 
-    from ..matching.match import score_features
+    from ..matching import MatchOptions
+    from ..matching.match import arc_score_features, score_features
 
+    featurise = arc_score_features if method == "arc" else score_features
     X, y = [], []
     for sd in seeds:
-        e = evaluate_pair(*simulate_pair(random_scene(int(sd)), "thesis", "default", int(sd)))
+        e = evaluate_pair(*simulate_pair(random_scene(int(sd)), "thesis", "default", int(sd)),
+                          options=MatchOptions(method=method))
         m = e["matches"]
         if m:
-            X.append(score_features(m.features))
+            X.append(featurise(m.features))
             y.append(e["ok"].astype(float))
     X, y = np.concatenate(X), np.concatenate(y)
     mu, sd_ = X.mean(0), X.std(0)

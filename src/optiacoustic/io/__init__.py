@@ -16,6 +16,7 @@ _EXPORTS = {
     "open_aris": "optiacoustic.io.aris",
     "open_camera": "optiacoustic.io.camera",
     "open_dataset": "optiacoustic.io.dataset",
+    "local_cluster": "optiacoustic.io.dataset",
     "open_oculus": "optiacoustic.io.oculus",
     "open_sonar": "optiacoustic.io.sonar",
     "pair_frames": "optiacoustic.io.pairing",

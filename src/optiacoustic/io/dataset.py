@@ -1,10 +1,12 @@
 """Datasets: synchronised sonar + camera sequences with ground truth, in Zarr v3, on Dask.
 
 Layout (docs/datasets.md): groups ``sonar`` and ``camera``, one chunk per frame,
-zstd-compressed, each array with named dimensions (Zarr v3 ``dimension_names``), so that
-plain ``zarr`` and ``xarray`` both read it. Times and poses are known before any frame is
-rendered and are written when the store is created; a frame's arrays are written by the
-worker that rendered it, then its flag in ``done`` (written last). A rerun of the same
+compressed (Blosc LZ4, byte shuffle), each array with named dimensions (Zarr v3
+``dimension_names``), so that plain ``zarr`` and ``xarray`` both read it. Times and poses
+are known before any frame is rendered and are written when the store is created; a
+frame's arrays are written by the worker that rendered it, straight into the store (one
+chunk per frame, so workers never write the same file), then its flag in ``done``
+(written last); only a few numbers per task travel back to the client. A rerun of the same
 command renders only the frames whose flag is not set, so a run killed at any moment
 (SIGKILL included) resumes without a missing, duplicated or half-written frame: Zarr's
 local store writes every chunk to a temporary file and renames it.
@@ -25,7 +27,8 @@ import numpy as np
 
 from .._atomic import jsonable as _jsonable
 
-__all__ = ["write_dataset", "open_dataset", "DatasetReport", "DatasetError", "FORMAT", "FORMAT_VERSION"]
+__all__ = ["write_dataset", "open_dataset", "local_cluster", "DatasetReport", "DatasetError", "FORMAT",
+           "FORMAT_VERSION"]
 
 FORMAT = "optiacoustic-dataset"
 FORMAT_VERSION = 1
@@ -95,9 +98,13 @@ def _metadata(seq) -> dict:
 
 
 def _compressors():
-    from zarr.codecs import ZstdCodec
+    """Blosc LZ4 with byte shuffle: per pair as small as zstd level 3 and the fastest to write.
 
-    return [ZstdCodec(level=3)]
+    Chosen from benchmarks/bench_dataset_codecs.py on the real frame arrays (docs/benchmarks.md).
+    """
+    from zarr.codecs import BloscCodec
+
+    return [BloscCodec(cname="lz4", clevel=5, shuffle="shuffle")]
 
 
 def _create(path: Path, seq, ground_truth: bool):
@@ -184,62 +191,127 @@ def _remove_partials(path: Path) -> int:
     return n
 
 
-# --------------------------------------------------------------------------- one frame (runs on a worker)
+# --------------------------------------------------------------------------- frames (run on a worker)
 _SEQUENCES: dict = {}  # fingerprint -> Sequence, per worker process
-_STORES: dict = {}  # (output path, fingerprint) -> open Zarr group, per worker process
-BUILDS = {"sequences": 0}  # how many times this process resolved a configuration (tests read it)
+_SCENES: dict = {}  # SHA-256 of the canonical scene -> Scene (and so its BVH), per worker process
+_STORES: dict = {}  # (output path, fingerprint) -> {sensor: {array name: zarr.Array}}, per worker process
+BUILDS = {"sequences": 0, "scenes": 0}  # how many times this process resolved a config / a scene (tests read it)
 _CONTEXT_LOCK = threading.Lock()  # workers of an external cluster may run several threads
 
 
 def _context(path: str, fingerprint: str, config: dict, base_dir: str):
-    """This process's Sequence (keyed by the configuration's fingerprint) and open store.
+    """This process's Sequence (keyed by the configuration's fingerprint) and open arrays.
 
-    The Sequence holds the scene, so the scene's ray caster (its BVH) is built on the
-    first frame a worker renders and reused for every later frame, of this output or of
-    another output of the same configuration and scene.
+    The scene is shared by every configuration of the same scene (keyed by its canonical
+    content), so the scene's ray caster (its BVH) is built once per worker and reused
+    for every later frame, of this output or of another output of the same scene.
     """
     with _CONTEXT_LOCK:
         return _context_locked(path, fingerprint, config, base_dir)
 
 
+def _keep_latest(cache: dict, n: int) -> None:
+    while len(cache) >= n:  # a worker keeps the latest few: memory stays flat over many outputs
+        cache.pop(next(iter(cache)))
+
+
 def _context_locked(path: str, fingerprint: str, config: dict, base_dir: str):
+    import hashlib
+    import json
+
     import zarr
 
-    from ..simulation.sequence import Sequence
+    from ..simulation.sequence import SENSORS, Sequence
 
     seq = _SEQUENCES.get(fingerprint)
     if seq is None:
         seq = Sequence(config, base_dir=base_dir)
-        if seq.fingerprint() != fingerprint:
+        canonical = seq.canonical()
+        if hashlib.sha256(json.dumps(canonical, sort_keys=True).encode()).hexdigest() != fingerprint:
             raise DatasetError(f"{path}: the worker resolved a different scene or config than the client "
                                "(a relative path that differs between machines?)")
-        if len(_SEQUENCES) >= 2:  # a worker keeps the latest two configurations: memory stays flat
-            _SEQUENCES.pop(next(iter(_SEQUENCES)))
+        scene_key = hashlib.sha256(json.dumps(canonical["scene"], sort_keys=True).encode()).hexdigest()
+        if scene_key in _SCENES:
+            seq.scene = _SCENES[scene_key]  # the same content: reuse its ray caster
+        else:
+            _keep_latest(_SCENES, 2)
+            _SCENES[scene_key] = seq.scene
+            BUILDS["scenes"] += 1
+        _keep_latest(_SEQUENCES, 2)
         _SEQUENCES[fingerprint] = seq
         BUILDS["sequences"] += 1
-    root = _STORES.get((path, fingerprint))
-    if root is None:
-        if len(_STORES) >= 4:
-            _STORES.pop(next(iter(_STORES)))
-        root = _STORES[(path, fingerprint)] = zarr.open_group(path, mode="r+")
-    return seq, root
+    arrays = _STORES.get((path, fingerprint))
+    if arrays is None:
+        root = zarr.open_group(path, mode="r+")
+        # every chunk is written, even one equal to the fill value: no scan of each frame for
+        # "empty", and a done frame always has all its chunk files
+        arrays = {s: {n: a.with_config({"write_empty_chunks": True}) for n, a in root[s].arrays()}
+                  for s in SENSORS if s in root}
+        _keep_latest(_STORES, 4)
+        _STORES[(path, fingerprint)] = arrays
+    return seq, arrays
+
+
+def warm_worker(path: str, fingerprint: str, config: dict, base_dir: str) -> int:
+    """Resolve the configuration, open the store and build the scene's ray caster on this process.
+
+    Called on every worker before the first frame, so that workers warm up in parallel
+    and the first frames are not delayed by it. Returns this process's id.
+    """
+    seq, _ = _context(path, fingerprint, config, base_dir)
+    seq.prepare()
+    return os.getpid()
+
+
+def write_frames(path: str, fingerprint: str, config: dict, base_dir: str, sensor: str, ks: list,
+                 ground_truth: bool) -> tuple[str, int, float, float]:
+    """Render frames ``ks`` of ``sensor`` and write each where the worker runs; its ``done`` flag last.
+
+    Only this small record travels back to the client: ``(sensor, frames, render_s, write_s)``.
+    """
+    seq, arrays = _context(path, fingerprint, config, base_dir)
+    g = arrays[sensor]
+    render_s = write_s = 0.0
+    for k in ks:
+        t0 = time.perf_counter()
+        frame = _frame_arrays(seq, sensor, int(k), ground_truth)
+        t1 = time.perf_counter()
+        for name, a in frame.items():
+            g[name][int(k)] = a
+        g["done"][int(k)] = True  # last: the frame is complete
+        render_s += t1 - t0
+        write_s += time.perf_counter() - t1
+    return sensor, len(ks), render_s, write_s
 
 
 def write_frame(path: str, fingerprint: str, config: dict, base_dir: str, sensor: str, k: int,
                 ground_truth: bool) -> tuple[str, int, float, float]:
-    """Render frame ``k`` of ``sensor`` and write it; the ``done`` flag last.
+    """Render frame ``k`` of ``sensor`` and write it; the ``done`` flag last (see :func:`write_frames`)."""
+    return write_frames(path, fingerprint, config, base_dir, sensor, [k], ground_truth)
 
-    Returns ``(sensor, k, render_seconds, write_seconds)``.
+
+def _batches(seq, todo: list, n_workers: int) -> list:
+    """Group the frames to do into tasks: small frames in batches, big frames one per task.
+
+    A task holds about :data:`TASK_PIXELS` pixels (at least one frame), and each worker
+    gets at least four tasks of each sensor so that the last ones finish together.
+    ``todo`` is ``[(time, sensor, k)]``; returns ``[(sensor, [k, ...])]`` in time order.
     """
-    seq, root = _context(path, fingerprint, config, base_dir)
-    t0 = time.perf_counter()
-    arrays = _frame_arrays(seq, sensor, k, ground_truth)
-    t1 = time.perf_counter()
-    g = root[sensor]
-    for name, a in arrays.items():
-        g[name][k] = a
-    g["done"][k] = True
-    return sensor, k, t1 - t0, time.perf_counter() - t1
+    rig = seq.rig
+    pixels = {"sonar": rig.sonar.n_bins * rig.sonar.n_beams if rig.sonar is not None else 1,
+              "camera": rig.camera.width * rig.camera.height}
+    out = []
+    for sensor in ("sonar", "camera"):
+        items = [(t, k) for t, s, k in todo if s == sensor]
+        if not items:
+            continue
+        size = max(1, min(TASK_PIXELS // max(pixels[sensor], 1), len(items) // (4 * max(n_workers, 1))))
+        out += [(items[i][0], sensor, [k for _, k in items[i:i + size]]) for i in range(0, len(items), size)]
+    out.sort(key=lambda b: (b[0], b[1]))
+    return [(s, ks) for _, s, ks in out]
+
+
+TASK_PIXELS = 200_000  # pixels of frames per Dask task (small frames are batched up to this)
 
 
 # --------------------------------------------------------------------------- the run
@@ -265,12 +337,22 @@ class DatasetReport:
         return sum(self.written.values())
 
 
-def _local_cluster(n: int):
+# Dask's background work that a local rendering cluster does not need: each worker's
+# statistical profiler samples its stack every 10 ms, the memory monitors poll every 100 ms.
+# On a machine with as many workers as cores that CPU comes out of the rendering.
+_LEAN_DASK = {"distributed.worker.profile.enabled": False, "distributed.worker.memory.monitor-interval": "1s",
+              "distributed.admin.system-monitor.interval": "2s"}
+
+
+def local_cluster(n: int):
+    """A local Dask cluster for datasets: ``n`` worker processes of one thread each, lean settings."""
+    import dask
     from distributed import LocalCluster
 
     env = {"OAS_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                        env=env, silence_logs=40)
+    with dask.config.set(_LEAN_DASK):  # for the scheduler, made here; each nanny passes `config` to its worker
+        return LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                            env=env, silence_logs=40, config=dict(_LEAN_DASK))
 
 
 def _default_workers() -> int:
@@ -331,35 +413,40 @@ def write_dataset(config, out, *, workers: int | None = None, scheduler: str | N
     render_s = write_s = 0.0
     n_workers = 0
 
-    def _done(res, i):
-        nonlocal render_s, write_s
-        sensor, _, r, w = res
-        written[sensor] += 1
+    n_done = 0
+
+    def _done(res):
+        nonlocal render_s, write_s, n_done
+        sensor, n, r, w = res
+        written[sensor] += n
+        n_done += n
         render_s += r
         write_s += w
         if progress is not None:
-            progress(i, total)
+            progress(n_done, total)
 
     if progress is not None:
         progress(0, total)
     if total and workers == 0 and scheduler is None:
-        for i, (_, sensor, k) in enumerate(todo, 1):
-            _done(write_frame(*args, sensor, k, gt), i)
+        for _, sensor, k in todo:
+            _done(write_frames(*args, sensor, [k], gt))
     elif total:
         from distributed import Client, as_completed
 
         cluster = None
         if scheduler is None:
-            cluster = _local_cluster(workers or _default_workers())
+            cluster = local_cluster(workers or _default_workers())
         try:
             with Client(scheduler if scheduler else cluster) as client:
                 n_workers = len(client.scheduler_info().get("workers", {})) or (workers or 0)
-                futs = [client.submit(write_frame, *args, sensor, k, gt, key=f"oas-{sensor}-{k}-{args[1][:12]}",
-                                      pure=False) for _, sensor, k in todo]
-                for i, fut in enumerate(as_completed(futs), 1):
-                    res = fut.result()
+                client.run(warm_worker, *args)  # every worker resolves the scene and builds its BVH, in parallel
+                futs = [client.submit(write_frames, *args, sensor, ks, gt, pure=False,
+                                      key=f"oas-{sensor}-{ks[0]}-{ks[-1]}-{args[1][:12]}")
+                        for sensor, ks in _batches(seq, todo, n_workers)]
+                for fut in as_completed(futs):
+                    res = fut.result()  # a few numbers: the frames are already in the store
                     fut.release()
-                    _done(res, i)
+                    _done(res)
                 del futs
         finally:
             if cluster is not None:

@@ -4,7 +4,8 @@
 scene points from the two images and the calibrated rig alone (see docs/matching.md).
 Nothing here imports a simulator: it works on any sonar frame through the shared protocol.
 
-Submodules: :mod:`.sonar_features` (CFAR), :mod:`.camera_features` (OpenCV corners),
+Submodules: :mod:`.sonar_features` (CFAR), :mod:`.arc_search` (pixels along each arc),
+:mod:`.camera_features` (OpenCV corners),
 :mod:`.gating` (epipolar Mahalanobis gate), :mod:`.acoustic` (seabed and shadow evidence),
 :mod:`.match` (assignment), :mod:`.truth` (ground truth from a depth map, for evaluation).
 """

@@ -59,6 +59,9 @@ class SeabedPlane:
         return np.asarray(points_sonar, float) @ self.normal - self.offset
 
 
+#: Where the seabed edge lies after the centre of the first bin above the onset threshold (bins).
+ONSET_OFFSET_BINS = 0.55
+
 _NO_PLANE = dict(normal=np.full(3, np.nan), offset=np.nan, rms=np.nan)
 
 
@@ -91,8 +94,9 @@ def fit_seabed(image, ranges, azimuths, fov_elevation: float, *, min_beams: int 
     """
     from scipy.optimize import least_squares
 
-    # Little smoothing along range: a long window crosses the threshold before the step.
-    sm = ndi.uniform_filter(np.asarray(image, np.float64), (3, 3), mode="nearest")
+    # No smoothing along range (a window crosses the threshold before the step), three beams
+    # across against speckle.
+    sm = ndi.uniform_filter(np.asarray(image, np.float64), (1, 3), mode="nearest")
     r = np.asarray(ranges, float)
     th = np.asarray(azimuths, float)
     # The beam's typical seabed echo: its upper quartile (the lit seabed fills a good part of
@@ -107,7 +111,11 @@ def fit_seabed(image, ranges, azimuths, fov_elevation: float, *, min_beams: int 
         return SeabedPlane(**_NO_PLANE, n_beams=int(ok.sum()),
                            message=f"seabed: only {int(ok.sum())} beams show an echo onset (need {min_beams})")
     phi = -fov_elevation / 2
-    ro, to = r[onset[ok]], th[ok]
+    # The first bin above the threshold is the one the edge enters: its centre lies on
+    # average ONSET_OFFSET_BINS before the edge (measured on training scenes 5000-5002
+    # against the true seabed: 0.55 bins, interquartile 0.3-0.85).
+    dr = float(np.median(np.diff(r))) if r.size > 1 else 0.0
+    ro, to = r[onset[ok]] + ONSET_OFFSET_BINS * dr, th[ok]
     P = np.stack([ro * np.cos(phi) * np.sin(to), ro * np.cos(phi) * np.cos(to), np.full(ro.shape, ro * np.sin(phi))], -1)
     P = np.atleast_2d(P)
 

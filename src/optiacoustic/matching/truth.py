@@ -13,7 +13,7 @@ import numpy as np
 from ..geometry.projection import to_sonar
 from ..rig import Rig
 
-__all__ = ["pixel_points", "correct", "true_pairs"]
+__all__ = ["pixel_points", "correct", "true_pairs", "visible"]
 
 
 def pixel_points(rig: Rig, depth_map, pixels) -> np.ndarray:
@@ -54,3 +54,35 @@ def true_pairs(rig: Rig, depth_map, pixels, ranges, azimuths, *, bin_width: floa
     r = np.asarray(ranges, float)[:, None]
     a = np.asarray(azimuths, float)[:, None]
     return ok[None, :] & (np.abs(sp.ranges[None, :] - r) <= bin_width) & (np.abs(sp.azimuths[None, :] - a) <= beam_width)
+
+
+def visible(rig: Rig, depth_map, ranges, azimuths, *, bin_width: float, beam_width: float,
+            n_samples: int = 800) -> np.ndarray:
+    """Whether each sonar feature is seen by the camera: some pixel of its arc sees a point within tolerance.
+
+    The feature's arc ``(r, theta, phi)``, ``|phi| <= fov_elevation / 2``, is sampled at
+    ``n_samples`` elevations and projected into the image; the feature is visible in both
+    sensors when one of those pixels' true points (from the depth map) projects into the
+    sonar within ``bin_width`` and ``beam_width`` of it. Independent of any camera feature
+    detector: this is the denominator of recall.
+
+    Returns
+    -------
+    ndarray of bool, shape (N,)
+    """
+    from ..geometry.projection import camera_from_sonar, to_pixels
+
+    r = np.asarray(ranges, float).reshape(-1)
+    th = np.asarray(azimuths, float).reshape(-1)
+    if r.size == 0:
+        return np.zeros(0, bool)
+    half = rig.fov_elevation / 2
+    phis = np.linspace(-half, half, n_samples)
+    P = camera_from_sonar(rig, r[:, None], th[:, None], phis[None, :])
+    pp = to_pixels(rig, P)
+    uv = np.where(pp.in_image[..., None], pp.pixels, 0.0).reshape(-1, 2)
+    Pt = pixel_points(rig, depth_map, uv).reshape(P.shape)
+    sp = to_sonar(rig, np.where(np.isfinite(Pt), Pt, 0.0))
+    good = pp.in_image & np.all(np.isfinite(Pt), -1) & sp.in_fan & \
+        (np.abs(sp.ranges - r[:, None]) <= bin_width) & (np.abs(sp.azimuths - th[:, None]) <= beam_width)
+    return good.any(axis=1)

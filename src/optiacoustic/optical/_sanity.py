@@ -13,7 +13,7 @@ class BlindCameraWarning(UserWarning):
     """The camera sees none of the scene's bodies (the image is water only)."""
 
 
-def warn_if_blind(hit: np.ndarray, pose, scene) -> None:
+def warn_if_blind(hit: np.ndarray, pose, scene, stacklevel: int = 3) -> None:
     """Warn when no pixel's ray hits a body, naming the likely cause.
 
     The common cause is a pose built with the sonar's axes (``Pose.look_at(..., body="sonar")``,
@@ -30,4 +30,4 @@ def warn_if_blind(hit: np.ndarray, pose, scene) -> None:
     names = ", ".join(scene.body_names()[:5])
     warnings.warn(f"simulate_optical: the camera at {np.round(pose.t, 3).tolist()} sees none of the bodies "
                   f"({names}{', ...' if len(scene) > 5 else ''}); the image is open water only.{hint}",
-                  BlindCameraWarning, stacklevel=3)
+                  BlindCameraWarning, stacklevel=stacklevel)

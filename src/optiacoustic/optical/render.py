@@ -27,6 +27,7 @@
 from __future__ import annotations
 
 import functools
+import os
 import time
 from dataclasses import dataclass
 
@@ -39,7 +40,7 @@ from ..frames import Pose
 from ..scene import Scene
 from .frame import OpticalFrame
 from .lights import resolve_lights
-from .texture import surface_albedo
+from .texture import apply_textures, body_colors, surface_albedo
 from .water import Water, as_water
 
 __all__ = ["OpticalOptions", "SensorNoise", "simulate_optical", "forward_scatter", "backscatter",
@@ -166,6 +167,14 @@ def _pixel_rays(camera: PinholeCamera) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=8)
+def _pixel_rays32(camera: PinholeCamera) -> np.ndarray:
+    """The unit pixel rays (camera frame) as float32 ``(H*W, 3)``."""
+    d = np.ascontiguousarray(_pixel_rays(camera).reshape(-1, 3), np.float32)
+    d.setflags(write=False)
+    return d
+
+
+@functools.lru_cache(maxsize=8)
 def _coarse_rays(camera: PinholeCamera, step: int) -> np.ndarray:
     """Unit rays (camera frame) through a grid of about ``step``-px spacing spanning the image
     corner to corner, so that interpolating between its nodes never extrapolates."""
@@ -252,6 +261,34 @@ def _cumulative_backscatter(dirs_cam: np.ndarray, water: Water, lights_cam, G: n
     return out
 
 
+def _lights_key(lights_cam) -> tuple:
+    """A hashable, exact copy of the camera-frame lights."""
+    return tuple((tuple(np.asarray(p, float)), tuple(np.asarray(i, float)),
+                  None if a is None else tuple(np.asarray(a, float)), float(e)) for p, i, a, e in lights_cam)
+
+
+@functools.lru_cache(maxsize=16)
+def _coarse_table(camera: PinholeCamera, step: int, water: Water, lights_key: tuple, G: tuple, n: int,
+                  s: float) -> np.ndarray:
+    """:func:`_cumulative_backscatter` on the coarse grid, kept for the next frame.
+
+    It depends on the lights only through their camera-frame positions, so lamps carried by
+    the camera (the default) give every frame of a trajectory the same table.
+    """
+    lights_cam = [(np.array(p), np.array(i), None if a is None else np.array(a), e) for p, i, a, e in lights_key]
+    table = _cumulative_backscatter(_coarse_rays(camera, step), water, lights_cam, np.array(G), n, s)
+    table.setflags(write=False)
+    return table
+
+
+@functools.lru_cache(maxsize=8)
+def _pixel_cz(camera: PinholeCamera) -> np.ndarray:
+    """Cosine of each pixel ray to the optical axis, ``(H*W,)`` float64."""
+    cz = np.ascontiguousarray(_pixel_rays(camera)[..., 2].reshape(-1))
+    cz.setflags(write=False)
+    return cz
+
+
 def backscatter(camera: PinholeCamera, pose: Pose, depth: np.ndarray, water: Water, lights, *,
                 options: OpticalOptions | None = None, G=None) -> np.ndarray:
     """The veiling light (eqs. 3.10-3.13, corrected) of every pixel.
@@ -277,12 +314,19 @@ def backscatter(camera: PinholeCamera, pose: Pose, depth: np.ndarray, water: Wat
 
     options = options or OpticalOptions()
     H, W = camera.height, camera.width
-    depth = as_array(depth, "depth", (H, W), finite=False)
-    if np.any(np.isnan(depth)) or np.any(depth < 0):
-        raise ValueError("depth: must be >= 0 or inf")
+    kernels = _use_kernels() and options.backscatter_step > 1
+    if kernels and isinstance(depth, np.ndarray) and depth.shape == (H, W) and depth.dtype in (np.float32, np.float64):
+        depth = np.ascontiguousarray(depth)  # validated by the kernel below
+    else:
+        kernels = False
+        depth = as_array(depth, "depth", (H, W), finite=False)
+        if np.any(np.isnan(depth)) or np.any(depth < 0):
+            raise ValueError("depth: must be >= 0 or inf")
     if G is None:
         G = forward_scatter_G(water, options)
     if not np.any(np.asarray(water.b) > 0) or not lights:
+        if kernels and not np.all(depth >= 0):
+            raise ValueError("depth: must be >= 0 or inf")
         return np.zeros((H, W, 3), np.float32)
     lights_cam = []
     for lt in lights:
@@ -299,7 +343,14 @@ def backscatter(camera: PinholeCamera, pose: Pose, depth: np.ndarray, water: Wat
     if step == 1:
         table = _cumulative_backscatter(full_dirs, water, lights_cam, G, n, s)
     else:
-        table = _cumulative_backscatter(_coarse_rays(camera, step), water, lights_cam, G, n, s)
+        table = _coarse_table(camera, step, water, _lights_key(lights_cam), tuple(np.asarray(G, float)), n, s)
+    if kernels:
+        from ._kernels import veil
+
+        out = np.empty((H * W, 3), np.float32)
+        if veil(table, depth.reshape(-1), _pixel_cz(camera), float(s), W, out):
+            raise ValueError("depth: must be >= 0 or inf")
+        return out.reshape(H, W, 3)
     # each pixel stops at its own surface: fractional slice index of its depth in u
     cz = full_dirs[..., 2]
     zD = depth * cz
@@ -329,7 +380,7 @@ def backscatter(camera: PinholeCamera, pose: Pose, depth: np.ndarray, water: Wat
 
 
 def forward_scatter(source: np.ndarray, depth: np.ndarray, camera: PinholeCamera, *, B: float = 0.03,
-                    layers: int = 6) -> np.ndarray:
+                    layers: int = 6, threads: int = 1) -> np.ndarray:
     """Blur ``source`` with a Gaussian whose angular width grows with range (eq. 3.9).
 
     Parameters
@@ -347,6 +398,8 @@ def forward_scatter(source: np.ndarray, depth: np.ndarray, camera: PinholeCamera
         Number of range layers, geometrically spaced between the nearest and the farthest
         surface; a pixel's light is shared between its two nearest layers, linearly in
         log-range, so the weights sum to 1 and no light is lost or created.
+    threads : int
+        Threads for the compiled binning (1 or 2).
 
     Returns
     -------
@@ -356,42 +409,64 @@ def forward_scatter(source: np.ndarray, depth: np.ndarray, camera: PinholeCamera
     import cv2
 
     src = np.asarray(source, np.float32)
+    if src.ndim != 3 or src.shape[2] != 3:
+        raise ValueError(f"source: expected shape (H, W, 3), got {src.shape}")
     H, W = src.shape[:2]
-    d = np.asarray(depth, float)
-    hit = np.isfinite(d) & np.any(src > 0, axis=-1)
-    if not np.any(hit) or B <= 0:
-        return src.copy()
+    if np.shape(depth) != (H, W):
+        raise ValueError(f"depth: expected shape {(H, W)} (the source's), got {np.shape(depth)}")
+    kernels = _use_kernels()
+    if kernels:
+        from . import _kernels as K
+
+        flat = np.ascontiguousarray(src.reshape(-1, 3))
+        d = np.ascontiguousarray(depth, np.float64).reshape(-1)
+        r_lo, r_hi, n_hit = K.range_span(flat, d)
+        if n_hit == 0 or B <= 0:
+            return src.copy()
+    else:
+        d = np.asarray(depth, float)
+        hit = np.isfinite(d) & np.any(src > 0, axis=-1)
+        if not np.any(hit) or B <= 0:
+            return src.copy()
+        r_lo, r_hi = float(d[hit].min()), float(d[hit].max())
     px_per_rad = float(np.sqrt(camera.fx * camera.fy))
-    r_lo, r_hi = float(d[hit].min()), float(d[hit].max())
     if r_hi <= r_lo * 1.0001 or layers == 1:
         ranges = np.array([np.sqrt(r_lo * r_hi)])
-        k = np.zeros(H * W, np.int64)
-        f = np.zeros(H * W, np.float32)
     else:
         ranges = np.geomspace(r_lo, r_hi, layers)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.log(np.where(hit, d, r_lo) / r_lo).ravel() * ((layers - 1) / np.log(r_hi / r_lo))
-        k = np.clip(np.floor(t), 0, layers - 2).astype(np.int64)
-        f = (t - k).astype(np.float32)
     n_layers = len(ranges)
     sigmas = B * ranges * _SIGMA_PER_BR * px_per_rad
     # one reduced grid for all layers, as coarse as the narrowest kernel allows
     q = max(1, int(np.floor(sigmas.min() / 2.0)))
     h, w = -(-H // q), -(-W // q)
-    cell = ((np.arange(H) // q)[:, None] * w + (np.arange(W) // q)[None, :]).ravel()
     # box sums of each layer's share of the light, all layers at once: a pixel gives
     # (1 - f) of its light to layer k and f to layer k + 1
-    flat = src.reshape(-1, 3)
-    key_lo = k * (h * w) + cell
-    key_hi = key_lo + h * w
-    size = n_layers * h * w
-    small = np.empty((n_layers, h, w, 3), np.float32)
-    for ch in range(3):
-        v = flat[:, ch]
-        acc = np.bincount(key_lo, v * (1 - f), size)
-        if n_layers > 1:
-            acc += np.bincount(key_hi, v * f, size)
-        small[..., ch] = acc.reshape(n_layers, h, w)
+    per_layer = (layers - 1) / np.log(r_hi / r_lo) if n_layers > 1 else 0.0
+    if kernels:
+        # two halves of the image on two threads, each into its own accumulator
+        accs = _halves(threads, H * W, lambda a, b: _bin_rows(K, flat, d, W, q, w, r_lo, per_layer, n_layers, a, b))
+        small = (accs[0] if len(accs) == 1 else accs[0] + accs[1]).astype(np.float32)
+    else:
+        if n_layers == 1:
+            k = np.zeros(H * W, np.int64)
+            f = np.zeros(H * W, np.float32)
+        else:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = np.log(np.where(hit, d, r_lo) / r_lo).ravel() * per_layer
+            k = np.clip(np.floor(t), 0, layers - 2).astype(np.int64)
+            f = (t - k).astype(np.float32)
+        cell = ((np.arange(H) // q)[:, None] * w + (np.arange(W) // q)[None, :]).ravel()
+        flat = src.reshape(-1, 3)
+        key_lo = k * (h * w) + cell
+        key_hi = key_lo + h * w
+        size = n_layers * h * w
+        small = np.empty((n_layers, h, w, 3), np.float32)
+        for ch in range(3):
+            v = flat[:, ch]
+            acc = np.bincount(key_lo, v * (1 - f), size)
+            if n_layers > 1:
+                acc += np.bincount(key_hi, v * f, size)
+            small[..., ch] = acc.reshape(n_layers, h, w)
     # the q x q box sum adds (q^2 - 1)/12 px^2 of variance per axis and the bilinear
     # upsampling about q^2/6: both are taken out of each layer's Gaussian
     extra = (q * q - 1) / 12.0 + (q * q / 6.0 if q > 1 else 0.0)
@@ -403,6 +478,17 @@ def forward_scatter(source: np.ndarray, depth: np.ndarray, camera: PinholeCamera
         return out
     big = cv2.resize(out, (w * q, h * q), interpolation=cv2.INTER_LINEAR) * np.float32(1.0 / (q * q))
     return np.ascontiguousarray(big[:H, :W])
+
+
+def _bin_rows(K, flat, d, W, q, w, r_lo, per_layer, n_layers, a, b):
+    """:func:`._kernels.bin_layers` over pixels ``[a, b)`` (cut on a row of reduced cells) into a new accumulator."""
+    H = len(d) // W
+    acc = np.zeros((n_layers, -(-H // q), w, 3))
+    # whole rows of cells per half: the kernel indexes rows from the start of what it is given
+    r0 = (a // W) // q * q
+    r1 = H if b == len(d) else (b // W) // q * q
+    K.bin_layers(flat[r0 * W:r1 * W], d[r0 * W:r1 * W], W, q, w, r_lo, per_layer, n_layers, acc[:, r0 // q:])
+    return acc
 
 
 def _gaussian(img: np.ndarray, sigma: float) -> np.ndarray:
@@ -524,6 +610,136 @@ def _check_not_inside(caster, names, pose: Pose, lights) -> None:
                              f"body '{names[inside]}'")
 
 
+# --------------------------------------------------------------------------- shading
+def _use_kernels() -> bool:
+    """Compiled kernels (numba) unless ``OAS_KERNELS=numpy`` asks for the numpy reference path."""
+    return os.environ.get("OAS_KERNELS", "").strip().lower() != "numpy"
+
+
+def _shade_numpy(caster, scene, pose, o32, d32, lights, c, G, shadows, H, W, start_veil):
+    """The reference shading path (numpy): primary hits, direct light, the unblurred stages.
+
+    Returns ``(depth (H, W) float64 range or inf, body (H*W,) int32, normal (H*W, 3) NaN
+    on a miss, clear (H, W, 3), attenuated (H, W, 3), forward-scatter source (H, W, 3) or
+    None, forward image before the blur (H, W, 3), veil future)``.
+    """
+    dist_all, body_all, _, nrm_all = caster.cast_raw(o32, d32)
+    hit = body_all >= 0
+    warn_if_blind(hit, pose, scene, stacklevel=4)
+    full = bool(hit.all())
+    sel = slice(None) if full else np.flatnonzero(hit)   # scenes with a seabed hit everywhere
+    depth = np.where(hit, dist_all.astype(np.float64), np.inf)
+    dist = dist_all[sel]
+    dv = d32[sel]
+    p = o32[sel] + dv * dist[:, None]
+    nrm = nrm_all[sel]
+    # shade the side facing the camera (planes are two-sided)
+    nrm *= np.where(np.einsum("ij,ij->i", nrm, dv) > 0, np.float32(-1), np.float32(1))[:, None]
+    body_all = np.where(hit, body_all, -1).astype(np.int32)
+    rho_pi = surface_albedo(scene, body_all[sel], p, nrm) * np.float32(1 / np.pi)
+    depth2 = depth.reshape(H, W)
+    bs_job = start_veil(depth2)
+    clear_v, surf, surf_fwd = _direct_light(caster, p, nrm, rho_pi, lights, c, G, shadows)
+    lamp_fs = surf_fwd is not surf
+    Rc = dist[:, None]
+    t_cam = np.exp(-Rc * c.astype(np.float32))      # narrow-beam transmittance to the camera
+    att = surf * t_cam
+
+    def scatter(values):
+        if full:
+            return values.reshape(H, W, 3)
+        img = np.zeros((H * W, 3), np.float32)
+        img[sel] = values
+        return img.reshape(H, W, 3)
+
+    clear = scatter(clear_v)
+    attenuated = scatter(att)
+    if lamp_fs:
+        w_fs = np.exp(-Rc * G.astype(np.float32)) - t_cam
+        src = scatter(surf_fwd * np.maximum(w_fs, 0))
+        fwd = scatter((surf_fwd - surf) * t_cam) + attenuated
+    else:
+        src = None
+        fwd = attenuated.copy()
+    normal = scatter(nrm) if full else np.full((H * W, 3), np.nan, np.float32)
+    if not full:
+        normal[sel] = nrm
+    return depth2, body_all, normal, clear, attenuated, src, fwd, bs_job
+
+
+@functools.lru_cache(maxsize=1)
+def _kernel_pool():
+    """One worker thread that runs the first half of a compiled kernel while the caller runs the second."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    return ThreadPoolExecutor(max_workers=1, thread_name_prefix="oas-shade")
+
+
+def _halves(threads: int, n: int, job) -> list:
+    """``job(a, b)`` over ``[0, n)``: in two halves on two threads when ``threads > 1`` (the kernels
+    release the GIL), else at once. Returns the results."""
+    if threads <= 1 or n < 20000:
+        return [job(0, n)]
+    m = n // 2
+    first = _kernel_pool().submit(job, 0, m)
+    second = job(m, n)
+    return [first.result(), second]
+
+
+def _shade_compiled(caster, scene, pose, o32, d32, lights, c, G, shadows, H, W, start_veil):
+    """:func:`_shade_numpy` with the per-pixel work in compiled kernels (:mod:`._kernels`)."""
+    from . import _kernels as K
+
+    f32 = np.float32
+    n = len(d32)
+    tfar, geom, prim, u, v, _ = caster.intersect_raw(o32, d32, normals=False)
+    p = np.empty((n, 3), f32)
+    nrm = np.empty((n, 3), f32)
+    depth = np.empty(n, f32)
+    body = np.empty(n, np.int32)
+    rho_pi = np.empty((n, 3), f32)
+    inv_pi = f32(1 / np.pi)
+    colors_pi = body_colors(scene) * inv_pi
+    tri_offsets, corner_normals = caster.triangle_offset, caster.corner_normals
+    threads = caster.threads
+    hits = sum(_halves(threads, n, lambda a, b: K.surface(
+        o32[a:b], d32[a:b], tfar[a:b], geom[a:b], prim[a:b], u[a:b], v[a:b], tri_offsets, corner_normals, colors_pi,
+        p[a:b], nrm[a:b], depth[a:b], body[a:b], rho_pi[a:b])))
+    if hits == 0:
+        warn_if_blind(body >= 0, pose, scene, stacklevel=4)
+    depth2 = depth.reshape(H, W)
+    bs_job = start_veil(depth2)
+    apply_textures(scene, body, p, nrm, rho_pi, inv_pi)
+    c32, G32 = c.astype(f32), G.astype(f32)
+    lamp_fs = bool(np.any(G32 < c32))
+    irr_clear = np.zeros((n, 3), f32)
+    irr_water = np.zeros((n, 3), f32)
+    irr_fwd = np.zeros((n, 3), f32) if lamp_fs else irr_water
+    o_sh, ldir = np.empty((n, 3), f32), np.empty((n, 3), f32)
+    lim, cosg, rs = np.empty(n, f32), np.empty(n, f32), np.empty(n, f32)
+    no_block = np.zeros(n, bool)
+    eps = f32(1e-3)
+    for lt in lights:
+        pos = np.asarray(lt.position, f32)
+        _halves(threads, n, lambda a, b: K.shadow_rays(p[a:b], nrm[a:b], body[a:b], pos, eps, o_sh[a:b], ldir[a:b],
+                                                       lim[a:b], cosg[a:b], rs[a:b]))
+        blocked = caster.occluded_raw(o_sh, ldir, lim) if shadows and hits else no_block
+        spot = 0 if lt.direction is None or lt.cone_deg is None else (1 if abs(lt.spot_exponent - 1.0) < 1e-9 else 2)
+        axis = np.zeros(3, f32) if spot == 0 else np.asarray(lt.direction, f32)
+        inten, expo = np.asarray(lt.intensity, f32), f32(lt.spot_exponent)
+        _halves(threads, n, lambda a, b: K.add_lamp(cosg[a:b], rs[a:b], ldir[a:b], blocked[a:b], inten, axis, expo,
+                                                    spot, c32, G32, lamp_fs, irr_clear[a:b], irr_water[a:b],
+                                                    irr_fwd[a:b]))
+    clear, att = np.empty((n, 3), f32), np.empty((n, 3), f32)
+    src, fwd = np.empty((n, 3), f32), np.empty((n, 3), f32)
+    _halves(threads, n, lambda a, b: K.compose(rho_pi[a:b], irr_clear[a:b], irr_water[a:b], irr_fwd[a:b], depth[a:b],
+                                               c32, G32, lamp_fs, clear[a:b], att[a:b], src[a:b], fwd[a:b]))
+    if hits < n:
+        nrm[body < 0] = np.nan
+    img = lambda a: a.reshape(H, W, 3)  # noqa: E731
+    return depth2, body, nrm, img(clear), img(att), (img(src) if lamp_fs else None), img(fwd), bs_job
+
+
 # --------------------------------------------------------------------------- simulate
 def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=None, lights=None, seed=None,
                      options: OpticalOptions | None = None) -> OpticalFrame:
@@ -592,58 +808,35 @@ def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=N
     H, W = camera.height, camera.width
 
     # ---- primary rays
-    d_cam = _pixel_rays(camera)
-    # einsum, not @: a BLAS call on (n, 3) x (3, 3) can stall on busy cores
+    kernels = _use_kernels()
     # straight into float32 for Embree: the pixel rays are unit vectors by construction
-    d32 = np.einsum("ij,kj->ik", d_cam.reshape(-1, 3).astype(np.float32), pose.R.astype(np.float32))
-    o32 = np.empty_like(d32)
-    o32[...] = pose.t
-    dist_all, body_all, _, nrm_all = caster.cast_raw(o32, d32)
-    hit = body_all >= 0
-    warn_if_blind(hit, pose, scene)
-    full = bool(hit.all())
-    sel = slice(None) if full else np.flatnonzero(hit)   # scenes with a seabed hit everywhere
-    depth = np.where(hit, dist_all.astype(np.float64), np.inf)
-    dist = dist_all[sel]
-    dv = d32[sel]
-    p = o32[sel] + dv * dist[:, None]
-    nrm = nrm_all[sel]
-    # shade the side facing the camera (planes are two-sided)
-    nrm *= np.where(np.einsum("ij,ij->i", nrm, dv) > 0, np.float32(-1), np.float32(1))[:, None]
-    body_all = np.where(hit, body_all, -1).astype(np.int32)
-    rho_pi = surface_albedo(scene, body_all[sel], p, nrm) * np.float32(1 / np.pi)
+    d_cam32 = _pixel_rays32(camera)
+    if kernels:
+        from ._kernels import rotate_rays
+
+        d32, o32 = np.empty_like(d_cam32), np.empty_like(d_cam32)
+        rotate_rays(d_cam32, pose.R.astype(np.float32), pose.t.astype(np.float32), o32, d32)
+    else:
+        # einsum, not @: a BLAS call on (n, 3) x (3, 3) can stall on busy cores
+        d32 = np.einsum("ij,kj->ik", d_cam32, pose.R.astype(np.float32))
+        o32 = np.empty_like(d32)
+        o32[...] = pose.t
 
     # the backscatter veil needs only the depth map: it runs beside the shading (numpy and
     # OpenCV release the GIL), so the second core works while this one shades
-    depth2 = depth.reshape(H, W)
-    bs_job = (_side_pool().submit if caster.threads > 1 else _inline)(backscatter, camera, pose, depth2, water,
-                                                                       lights, options=options, G=G)
-    clear_v, surf, surf_fwd = _direct_light(caster, p, nrm, rho_pi, lights, c, G, options.shadows)
-    lamp_fs = surf_fwd is not surf
-    Rc = dist[:, None]
-    t_cam = np.exp(-Rc * c.astype(np.float32))      # narrow-beam transmittance to the camera
-    att = surf * t_cam
+    def start_veil(depth2):
+        return (_side_pool().submit if caster.threads > 1 else _inline)(backscatter, camera, pose, depth2, water,
+                                                                        lights, options=options, G=G)
 
-    def scatter(values):
-        if full:
-            return values.reshape(H, W, 3)
-        img = np.zeros((H * W, 3), np.float32)
-        img[sel] = values
-        return img.reshape(H, W, 3)
-
-    clear = scatter(clear_v)
-    attenuated = scatter(att)
+    shade = _shade_compiled if kernels else _shade_numpy
+    depth2, body_all, normal, clear, attenuated, fs_src, fwd, bs_job = shade(
+        caster, scene, pose, o32, d32, lights, c, G, options.shadows, H, W, start_veil)
 
     # ---- forward scatter (eq. 3.9): the lamp's forward-scattered light lights the surface
     # (smooth, not blurred), and of what leaves the surface e^{-G R_c} - e^{-c R_c} arrives
     # blurred by the range-dependent kernel
-    if lamp_fs:
-        w_fs = np.exp(-Rc * G.astype(np.float32)) - t_cam
-        src = scatter(surf_fwd * np.maximum(w_fs, 0))
-        fwd = scatter((surf_fwd - surf) * t_cam) + attenuated
-        fwd = fwd + forward_scatter(src, depth2, camera, B=options.B, layers=options.fs_layers)
-    else:
-        fwd = attenuated.copy()
+    if fs_src is not None:
+        fwd += forward_scatter(fs_src, depth2, camera, B=options.B, layers=options.fs_layers, threads=caster.threads)
 
     # ---- backscatter (eqs. 3.10-3.13)
     bs = bs_job.result()
@@ -655,12 +848,9 @@ def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=N
         rng = as_rng(seed)
         image = noise.apply(image, rng)
 
-    normal = scatter(nrm) if full else np.full((H * W, 3), np.nan, np.float32)
-    if not full:
-        normal[sel] = nrm
     body = body_all.reshape(H, W)
     arrays = dict(clear=clear, attenuated=attenuated, forward_scatter=fwd, backscatter=bs, image=image,
-                  depth=depth2.astype(np.float32), body=body, normal=normal.reshape(H, W, 3))
+                  depth=depth2.astype(np.float32, copy=False), body=body, normal=normal.reshape(H, W, 3))
     for a in arrays.values():
         a.setflags(write=False)
     return OpticalFrame(**arrays, camera=camera, pose=pose, water=water, lights=lights,

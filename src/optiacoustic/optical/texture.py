@@ -14,7 +14,7 @@ import numpy as np
 
 from ..scene import Scene
 
-__all__ = ["surface_albedo", "texture_mask"]
+__all__ = ["surface_albedo", "apply_textures", "body_colors", "texture_mask"]
 
 
 def texture_mask(texture, coords_uv: np.ndarray) -> np.ndarray:
@@ -36,6 +36,11 @@ def texture_mask(texture, coords_uv: np.ndarray) -> np.ndarray:
     raise ValueError(f"texture.kind: expected 'checker' or 'grid', got {texture.kind!r}")
 
 
+def body_colors(scene: Scene) -> np.ndarray:
+    """Base colour of every body, ``(n_bodies + 1, 3)`` float32; the last row (open water) is 0."""
+    return np.array([b.material.color for b in scene.bodies] + [(0.0, 0.0, 0.0)], np.float32)
+
+
 def surface_albedo(scene: Scene, body_ids: np.ndarray, points_world: np.ndarray, normals_world: np.ndarray) -> np.ndarray:
     """Diffuse albedo (linear RGB in [0, 1]) at surface points.
 
@@ -51,10 +56,19 @@ def surface_albedo(scene: Scene, body_ids: np.ndarray, points_world: np.ndarray,
     -------
     (N, 3) float32
     """
+    colors = body_colors(scene)
+    ids = np.where(body_ids >= 0, body_ids, len(scene.bodies))
+    return apply_textures(scene, body_ids, points_world, normals_world, colors[ids])
+
+
+def apply_textures(scene: Scene, body_ids: np.ndarray, points_world: np.ndarray, normals_world: np.ndarray,
+                   albedo: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """Paint the textured bodies' second colour (times ``scale``) into ``albedo`` ``(N, 3)`` in place.
+
+    ``albedo`` holds each point's base colour (times ``scale``); the other arguments are
+    those of :func:`surface_albedo`. Returns ``albedo``.
+    """
     bodies = scene.bodies
-    colors = np.array([b.material.color for b in bodies] + [(0.0, 0.0, 0.0)], np.float32)
-    ids = np.where(body_ids >= 0, body_ids, len(bodies))
-    albedo = colors[ids]
     # a loop over the few textured bodies, each vectorised over its pixels
     for i, b in enumerate(bodies):
         tex = b.material.texture
@@ -72,5 +86,5 @@ def surface_albedo(scene: Scene, body_ids: np.ndarray, points_world: np.ndarray,
         uv = np.stack([np.take_along_axis(p_body, u_idx[:, None], 1)[:, 0],
                        np.take_along_axis(p_body, v_idx[:, None], 1)[:, 0]], -1)
         second = texture_mask(tex, uv)
-        albedo[sel[second]] = np.asarray(tex.color2, np.float32)
+        albedo[sel[second]] = np.asarray(tex.color2, np.float32) * np.float32(scale)
     return albedo

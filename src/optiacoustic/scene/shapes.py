@@ -18,7 +18,7 @@ from pydantic import ConfigDict, Field, PositiveFloat
 from pydantic.dataclasses import dataclass
 from typing_extensions import Annotated
 
-from .normals import smooth_shading
+from .normals import merge_vertices, smooth_shading
 from .surface import Surface, parametric_grid
 
 __all__ = ["Plane", "Box", "Sphere", "Ellipsoid", "Cylinder", "Mesh", "KleinBottle", "SHAPES", "Shape"]
@@ -136,21 +136,45 @@ class Cylinder:
         return Surface.concatenate(parts)
 
 
-@functools.lru_cache(maxsize=64)
-def _load_mesh_file(path: str, mtime: float, smooth_angle_deg: float) -> Surface:
+def _read_triangles(path: str) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices ``(V, 3)`` float64 and faces ``(F, 3)`` of every triangle in a mesh file (trimesh's readers).
+
+    A file of one mesh placed at the origin (PLY, STL, OFF, most OBJ) is taken as read, with
+    no copy; scenes of several meshes or placed meshes (GLB, glTF) are flattened by trimesh.
+    """
     import trimesh
 
     try:
-        loaded = trimesh.load(path, force="mesh")
+        # process=False: trimesh's merge, hashing and copies cost three times the read;
+        # vertices are merged by position below (what crease splitting needs)
+        loaded = trimesh.load_scene(path, process=False)
+        meshes = [g for g in loaded.geometry.values() if isinstance(g, trimesh.Trimesh) and len(g.faces)]
+        nodes = loaded.graph.nodes_geometry
+        if len(meshes) == 1 and len(loaded.geometry) == 1 and len(nodes) == 1 and np.allclose(
+                loaded.graph[nodes[0]][0], np.eye(4), rtol=0, atol=0):
+            v, f = meshes[0].vertices, meshes[0].faces
+        elif meshes:
+            m = loaded.to_mesh()
+            v, f = m.vertices, m.faces
+        else:
+            v = f = np.zeros((0, 3))
     except Exception as exc:  # trimesh raises many types; the caller adds file/body context
         raise ValueError(f"cannot read mesh {path!r}: {type(exc).__name__}: {exc}") from None
-    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+    return np.asarray(v, float), np.asarray(f)
+
+
+@functools.lru_cache(maxsize=64)
+def _load_mesh_file(path: str, mtime: float, smooth_angle_deg: float) -> Surface:
+    v, f = _read_triangles(path)
+    if len(f) == 0:
         raise ValueError(f"cannot read mesh {path!r}: no triangles found")
-    v = np.asarray(loaded.vertices, float)
     if not np.all(np.isfinite(v)):
         raise ValueError(f"cannot read mesh {path!r}: non-finite vertex coordinates")
+    if f.min() < 0 or f.max() >= len(v):
+        raise ValueError(f"cannot read mesh {path!r}: a face refers to a vertex that does not exist")
+    v, f = merge_vertices(v, f)
     # vectorised crease splitting and vertex normals (trimesh's smooth_shade costs ~7 us/triangle)
-    v, f, n = smooth_shading(v, np.asarray(loaded.faces), np.deg2rad(smooth_angle_deg))
+    v, f, n = smooth_shading(v, f, np.deg2rad(smooth_angle_deg))
     return Surface(v, f, n)
 
 
@@ -180,6 +204,8 @@ class Mesh:
             raise ValueError(f"mesh file not found: {path!r}")
         s = _load_mesh_file(path, os.path.getmtime(path), float(self.smooth_angle_deg))
         sc = np.broadcast_to(np.asarray(self.scale, float), (3,))
+        if np.all(sc == 1.0):
+            return s  # surfaces are immutable: no copy of a large mesh
         n = s.normals / sc
         return Surface(s.vertices * sc, s.faces, n)
 

@@ -49,8 +49,9 @@ class Surface:
             raise ValueError("Surface.faces: vertex index out of range")
         if not (np.all(np.isfinite(v)) and np.all(np.isfinite(n))):
             raise ValueError("Surface: vertices and normals must be finite")
-        norm = np.linalg.norm(n, axis=1, keepdims=True)
-        n = n / np.where(norm > 0, norm, 1.0)
+        norm = np.sqrt(np.einsum("ij,ij->i", n, n))[:, None]
+        if not np.all(np.abs(norm - 1.0) < 1e-12):  # most callers give unit normals: no copy then
+            n = n / np.where(norm > 0, norm, 1.0)
         for name, arr in (("vertices", v), ("faces", f), ("normals", n)):
             arr.setflags(write=False)
             object.__setattr__(self, name, arr)
@@ -65,6 +66,8 @@ class Surface:
         Normals transform with the inverse-transpose of the scale, then the rotation.
         """
         s = np.broadcast_to(np.asarray(scale, float), (3,))
+        if np.all(s == 1.0) and np.array_equal(pose.R, np.eye(3)) and not np.any(pose.t):
+            return self  # immutable: the identity needs no copy (large meshes)
         v = pose.to_world(self.vertices * s)
         n = self.normals / s
         n = n / np.linalg.norm(n, axis=1, keepdims=True)

@@ -311,6 +311,12 @@ class Sequence:
         return {"sonar": self.sonar, "camera": self.camera}[sensor]
 
     # ------------------------------------------------------------------ frames
+    def prepare(self) -> None:
+        """Build the scene's ray caster (its BVH) now rather than on the first frame."""
+        from ..raycast import caster_for
+
+        caster_for(self.scene)
+
     def render_sonar(self, k: int):
         """Sonar frame ``k``: a :class:`~optiacoustic.SonarFrame` (noise from :func:`frame_seed`)."""
         from ..sonar import simulate_sonar
