@@ -29,7 +29,7 @@ DESCRIPTION = (
 
 
 class kernels_env:
-    """Context manager: ``OAS_SONAR_KERNELS`` set to ``mode`` inside the block."""
+    """Context manager: ``OAS_KERNELS`` set to ``mode`` inside the block."""
 
     def __init__(self, mode: str):
         self.mode = mode
@@ -37,17 +37,17 @@ class kernels_env:
     def __enter__(self):
         import os
 
-        self._old = os.environ.get("OAS_SONAR_KERNELS")
-        os.environ["OAS_SONAR_KERNELS"] = self.mode
+        self._old = os.environ.get("OAS_KERNELS")
+        os.environ["OAS_KERNELS"] = self.mode
         return self
 
     def __exit__(self, *exc):
         import os
 
         if self._old is None:
-            os.environ.pop("OAS_SONAR_KERNELS", None)
+            os.environ.pop("OAS_KERNELS", None)
         else:
-            os.environ["OAS_SONAR_KERNELS"] = self._old
+            os.environ["OAS_KERNELS"] = self._old
         return False
 
 
@@ -134,7 +134,7 @@ def run() -> list[dict]:
                      ratio=t / b2, note=f"target <= 3x; {1e3 / t:.0f} Hz; compiled kernels (numba)"))
     with kernels_env("numpy"):
         bn, tn = paired_ms(bare, full, repeat=9)
-    rows.append(dict(name="full sonar frame, numpy reference path (OAS_SONAR_KERNELS=numpy)", value=tn, unit="ms",
+    rows.append(dict(name="full sonar frame, numpy reference path (OAS_KERNELS=numpy)", value=tn, unit="ms",
                      reference=ref, ratio=tn / bn, note="the pure-numpy path the tests compare the kernels with"))
     bx, t = paired_ms(bare, lambda: frame(noise=False))
     rows.append(dict(name="sonar frame without noise or fan", value=t, unit="ms", reference=ref, ratio=t / bx, note=""))

@@ -1,6 +1,6 @@
 """The numba kernels of sonar formation against the numpy reference path, on seeded inputs.
 
-``OAS_SONAR_KERNELS=numpy`` selects the reference; both must give the same numbers (within
+``OAS_KERNELS=numpy`` selects the reference; both must give the same numbers (within
 float rounding: the kernels sum in another order) and the same draws. Independent truths
 too: energy conservation of the echo, scipy's Poisson quantiles, normal statistics.
 """
@@ -26,7 +26,7 @@ SPEC = dataclasses.replace(SonarSpec.preset("blueview-p900-90"), n_beams=96, n_b
 def _both(monkeypatch, fn):
     out = {}
     for k in ("numba", "numpy"):
-        monkeypatch.setenv("OAS_SONAR_KERNELS", k)
+        monkeypatch.setenv("OAS_KERNELS", k)
         out[k] = fn()
     return out["numba"], out["numpy"]
 
@@ -45,8 +45,8 @@ def thesis():
 def test_switch_is_validated(monkeypatch):
     from optiacoustic.sonar._kernels import use_numba
 
-    monkeypatch.setenv("OAS_SONAR_KERNELS", "fortran")
-    with pytest.raises(ValueError, match="OAS_SONAR_KERNELS"):
+    monkeypatch.setenv("OAS_KERNELS", "fortran")
+    with pytest.raises(ValueError, match="OAS_KERNELS"):
         use_numba()
 
 

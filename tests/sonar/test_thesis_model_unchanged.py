@@ -29,7 +29,7 @@ REF = json.loads((Path(__file__).parent / "data" / "thesis_model_reference.json"
     ("spreading_az", SonarOptions(propagation="spreading", azimuth_pattern=True)),
 ])
 def test_thesis_model_output_is_unchanged(name, options, kernels, monkeypatch):
-    monkeypatch.setenv("OAS_SONAR_KERNELS", kernels)
+    monkeypatch.setenv("OAS_KERNELS", kernels)
     sc = scenes.get(REF["scene"])
     spec = dataclasses.replace(SonarSpec.preset(REF["preset"]), n_beams=REF["n_beams"], n_bins=REF["n_bins"],
                                elevation_samples=REF["elevation_samples"])
@@ -51,7 +51,7 @@ def test_numba_and_numpy_paths_give_the_same_frame(options, monkeypatch):
     pose = Pose.look_at(REF["eye"], REF["target"])
     frames = {}
     for k in ("numba", "numpy"):
-        monkeypatch.setenv("OAS_SONAR_KERNELS", k)
+        monkeypatch.setenv("OAS_KERNELS", k)
         frames[k] = simulate_sonar(sc, spec, pose, seed=REF["seed"], options=options)
     a, b = frames["numba"], frames["numpy"]
     peak = float(b.intensity.max())

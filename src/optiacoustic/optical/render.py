@@ -613,7 +613,9 @@ def _check_not_inside(caster, names, pose: Pose, lights) -> None:
 # --------------------------------------------------------------------------- shading
 def _use_kernels() -> bool:
     """Compiled kernels (numba) unless ``OAS_KERNELS=numpy`` asks for the numpy reference path."""
-    return os.environ.get("OAS_KERNELS", "").strip().lower() != "numpy"
+    from .._kernel_switch import use_numba
+
+    return use_numba()
 
 
 def _shade_numpy(caster, scene, pose, o32, d32, lights, c, G, shadows, H, W, start_veil):

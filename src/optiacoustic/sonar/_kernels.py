@@ -1,6 +1,6 @@
 """Which implementation of the sonar's inner loops runs: compiled (numba) or the numpy reference.
 
-``OAS_SONAR_KERNELS=numpy`` selects the pure-numpy reference path; ``numba`` (the default)
+``OAS_KERNELS=numpy`` selects the pure-numpy reference path; ``numba`` (the default)
 the compiled kernels of :mod:`._numba_kernels`, when numba is installed. numba is imported
 on the first frame only, never by ``import optiacoustic`` or ``oas --help``; the kernels
 are cached on disk, so only the first run on a machine compiles them (a few seconds).
@@ -9,25 +9,14 @@ Both paths compute the same images (tests/sonar/test_kernels.py compares them).
 
 from __future__ import annotations
 
-import os
+from .. import _kernel_switch as _switch
 
 __all__ = ["use_numba", "kernels", "split_run"]
 
-_ENV = "OAS_SONAR_KERNELS"
-
 
 def use_numba() -> bool:
-    """True when the numba kernels are selected (``OAS_SONAR_KERNELS``, default ``numba``) and importable."""
-    mode = os.environ.get(_ENV, "numba").strip().lower()
-    if mode == "numpy":
-        return False
-    if mode != "numba":
-        raise ValueError(f"{_ENV}: expected 'numba' or 'numpy', got {mode!r}")
-    try:
-        import numba  # noqa: F401
-    except ImportError:  # pragma: no cover - numba is a core dependency
-        return False
-    return True
+    """True when the numba kernels are selected (``OAS_KERNELS``, default ``numba``) and importable."""
+    return _switch.use_numba()
 
 
 def kernels():

@@ -16,7 +16,7 @@ The fine range profile is then low-pass filtered and decimated to ``n_bins``.
 
 The inner loops run as compiled kernels (``_numba_kernels``: the scan's per-ray work, the
 echo with the seabed/target split and the decimation in one pass, the truth maps); with
-``OAS_SONAR_KERNELS=numpy`` the numpy reference implementation in this module runs
+``OAS_KERNELS=numpy`` the numpy reference implementation in this module runs
 instead, and the tests compare the two (``_kernels``).
 """
 

@@ -191,7 +191,7 @@ class NoiseModel:
         return self._apply_numpy(I, noise[:, None], seabed_share, draws)
 
     def _apply_numpy(self, I, noise, seabed_share, draws):
-        """The reference implementation of :meth:`apply` (``OAS_SONAR_KERNELS=numpy``)."""
+        """The reference implementation of :meth:`apply` (``OAS_KERNELS=numpy``)."""
         shape = I.shape
         bottom = np.zeros(shape, np.float32)
         P = np.broadcast_to(noise, shape).astype(np.float32)
