@@ -1,4 +1,4 @@
-"""The one timing helper of the benchmarks: median wall time after a warm-up."""
+"""The timing helpers of the benchmarks: median wall time after a warm-up, alone or paired with a reference."""
 
 from __future__ import annotations
 
@@ -17,6 +17,24 @@ def median_ms(fn, repeat: int = 15, warmup: int = 2) -> float:
         fn()
         ts.append(time.perf_counter() - t0)
     return 1e3 * float(np.median(ts))
+
+
+def paired_ms(ref, fn, repeat: int = 15, warmup: int = 2) -> tuple[float, float]:
+    """Medians (ms) of ``ref()`` and ``fn()`` timed alternately, so that load that comes and goes
+    falls on both alike; the ratio of the medians is the figure to quote under load."""
+    for _ in range(warmup):
+        ref()
+        fn()
+    a, b = [], []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        ref()
+        t1 = time.perf_counter()
+        fn()
+        t2 = time.perf_counter()
+        a.append(t1 - t0)
+        b.append(t2 - t1)
+    return 1e3 * float(np.median(a)), 1e3 * float(np.median(b))
 
 
 class busy_core:

@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import os
-import time
 
 import numpy as np
 
-from _timing import busy_core, caster_threads, linear_fit, median_ms
+from _timing import busy_core, caster_threads, linear_fit, median_ms, paired_ms
 
 TITLE = "Underwater camera (Jaffe-McGlamery)"
 DESCRIPTION = (
@@ -25,22 +24,6 @@ DESCRIPTION = (
     "and 1 to 4 lamps. The thesis's MATLAB simulator took 3 min per frame. Target: a frame <= 4x the bare cast."
 )
 
-
-def paired_ms(ref, fn, repeat: int, warmup: int = 2) -> tuple[float, float]:
-    """Medians (ms) of ``ref()`` and ``fn()`` timed alternately, so that load that comes and goes
-    falls on both alike; the ratio of the medians is the figure to quote under load."""
-    for _ in range(warmup):
-        ref()
-        fn()
-    a, b = [], []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        ref()
-        t1 = time.perf_counter()
-        fn()
-        b.append(time.perf_counter() - t1)
-        a.append(t1 - t0)
-    return 1e3 * float(np.median(a)), 1e3 * float(np.median(b))
 
 
 def run(reps: int = 9) -> list[dict]:

@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 
-from _timing import busy_core, caster_threads, linear_fit, median_ms
+from _timing import busy_core, caster_threads, linear_fit, median_ms, paired_ms
 
 TITLE = "Sonar simulator (thesis scene 1, BlueView P900-90)"
 DESCRIPTION = (
@@ -70,23 +70,6 @@ def _recorded_rays(caster, fn):
     d = np.ascontiguousarray(np.concatenate([s[1] for s in seen]))
     return o, d, len(seen)
 
-
-def paired_ms(ref, fn, repeat: int = 15, warmup: int = 2):
-    """Medians (ms) of ``ref()`` and ``fn()`` timed alternately, so that load that comes and goes
-    falls on both alike; the ratio of the medians is the figure to quote under load."""
-    for _ in range(warmup):
-        ref()
-        fn()
-    a, b = [], []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        ref()
-        t1 = time.perf_counter()
-        fn()
-        t2 = time.perf_counter()
-        a.append(t1 - t0)
-        b.append(t2 - t1)
-    return 1e3 * float(np.median(a)), 1e3 * float(np.median(b))
 
 
 def run() -> list[dict]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from _timing import median_ms
+from _timing import median_ms, paired_ms
 
 TITLE = "Realistic sonar model (aperture beams, scatterer speckle, device gain) vs the thesis model"
 DESCRIPTION = (
@@ -29,7 +29,6 @@ def run() -> list[dict]:
     real_opts = SonarOptions(beam_model="aperture", propagation="spreading")
     noise = ScattererNoise(density=500.0, gain=DeviceGain(noise_db=-60.0, volume_db=-50.0, spreading_db=30.0))
     seeds = iter(range(10_000))
-    from bench_sonar import paired_ms
 
     # timed alternately (medians of each), so that load falls on both alike
     thesis_ms, real_ms = paired_ms(lambda: simulate_sonar(scene, spec, pose, seed=next(seeds)),
