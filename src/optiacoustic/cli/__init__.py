@@ -21,10 +21,22 @@ __all__ = ["app", "main"]
 
 def main() -> None:
     """The ``oas`` entry point: Ctrl-C anywhere ends with one line and exit status 130."""
+    import os
     import sys
 
     try:
         app()
     except KeyboardInterrupt:
         sys.stderr.write("interrupted\n")
-        sys.exit(130)
+    except SystemExit as exc:
+        if exc.code != 130:
+            raise
+    else:
+        return
+    # Ctrl-C: the files are already complete or removed (optiacoustic._atomic). Leave at once:
+    # a normal exit joins the simulators' worker threads (ray-cast, kernel and noise pools), and
+    # an interrupt can land while the main thread holds a lock one of them waits on (seen
+    # rarely in tests/test_interrupt.py: the message was printed, then the exit hung).
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(130)
