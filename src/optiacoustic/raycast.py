@@ -18,10 +18,20 @@ import numpy as np
 from ._validate import as_array
 from .scene import Scene, SceneError
 
-__all__ = ["RayCaster", "Hits", "caster_for", "default_threads"]
+__all__ = ["RayCaster", "Hits", "caster_for", "default_threads", "widen_hits"]
 
 _MISS_DIST = np.float32(1e30)
 MAX_COORDINATE = 1e6  # m: float32 resolves 6 cm there; beyond, hits would be wrong by metres
+
+
+def widen_hits(tfar32: np.ndarray, normal32: np.ndarray, miss: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Embree's float32 output as the public float64 arrays: distance (inf on a miss) and unit
+    normal (NaN on a miss); ``miss`` is ``geometry id < 0``."""
+    distance = tfar32.astype(np.float64)
+    distance[miss] = np.inf
+    normal = normal32.astype(np.float64)
+    normal[miss] = np.nan
+    return distance, normal
 
 
 def default_threads() -> int:
@@ -240,10 +250,7 @@ class RayCaster:
         shape, o32, d32, d64, o64, dists = self._prepare(origins, directions, max_distance)
         tfar, geom, prim, nrm = self.cast_raw(o32, d32, dists, smooth=smooth)
         miss = geom < 0
-        distance = tfar.astype(np.float64)
-        distance[miss] = np.inf
-        nrm = nrm.astype(np.float64)
-        nrm[miss] = np.nan
+        distance, nrm = widen_hits(tfar, nrm, miss)
         prim = np.where(miss, -1, prim).astype(np.int32)
         return Hits(
             distance.reshape(shape),

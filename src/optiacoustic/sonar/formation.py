@@ -33,7 +33,7 @@ import numpy as np
 
 from .._validate import as_rng, check_memory
 from ..frames import Pose
-from ..raycast import RayCaster, caster_for
+from ..raycast import RayCaster, caster_for, widen_hits
 from ..scene import Scene
 from ._kernels import kernels, split_run, use_numba
 from .frame import SonarFrame, SonarGroundTruth, SonarRays
@@ -938,11 +938,7 @@ def _cast_fast(caster: RayCaster, origin, d_world, max_distance: float, smooth: 
     o32[...] = np.asarray(origin, np.float32)
     dist32 = np.full(len(d32), min(np.float32(max_distance), np.float32(1e30)), np.float32)
     tfar, body, _, nrm = caster.cast_raw(o32, d32, dist32, smooth=smooth)
-    miss = body < 0
-    r = tfar.astype(np.float64)
-    r[miss] = np.inf
-    n = nrm.astype(np.float64)
-    n[miss] = np.nan
+    r, n = widen_hits(tfar, nrm, body < 0)
     return body, r, n
 
 

@@ -336,12 +336,9 @@ class ScattererNoise:
             object.__setattr__(self, "gain", DeviceGain())
         if not isinstance(self.gain, DeviceGain):
             raise ValueError(f"ScattererNoise.gain: expected a DeviceGain, got {type(self.gain).__name__}")
-        if not (self.density > 0):
-            raise ValueError(f"ScattererNoise.density: must be > 0 scatterers/m^2 (or inf), got {self.density!r}")
-        if not (self.clusters_per_m2 > 0):
-            raise ValueError(f"ScattererNoise.clusters_per_m2: must be > 0 per m^2 (or inf), got {self.clusters_per_m2!r}")
-        if not (np.isfinite(self.looks) and self.looks >= 1):
-            raise ValueError(f"ScattererNoise.looks: must be a finite number >= 1, got {self.looks!r}")
+        from .speckle import check_scatterer_parameters
+
+        check_scatterer_parameters("ScattererNoise", self.density, self.clusters_per_m2, self.looks)
         if self.bottom_type is not None:
             from .distributions import BOTTOM_TYPES
 

@@ -35,6 +35,7 @@ from .gain import ENCODINGS, DeviceGain, decode, encode
 from .realism import beam_groups, frame_statistics
 from .seabed_echo import flat_seabed_echo, seabed_pose
 from .spec import SonarSpec
+from .speckle import check_scatterer_parameters
 
 __all__ = ["SensorProfile", "fit_profile", "PROFILE_VERSION"]
 
@@ -92,12 +93,7 @@ class SensorProfile:
     def __post_init__(self):
         if self.encoding not in ENCODINGS:
             raise ValueError(f"SensorProfile.encoding: expected one of {ENCODINGS}, got {self.encoding!r}")
-        if not (self.density > 0):
-            raise ValueError(f"SensorProfile.density: must be > 0 (or inf), got {self.density!r}")
-        if not (self.clusters_per_m2 > 0):
-            raise ValueError(f"SensorProfile.clusters_per_m2: must be > 0 (or inf), got {self.clusters_per_m2!r}")
-        if not (np.isfinite(self.looks) and self.looks >= 1):
-            raise ValueError(f"SensorProfile.looks: must be >= 1, got {self.looks!r}")
+        check_scatterer_parameters("SensorProfile", self.density, self.clusters_per_m2, self.looks)
 
     # ------------------------------------------------------------------ use
     @property

@@ -48,6 +48,7 @@ __all__ = [
     "cluster_ratio",
     "gk_moments",
     "speckle_statistics",
+    "check_scatterer_parameters",
 ]
 
 
@@ -230,6 +231,20 @@ def correlation_length(rho: np.ndarray, level: float = 0.5) -> float:
 
 
 # --------------------------------------------------------------------------- clustering and looks
+def check_scatterer_parameters(owner: str, density, clusters_per_m2, looks) -> None:
+    """Refuse scatterer-model parameters outside their domain, naming ``owner.field`` and the value.
+
+    ``density`` (scatterers/m^2) and ``clusters_per_m2`` must be > 0 (inf allowed: no
+    clustering / Rayleigh limit); ``looks`` a finite number >= 1.
+    """
+    if not (density > 0):
+        raise ValueError(f"{owner}.density: must be > 0 scatterers/m^2 (or inf), got {density!r}")
+    if not (clusters_per_m2 > 0):
+        raise ValueError(f"{owner}.clusters_per_m2: must be > 0 per m^2 (or inf), got {clusters_per_m2!r}")
+    if not (np.isfinite(looks) and looks >= 1):
+        raise ValueError(f"{owner}.looks: must be a finite number >= 1, got {looks!r}")
+
+
 def look_weights(looks: float) -> np.ndarray:
     """Weights (summing to 1) of ``ceil(looks)`` independent looks whose weighted average has
     ``looks`` effective looks, ``(sum w)^2 / sum w^2 = looks``: ``ceil(looks) - 1`` equal
