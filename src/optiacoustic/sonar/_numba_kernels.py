@@ -355,7 +355,7 @@ def subcell_counts(body, lo, hi, bin_width, max_sub, sub_bins, n_sub):
 @njit(cache=True, nogil=True)
 def subdivide(body, rng, lo, hi, nd, ndd, a, b, refl, elevation, beam, bin_width, n_sub,
               table_x0, table_dx, table_y, alpha_db, spreading,
-              o_r, o_e, o_body, o_c, o_lo, o_hi, o_beam, o_el, o_el_lo, o_el_hi):
+              o_r, o_e, o_body, o_c, o_lo, o_hi, o_beam, o_el, o_el_lo, o_el_hi, i0=0, i1=-1, m0=0):
     """``formation._subdivide`` in one pass: each hit ray's elevation cell split into sub-cells
     no longer than about ``sub_bins`` range bins (at most ``max_sub``), each with its own range,
     footprint, Lambert factor, two-way pattern weight (linear interpolation in ``table_y``,
@@ -363,12 +363,15 @@ def subdivide(body, rng, lo, hi, nd, ndd, a, b, refl, elevation, beam, bin_width
     ``np.interp``) and, with ``spreading``, the two-way gain ``r^-2 10^(-alpha (r - 1) / 5)``.
     ``n_sub`` from :func:`subcell_counts`; writes the flat arrays ``o_*`` (range, energy, body,
     cos_incidence, lo, hi, beam, elevation, elevation_lo, elevation_hi) of ``n_sub.sum()``.
+    Rays ``i0..i1`` only (``i1 = -1``: to the end), their first sub-cell written at ``m0``
+    (the sum of ``n_sub`` before ``i0``): disjoint parts run on several threads.
     """
-    N = body.size
+    N = body.size if i1 < 0 else i1
     n_tab = table_y.size
     pad_w = 1e-4 * bin_width
-    m = 0
-    for i in range(N):
+    k_abs = -0.2 * np.log(10.0) * alpha_db
+    m = m0
+    for i in range(i0, N):
         S = n_sub[i]
         if S == 0:
             continue
@@ -407,7 +410,7 @@ def subdivide(body, rng, lo, hi, nd, ndd, a, b, refl, elevation, beam, bin_width
                 w = table_y[j] + f * (table_y[j + 1] - table_y[j])
             e = refl[i] * c_mid * delta * w
             if spreading:
-                e *= np.exp(-0.2 * np.log(10.0) * alpha_db * (r_mid - 1.0)) / (r_mid * r_mid)
+                e *= np.exp(k_abs * (r_mid - 1.0)) / (r_mid * r_mid)
             o_r[m] = r_mid
             o_e[m] = e
             o_body[m] = body[i]

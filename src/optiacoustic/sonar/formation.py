@@ -790,7 +790,7 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     if pattern is None:
         return rays
     if fast:
-        return rays, _subdivide_numba(spec, rays, nd, ndd, a, b, refl[body], pattern, options)
+        return rays, _subdivide_numba(spec, rays, nd, ndd, a, b, refl[body], pattern, options, caster.threads)
     return rays, _subdivide(spec, rays, nd, ndd, a, b, refl[body], pattern, options)
 
 
@@ -902,7 +902,7 @@ def _subdivide(spec: SonarSpec, rays: SonarRays, nd, ndd, a, b, refl, pattern, o
     )
 
 
-def _subdivide_numba(spec: SonarSpec, rays: SonarRays, nd, ndd, a, b, refl, pattern, options) -> SonarRays:
+def _subdivide_numba(spec: SonarSpec, rays: SonarRays, nd, ndd, a, b, refl, pattern, options, threads: int = 1) -> SonarRays:
     """:func:`_subdivide` by one kernel pass (the pattern's table interpolated in the kernel)."""
     from .propagation import absorption_db_per_m
 
@@ -917,9 +917,14 @@ def _subdivide_numba(spec: SonarSpec, rays: SonarRays, nd, ndd, a, b, refl, patt
     total = kn.subcell_counts(body0, lo0, hi0, spec.bin_width, _MAX_SUBCELLS, _SUBCELL_BINS, n_sub)
     r, energy, c, lo, hi, el, el_lo, el_hi = (np.empty(total) for _ in range(8))
     body, beam = np.empty(total, body0.dtype), np.empty(total, beam0.dtype)
-    kn.subdivide(body0, flat(rays.range), lo0, hi0, nd, ndd, a, b, refl, flat(rays.elevation), beam0, spec.bin_width,
-                 n_sub, float(x[0]), float(x[1] - x[0]), y, alpha, spreading,
-                 r, energy, body, c, lo, hi, beam, el, el_lo, el_hi)
+    first = np.cumsum(n_sub) - n_sub  # where each ray's sub-cells start: the rays split over threads
+    rng0 = flat(rays.range)
+    el0 = flat(rays.elevation)
+    x0, dx = float(x[0]), float(x[1] - x[0])
+    split_run(lambda i0, i1: kn.subdivide(body0, rng0, lo0, hi0, nd, ndd, a, b, refl, el0, beam0, spec.bin_width,
+                                          n_sub, x0, dx, y, alpha, spreading,
+                                          r, energy, body, c, lo, hi, beam, el, el_lo, el_hi, i0, i1,
+                                          int(first[i0]) if i0 < first.size else 0), body0.size, threads)
     return SonarRays(range=r, energy=energy, body=body, cos_incidence=c, footprint_lo=lo, footprint_hi=hi,
                      beam_index=beam, elevation=el, elevation_lo=el_lo, elevation_hi=el_hi,
                      elevation_step=rays.elevation_step)

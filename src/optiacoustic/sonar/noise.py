@@ -418,22 +418,41 @@ class ScattererNoise:
         # issue 10: the mean image ``echo + back`` is already blurred by the pulse and the beam
         # pattern (formation); filtering the field blurs its power a second time, so the
         # speckle is normalised by that filtered mean and multiplied by the image's own mean
-        from .speckle import _filter, look_weights
+        # (all float32; the filters are separable, cv2.sepFilter2D with zero borders)
+        from .speckle import filter_real, look_weights
 
         mean = echo + back
-        expected = _filter(mean, np.asarray(h_r, np.float32) ** 2, np.asarray(h_b, np.float32) ** 2)
-        out = np.zeros(I.shape, np.float32)
+        expected = filter_real(mean, np.asarray(h_r, np.float32) ** 2, np.asarray(h_b, np.float32) ** 2)
+        # per-cell factor: the image's own mean over the twice-blurred mean, times the device's TVG
+        scale = np.zeros(I.shape, np.float32)
+        np.divide(mean, expected, out=scale, where=expected > 0)
+        scale *= _tvg_column(g, spec)
+        out = None
         for k, w in enumerate(look_weights(self.looks)):
             if k == 0:  # the first look from the uniforms drawn during the scan (or the kernel's field)
                 zk = z if power is None else _complex_normals(u1, u2, np.sqrt(power * np.float32(0.5)))
             else:
                 zk = rng.standard_normal(I.shape + (2,), dtype=np.float32) * np.sqrt(power * np.float32(0.5))[..., None]
             f = filter_complex(zk, h_r, h_b)
-            out += np.float32(w) * (f[..., 0] * f[..., 0] + f[..., 1] * f[..., 1])
-        with np.errstate(invalid="ignore", divide="ignore"):
-            out *= np.where(expected > 0, mean / expected, 0.0).astype(np.float32)
-        out *= g.tvg(spec.ranges).astype(np.float32)[:, None]
+            fk = np.square(f[..., 0])
+            fk += np.square(f[..., 1])
+            if w != 1.0:
+                fk *= np.float32(w)
+            out = fk if out is None else np.add(out, fk, out=out)
+        out *= scale
         return out
+
+
+def _tvg_column(gain, spec) -> np.ndarray:
+    """The device's TVG at the spec's bin centres, ``(n_bins, 1)`` float32 (cached per gain and spec)."""
+    return _tvg_cached(gain, spec)
+
+
+@functools.lru_cache(maxsize=32)
+def _tvg_cached(gain, spec):
+    t = np.ascontiguousarray(gain.tvg(spec.ranges), np.float32)[:, None]
+    t.setflags(write=False)
+    return t
 
 
 #: Counts of mean at least this are drawn by ``Generator.poisson`` after the scan (inversion

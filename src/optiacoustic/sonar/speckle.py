@@ -97,6 +97,15 @@ def filter_complex(field: np.ndarray, h_range, h_beam) -> np.ndarray:
     return cv2.sepFilter2D(src, cv2.CV_32F, kx, ky, borderType=cv2.BORDER_CONSTANT)
 
 
+def filter_real(image: np.ndarray, h_range, h_beam) -> np.ndarray:
+    """Separable filter of a real ``(n_bins, n_beams)`` image, float32 out (zero borders).
+
+    ``cv2.sepFilter2D``: the same numbers as :func:`_filter` (``scipy.ndimage.convolve1d``,
+    ``mode="constant"``) for the symmetric kernels used here, at a fraction of the cost.
+    """
+    return filter_complex(np.asarray(image, np.float32), h_range, h_beam)
+
+
 def _filter(field: np.ndarray, h_range: np.ndarray, h_beam: np.ndarray) -> np.ndarray:
     from scipy.ndimage import convolve1d
 
