@@ -465,14 +465,17 @@ def poisson_inverse(mu, u, mu_max, out):
 
 
 @njit(cache=True, nogil=True)
-def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, z, big):
+def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, z, big, trig):
     """``ScattererNoise``'s white complex field, rows ``r0..r1``: per cell the Poisson count ``n``
     of mean ``mu = density area`` (by inversion of ``u_count``, as :func:`poisson_inverse`),
     the power ``echo n / mu + back`` (``echo + back`` where ``mu = 0``) and a complex normal of
     that power (as :func:`box_muller`). Cells with ``mu >= mu_max`` are flagged in ``big``
-    (their count is drawn by the caller) and get ``z = 0``."""
+    (their count is drawn by the caller) and get ``z = 0``. The phase's ``(cos, sin)`` by linear
+    interpolation in ``trig`` ``(T + 1, 2)`` float32, ``(cos, sin)(2 pi k / T)`` (within 3e-7 for
+    ``T = 4096``; the scalar libm calls cost more than the rest of the kernel)."""
     J = echo.shape[1]
-    two_pi = np.float32(2.0 * np.pi)
+    n_trig_i = trig.shape[0] - 1
+    n_trig = np.float32(n_trig_i)
     half = np.float32(0.5)
     for i in range(r0, r1):
         bk = back[i]
@@ -497,9 +500,42 @@ def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, 
             else:
                 power = echo[i, j] + bk
             r = np.sqrt(np.float32(-2.0) * np.log(np.float32(1.0 - u1[i, j])))
-            ang = two_pi * u2[i, j]
+            x = u2[i, j] * n_trig
+            k = min(int(x), n_trig_i - 1)
+            f = x - np.float32(k)
+            co = trig[k, 0] + f * (trig[k + 1, 0] - trig[k, 0])
+            sn = trig[k, 1] + f * (trig[k + 1, 1] - trig[k, 1])
             s = np.sqrt(power * half) * r
-            c = np.cos(ang)
-            sn = np.sqrt(max(np.float32(1.0) - c * c, np.float32(0.0)))  # sin(ang) >= 0 on [0, pi)
-            z[i, j, 0] = c * s
-            z[i, j, 1] = (sn if u2[i, j] < half else -sn) * s
+            z[i, j, 0] = co * s
+            z[i, j, 1] = sn * s
+
+
+@njit(cache=True, nogil=True)
+def speckle_tail(f, mean, expected, tvg, r0, r1, out):
+    """``ScattererNoise``'s image, rows ``r0..r1``: ``|f|^2 mean / expected x tvg`` (0 where
+    ``expected <= 0``), ``f`` ``(B, J, 2)`` the filtered complex field, ``mean`` and
+    ``expected`` ``(B, J)`` float32 (the image's mean and its twice-blurred copy), ``tvg`` ``(B,)``."""
+    J = mean.shape[1]
+    for i in range(r0, r1):
+        t = tvg[i]
+        for j in range(J):
+            e = expected[i, j]
+            if e > 0:
+                a = f[i, j, 0]
+                b = f[i, j, 1]
+                out[i, j] = (a * a + b * b) * (mean[i, j] / e) * t
+            else:
+                out[i, j] = 0.0
+
+
+@njit(cache=True, nogil=True)
+def subcell_area(body, is_seabed, rng, cos_inc, el_lo, el_hi, elevation, beam, dtheta, out):
+    """Seabed area of each ray or sub-cell (``formation.cell_area``): ``r^2 cos(phi) dtheta
+    (phi_hi - phi_lo) / max(cos_incidence, 0.05)`` where ``is_seabed[body]``, else 0."""
+    for i in range(body.size):
+        b = body[i]
+        if b >= 0 and is_seabed[b]:
+            r = rng[i]
+            out[i] = r * r * np.cos(elevation[i]) * dtheta[beam[i]] * (el_hi[i] - el_lo[i]) / max(cos_inc[i], 0.05)
+        else:
+            out[i] = 0.0

@@ -634,6 +634,17 @@ def cell_area(spec: SonarSpec, rays: SonarRays, bottom_types: dict) -> np.ndarra
     Only bodies with a ``bottom_type`` count; without any, every body does.
     """
     ids = [i for v in bottom_types.values() for i in v]
+    if use_numba():
+        n_bodies = max([int(np.max(rays.body, initial=-1))] + ids) + 1
+        is_seabed = np.zeros(n_bodies + 1, np.bool_)
+        is_seabed[ids if ids else slice(0, n_bodies)] = True
+        flat = lambda a: np.ascontiguousarray(a).reshape(-1)  # noqa: E731
+        area = np.empty(rays.body.size)
+        kernels().subcell_area(flat(rays.body), is_seabed, flat(rays.range), flat(rays.cos_incidence),
+                               flat(rays.elevation_lo), flat(rays.elevation_hi), flat(rays.elevation),
+                               flat(rays.beam_index), np.ascontiguousarray(np.diff(spec.beam_edges), float), area)
+        fake = dataclasses.replace(rays, energy=area.reshape(rays.body.shape))
+        return _echo_numba(spec, fake, np.zeros(rays.body.size, np.int8), 1, 1, 1, None)[0]
     sel = np.isin(rays.body, ids) if ids else rays.body >= 0
     r = np.where(sel, rays.range, 0.0)
     cos_a = np.maximum(rays.cos_incidence, 0.05)

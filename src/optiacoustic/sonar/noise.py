@@ -393,8 +393,9 @@ class ScattererNoise:
             big = np.empty(I.shape, np.bool_)
             area = np.ascontiguousarray(cell_area, np.float32)
             kn = kernels()
+            trig = _trig_table()
             split_run(lambda r0, r1: kn.scatterer_field(echo, back[:, 0], area, float(self.density), u_count, u1, u2,
-                                                        _POISSON_INVERSION_MAX, r0, r1, z, big), I.shape[0], threads)
+                                                        _POISSON_INVERSION_MAX, r0, r1, z, big, trig), I.shape[0], threads)
             if big.any():  # the rare cells of large mean: counts from the generator, as the numpy path
                 mu = self.density * area[big].astype(np.float64)
                 ratio = (rng.poisson(mu) / mu).astype(np.float32)
@@ -423,12 +424,21 @@ class ScattererNoise:
 
         mean = echo + back
         expected = filter_real(mean, np.asarray(h_r, np.float32) ** 2, np.asarray(h_b, np.float32) ** 2)
+        weights = look_weights(self.looks)
+        if use_numba() and len(weights) == 1:  # one look: |f|^2 x mean / expected x TVG in one pass
+            zk = z if power is None else _complex_normals(u1, u2, np.sqrt(power * np.float32(0.5)))
+            f = filter_complex(zk, h_r, h_b)
+            out = np.empty(I.shape, np.float32)
+            tvg = np.ascontiguousarray(_tvg_column(g, spec)[:, 0])
+            kn = kernels()
+            split_run(lambda r0, r1: kn.speckle_tail(f, mean, expected, tvg, r0, r1, out), I.shape[0], threads)
+            return out
         # per-cell factor: the image's own mean over the twice-blurred mean, times the device's TVG
         scale = np.zeros(I.shape, np.float32)
         np.divide(mean, expected, out=scale, where=expected > 0)
         scale *= _tvg_column(g, spec)
         out = None
-        for k, w in enumerate(look_weights(self.looks)):
+        for k, w in enumerate(weights):
             if k == 0:  # the first look from the uniforms drawn during the scan (or the kernel's field)
                 zk = z if power is None else _complex_normals(u1, u2, np.sqrt(power * np.float32(0.5)))
             else:
@@ -441,6 +451,15 @@ class ScattererNoise:
             out = fk if out is None else np.add(out, fk, out=out)
         out *= scale
         return out
+
+
+@functools.lru_cache(maxsize=1)
+def _trig_table(n: int = 4096) -> np.ndarray:
+    """``(cos, sin)(2 pi k / n)``, ``k = 0..n``, ``(n + 1, 2)`` float32: the numba kernels' phase table."""
+    t = 2.0 * np.pi * np.arange(n + 1) / n
+    tab = np.ascontiguousarray(np.stack([np.cos(t), np.sin(t)], 1), np.float32)
+    tab.setflags(write=False)
+    return tab
 
 
 def _tvg_column(gain, spec) -> np.ndarray:
