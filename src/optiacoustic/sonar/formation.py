@@ -604,7 +604,8 @@ def _form_with_shares_numba(spec: SonarSpec, rays: SonarRays, options: SonarOpti
         slot, n_slots, slot_of = _class_slots(bottom_types, rays)
     parts = _echo_numba(spec, rays, slot, n_slots, threads, options.range_oversample, sigma_bins)
     if options.beam_model == "aperture" or options.azimuth_pattern:
-        parts = np.stack([_mix_and_scale(spec, parts[s], options) for s in range(n_slots)])
+        for s in range(n_slots):  # into the fresh array: no second allocation (np.stack)
+            parts[s] = _mix_and_scale(spec, parts[s], options)
     else:
         parts *= np.float32(1.0 / spec.bin_width)
     intensity = parts[0]  # parts is fresh; thresholding it in place only zeroes cells whose shares are 0
