@@ -89,6 +89,24 @@ def test_fit_recovers_the_speckle_grain(simulated):
     assert 1.0 <= prof.looks <= 8.0
 
 
+def test_onset_refinement_is_consistent_with_the_truth(simulated):
+    """On a frame simulated with the model the fit assumes, the elevation width set by the
+    seabed onset (simulated frames matched to the measured onset width) lies within 3 stated
+    sigma of the true width, and the lower edge of the pattern stays where the fit put it."""
+    from optiacoustic.sonar import profile as P
+    from optiacoustic.sonar.realism import frame_statistics
+
+    frame, prof = simulated
+    stats = frame_statistics(frame.image, frame.ranges, frame.azimuths)
+    out = P._refine_onset(prof, stats, frame)
+    w_true, w_out = np.rad2deg(TRUE["el_bw"]), np.rad2deg(out.spec.fov_elevation)
+    sd = out.uncertainty["elevation_beamwidth_deg"]
+    assert np.isfinite(sd) and sd > 0
+    assert abs(w_out - w_true) <= 3 * sd, (w_out, w_true, sd)
+    assert np.isclose(out.pitch + 0.5 * out.spec.fov_elevation, prof.pitch + 0.5 * prof.spec.fov_elevation)
+    assert any("seabed onset on simulated frames" in n for n in out.notes)
+
+
 def test_profile_file_round_trip(simulated, tmp_path):
     _, prof = simulated
     p = prof.save(tmp_path / "p.yaml")
