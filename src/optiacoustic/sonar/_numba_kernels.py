@@ -371,19 +371,27 @@ def subdivide(body, rng, lo, hi, nd, ndd, a, b, refl, elevation, beam, bin_width
     pad_w = 1e-4 * bin_width
     k_abs = -0.2 * np.log(10.0) * alpha_db
     m = m0
+    # the trigonometry of a cell depends only on (a, b, S), which neighbouring rays share
+    # (all but the refined edges): computed once per change, the same numbers bit for bit
+    last_a, last_b, last_S = np.nan, np.nan, -1
+    ch = sh = cd = sd = ct0 = st0 = delta = 0.0
     for i in range(i0, N):
         S = n_sub[i]
         if S == 0:
             continue
-        delta = (a[i] + b[i]) / S
-        ch = np.cos(0.5 * delta)
-        sh = np.sin(0.5 * delta)
+        if a[i] != last_a or b[i] != last_b or S != last_S:
+            last_a, last_b, last_S = a[i], b[i], S
+            delta = (a[i] + b[i]) / S
+            ch = np.cos(0.5 * delta)
+            sh = np.sin(0.5 * delta)
+            cd, sd = np.cos(delta), np.sin(delta)
+            t0 = -a[i] + 0.5 * delta
+            ct0, st0 = np.cos(t0), np.sin(t0)
         x, y = nd[i], ndd[i]
         sgn = -1.0 if x < 0 else 1.0
         base = rng[i] * abs(x)
-        cd, sd = np.cos(delta), np.sin(delta)
         t = -a[i] + 0.5 * delta
-        ct, st = np.cos(t), np.sin(t)
+        ct, st = ct0, st0
         for k in range(S):
             if k > 0:  # rotate by delta: cos/sin of t + k delta without two trigonometric calls each
                 t = -a[i] + (k + 0.5) * delta
