@@ -433,6 +433,37 @@ def subdivide(body, rng, lo, hi, nd, ndd, a, b, refl, elevation, beam, bin_width
 
 
 @njit(cache=True, nogil=True)
+def speckle_tail(f, mean, expected, tvg, r0, r1, out):
+    """``ScattererNoise``'s image, rows ``r0..r1``: ``|f|^2 mean / expected x tvg`` (0 where
+    ``expected <= 0``), ``f`` ``(B, J, 2)`` the filtered complex field, ``mean`` and
+    ``expected`` ``(B, J)`` float32 (the image's mean and its twice-blurred copy), ``tvg`` ``(B,)``."""
+    J = mean.shape[1]
+    for i in range(r0, r1):
+        t = tvg[i]
+        for j in range(J):
+            e = expected[i, j]
+            if e > 0:
+                a = f[i, j, 0]
+                b = f[i, j, 1]
+                out[i, j] = (a * a + b * b) * (mean[i, j] / e) * t
+            else:
+                out[i, j] = 0.0
+
+
+@njit(cache=True, nogil=True)
+def subcell_area(body, is_seabed, rng, cos_inc, el_lo, el_hi, elevation, beam, dtheta, out):
+    """Seabed area of each ray or sub-cell (``formation.cell_area``): ``r^2 cos(phi) dtheta
+    (phi_hi - phi_lo) / max(cos_incidence, 0.05)`` where ``is_seabed[body]``, else 0."""
+    for i in range(body.size):
+        b = body[i]
+        if b >= 0 and is_seabed[b]:
+            r = rng[i]
+            out[i] = r * r * np.cos(elevation[i]) * dtheta[beam[i]] * (el_hi[i] - el_lo[i]) / max(cos_inc[i], 0.05)
+        else:
+            out[i] = 0.0
+
+
+@njit(cache=True, nogil=True)
 def box_muller(u1, u2, scale, out):
     """Pairs of independent normals from uniforms (Box-Muller), times ``scale``: ``out[..., 0]``,
     ``out[..., 1]`` = ``scale sqrt(-2 ln(1 - u1)) (cos, sin)(2 pi u2)``. ``u1`` float64 (so the
@@ -516,34 +547,3 @@ def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, 
             s = np.sqrt(power * half) * r
             z[i, j, 0] = co * s
             z[i, j, 1] = sn * s
-
-
-@njit(cache=True, nogil=True)
-def speckle_tail(f, mean, expected, tvg, r0, r1, out):
-    """``ScattererNoise``'s image, rows ``r0..r1``: ``|f|^2 mean / expected x tvg`` (0 where
-    ``expected <= 0``), ``f`` ``(B, J, 2)`` the filtered complex field, ``mean`` and
-    ``expected`` ``(B, J)`` float32 (the image's mean and its twice-blurred copy), ``tvg`` ``(B,)``."""
-    J = mean.shape[1]
-    for i in range(r0, r1):
-        t = tvg[i]
-        for j in range(J):
-            e = expected[i, j]
-            if e > 0:
-                a = f[i, j, 0]
-                b = f[i, j, 1]
-                out[i, j] = (a * a + b * b) * (mean[i, j] / e) * t
-            else:
-                out[i, j] = 0.0
-
-
-@njit(cache=True, nogil=True)
-def subcell_area(body, is_seabed, rng, cos_inc, el_lo, el_hi, elevation, beam, dtheta, out):
-    """Seabed area of each ray or sub-cell (``formation.cell_area``): ``r^2 cos(phi) dtheta
-    (phi_hi - phi_lo) / max(cos_incidence, 0.05)`` where ``is_seabed[body]``, else 0."""
-    for i in range(body.size):
-        b = body[i]
-        if b >= 0 and is_seabed[b]:
-            r = rng[i]
-            out[i] = r * r * np.cos(elevation[i]) * dtheta[beam[i]] * (el_hi[i] - el_lo[i]) / max(cos_inc[i], 0.05)
-        else:
-            out[i] = 0.0
