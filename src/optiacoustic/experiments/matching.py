@@ -117,6 +117,52 @@ def second_view(scene, seed=0, water="thesis", shift=(0.3, 0.25, 0.0)):
     return pair.sonar, pair.optical, (R_o, t_o)
 
 
+#: Range of the vehicle's motion between the two frames of the two-view evaluation (uniform, drawn
+#: per scene): surge along the horizontal viewing direction, sway to the right, heave up (m), yaw
+#: (deg). A ROV or AUV surveying at 0.2-0.5 m/s with frames kept 1-3 s apart.
+MOTION_RANGES = dict(surge=(0.2, 1.0), sway=(-0.5, 0.5), heave=(-0.15, 0.15), yaw_deg=(-5.0, 5.0))
+
+
+def vehicle_motion(seed: int) -> dict:
+    """A random vehicle motion between two frames (seeded): surge, sway, heave (m), yaw (deg)."""
+    rng = np.random.default_rng(seed)
+    return {k: float(rng.uniform(*v)) for k, v in MOTION_RANGES.items()}
+
+
+def moved_view(scene, motion: dict, seed=0, water="thesis", noise_floor_db="default"):
+    """The rig after the vehicle moved by ``motion`` (:func:`vehicle_motion`): (sonar, optical, (R_o, t_o)).
+
+    The sonar keeps its height above its aim and its aim's distance, so the rig's camera is placed
+    exactly as in view 1 (same rig). ``(R_o, t_o)`` with ``P_camera2 = R_o P_camera1 + t_o``, from
+    the true poses (the motion is known, thesis ch. 6).
+    """
+    from ..frames import rot_z
+    from ..optical import Water
+    from ..simulation import simulate_rig
+    from ..sonar import NoiseModel
+
+    eye = np.asarray(scene.view.eye, float)
+    target = np.asarray(scene.view.target, float)
+    rig, sp1 = _rig_for(eye, target)
+    fwd = target - eye
+    heading = np.array([fwd[0], fwd[1], 0.0]) / np.hypot(fwd[0], fwd[1])
+    right = np.array([heading[1], -heading[0], 0.0])
+    eye2 = eye + motion["surge"] * heading + motion["sway"] * right + np.array([0.0, 0.0, motion["heave"]])
+    target2 = eye2 + rot_z(np.deg2rad(motion["yaw_deg"])) @ fwd
+    _, sp2 = _rig_for(eye2, target2)
+    if noise_floor_db == "default":
+        noise = None
+    elif noise_floor_db is None:
+        noise = False
+    else:
+        noise = NoiseModel(noise_floor_db=noise_floor_db)
+    pair = simulate_rig(scene, rig, sp2, water=Water.preset(water), seed=seed + 7919, sonar_noise=noise)
+    c1, c2 = rig.camera_pose(sp1), rig.camera_pose(sp2)
+    R_o = c2.R.T @ c1.R
+    t_o = c2.R.T @ (c1.t - c2.t)
+    return pair.sonar, pair.optical, (R_o, t_o)
+
+
 def evaluate_pair(sonar, optical, rig, *, options=None):
     """Match one pair and score it against the depth-map truth; also the baseline on the same features."""
     from ..geometry import reconstruct as rc
