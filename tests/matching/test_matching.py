@@ -190,18 +190,58 @@ def test_two_view_consistency_identity():
         consistent(P1, P2, (2 * R, t))
 
 
-def test_two_view_match_keeps_a_consistent_subset(pairs):
-    from optiacoustic.experiments.matching import second_view
+def test_two_view_match_rescores_the_same_matches(pairs):
+    from optiacoustic.experiments.matching import moved_view
 
     s, o, rig = pairs[0]
-    s2, o2, motion = second_view(random_scene(201), 201)
+    motion = dict(surge=0.3, sway=0.25, heave=0.0, yaw_deg=2.0)
+    s2, o2, mo = moved_view(random_scene(201), motion, 201)
     one = match(s, o.image, rig, min_score=0.0)
-    two = match(s, o.image, rig, min_score=0.0, second=(s2, o2.image), motion=motion)
-    assert 0 < len(two) < len(one)
-    assert set(map(tuple, two.pixels.tolist())) <= set(map(tuple, one.pixels.tolist()))
+    two = match(s, o.image, rig, min_score=0.0, second=(s2, o2.image), motion=mo)
+    assert len(two) == len(one) > 0
+    assert set(map(tuple, two.pixels.tolist())) == set(map(tuple, one.pixels.tolist()))
     assert "second view" in two.message
+    for key in ("flow_residual_px", "flow_px_per_m", "two_view", "single_view_score"):
+        assert two.features[key].shape == (len(two),)
+    assert np.all(np.diff(two.score) <= 0)  # best first
+    # The one-view score travels with its match.
+    k1 = {tuple(p): sc for p, sc in zip(one.pixels.tolist(), one.score)}
+    assert all(np.isclose(k1[tuple(p)], sc) for p, sc in zip(two.pixels.tolist(), two.features["single_view_score"]))
+    # A sideways move of 0.25 m at 5-9 m shifts the second image by a fraction of a pixel per
+    # range bin of depth: the motion's sensitivity, f B / Z^2, is 2-10 px per metre.
+    assert 1.0 < np.nanmedian(two.features["flow_px_per_m"]) < 15.0
     with pytest.raises(ValueError, match="motion"):
         match(s, o.image, rig, second=(s2, o2.image))
+    with pytest.raises(ValueError, match="second camera_image"):
+        match(s, o.image, rig, second=(s2, o2.image[:10]), motion=mo)
+
+
+def test_epipolar_residual_identity():
+    """Flow made from known points and motion: zero residual at the true points, f B dZ / Z^2 off them."""
+    from optiacoustic.camera import PinholeCamera
+    from optiacoustic.frames import rot_y
+    from optiacoustic.matching.optical_two_view import epipolar_residuals
+
+    cam = PinholeCamera.from_sensor(600, 400, (36, 24), 50)
+    rng = np.random.default_rng(3)
+    H, W = 400, 600
+    u, v = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
+    Z = 6.0 + 0.002 * u  # a slanted plane, depth 6-7.2 m
+    rays = cam.pixel_rays(np.stack([u, v], -1).reshape(-1, 2))
+    P = rays / rays[:, 2:3] * Z.reshape(-1, 1)
+    R, t = rot_y(0.02), np.array([0.4, 0.05, 0.2])
+    flow = (cam.project(P @ R.T + t) - np.stack([u, v], -1).reshape(-1, 2)).reshape(H, W, 2)
+    pix = rng.uniform([50, 50], [550, 350], (40, 2)).round()
+    Ptrue = cam.pixel_rays(pix)
+    Ptrue = Ptrue / Ptrue[:, 2:3] * (6.0 + 0.002 * pix[:, :1])
+    a, sens = epipolar_residuals(cam, pix, Ptrue, flow, (R, t))
+    assert np.all(np.abs(a) < 1e-6)
+    # Expected sensitivity: lateral baseline 0.4 m, f = 833 px, Z about 6-7 m.
+    assert np.all((sens > 833 * 0.3 / 7.3 ** 2) & (sens < 833 * 0.5 / 6.0 ** 2))
+    dz = 0.2
+    far = Ptrue * (1 + dz / np.linalg.norm(Ptrue, axis=1, keepdims=True))
+    a2, _ = epipolar_residuals(cam, pix, far, flow, (R, t))
+    np.testing.assert_allclose(a2, sens * dz, rtol=0.05)
 
 
 @pytest.mark.parametrize("name", ["oculus/one_ping_8bit.raw", "aris/sample.aris"])

@@ -213,6 +213,33 @@ def evaluate_pair(sonar, optical, rig, *, options=None):
     return out
 
 
+def evaluate_two_views(scene, sonar, optical, rig, motion: dict, seed=0):
+    """View 1's matches re-scored with a second pair after the vehicle ``motion``; truth from view 1's depth map.
+
+    Returns a dict: ``score`` (two-view), ``single`` (one-view score of the same matches),
+    ``ok`` (correct), ``baseline_m`` (camera displacement, m), ``px_per_bin`` (median image
+    displacement in the second view per range bin of depth, px), ``gate_ok`` (flow residual
+    within 3 px), ``matches``.
+    """
+    from ..matching import match, truth
+
+    s2, o2, mo = moved_view(scene, motion, seed)
+    m = match(sonar, optical.image, rig, min_score=0.0, second=(s2, o2.image),
+              motion=mo)
+    bw, aw = float(np.median(np.diff(sonar.ranges))), float(np.median(np.diff(sonar.azimuths)))
+    out = dict(score=np.zeros(0), single=np.zeros(0), ok=np.zeros(0, bool), gate_ok=np.zeros(0, bool),
+               baseline_m=float(np.linalg.norm(mo[1])), px_per_bin=float("nan"), matches=m)
+    if m:
+        out["ok"] = truth.correct(rig, optical.depth, m.pixels, m.ranges, m.azimuths, bin_width=bw, beam_width=aw)
+        out["score"], out["single"] = m.score, m.features["single_view_score"]
+        a = m.features["flow_residual_px"]
+        out["gate_ok"] = np.abs(np.nan_to_num(a, nan=np.inf)) <= 3.0
+        sens = m.features["flow_px_per_m"]
+        if np.isfinite(sens).any():
+            out["px_per_bin"] = float(np.nanmedian(sens) * bw)
+    return out
+
+
 def _pr(evals, thresholds=None):
     """Pooled precision and recall at score thresholds (default: 0 and the scores' quantiles)."""
     n_vis = sum(e["n_visible"] for e in evals)
@@ -309,6 +336,24 @@ def _operating_point(evals, target: float = 0.95) -> dict:
     return out
 
 
+def _fine_curve(evals):
+    """Precision and recall at every distinct score (pooled, best first): arrays (recall, precision)."""
+    n_vis = sum(e["n_visible"] for e in evals)
+    score = np.concatenate([e["score"] for e in evals]) if evals else np.zeros(0)
+    ok = np.concatenate([e["ok"] for e in evals]) if evals else np.zeros(0, bool)
+    if score.size == 0 or n_vis == 0:
+        return np.zeros(0), np.zeros(0)
+    order = np.argsort(-score, kind="stable")
+    tp = np.cumsum(ok[order])
+    return tp / n_vis, tp / np.arange(1, score.size + 1)
+
+
+def _best_at(recall, precision, target: float) -> float:
+    """The highest precision at recall >= ``target`` (NaN when never reached)."""
+    k = recall >= target
+    return float(np.max(precision[k])) if k.any() else float("nan")
+
+
 def _baseline(evals):
     n_vis = sum(e["n_visible"] for e in evals)
     ok = np.concatenate([e["base_ok"] for e in evals]) if evals else np.zeros(0, bool)
@@ -335,7 +380,8 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     # 1. Thesis water and the default sonar noise: the headline precision-recall.
     from ..matching import MatchOptions
 
-    evals, evals_corners, per_scene = [], [], []
+    evals, evals_corners, per_scene, evals_two, sub_pairs = [], [], [], [], []
+    n_sub = 1 if quick else 8
     first = profile = None
     profile_name = ""
     for k, sc in enumerate(all_scenes):
@@ -343,6 +389,11 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
         e = evaluate_pair(s, o, rig)
         evals.append(e)
         evals_corners.append(evaluate_pair(s, o, rig, options=MatchOptions(method="corners")))
+        tv = evaluate_two_views(sc, s, o, rig, vehicle_motion(seed * 1000 + 500 + k), seed + k)
+        tv["n_visible"] = e["n_visible"]
+        evals_two.append(tv)
+        if k < n_sub:
+            sub_pairs.append((s, o, rig))
         m = e["matches"]
         per_scene.append([sc.name, e["n_visible"], len(e["ok"]), int(np.sum(e["ok"])), len(e["base_ok"]),
                           int(np.sum(e["base_ok"]))])
@@ -384,7 +435,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
                               "map): where the correct pixels lie against the edge-free runs the matcher chose."))
 
     # 2. Turbidity and sonar noise (on a subset of scenes).
-    sub = all_scenes[: 1 if quick else 8]
+    sub = all_scenes[:n_sub]
     waters = WATERS[1::2] if quick else WATERS
     floors = NOISE_FLOORS_DB[::3] if quick else NOISE_FLOORS_DB
     turb = []
@@ -416,27 +467,87 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     plt.close(fig)
     figures.append((f_tn, "Precision and recall against turbidity (clear to Jerlov 3C) and the sonar's noise floor."))
 
-    # 3. Two views: the rig moved 0.3 m right and 0.25 m forward, motion known (ch. 6).
-    from ..matching import match
-    from ..matching.truth import correct as is_correct
-
-    tv_single, tv_pair, tv_vis = [], [], 0
-    for k, sc in enumerate(sub):
-        s, o, rig = simulate_pair(sc, "thesis", "default", seed + k)
-        s2, o2, motion = second_view(sc, seed + k)
-        bw, aw = float(np.median(np.diff(s.ranges))), float(np.median(np.diff(s.azimuths)))
-        m1 = match(s, o.image, rig, min_score=0.0)
-        m2 = match(s, o.image, rig, min_score=0.0, second=(s2, o2.image), motion=motion)
-        tv_vis += evals[k]["n_visible"]
-        for m, acc in ((m1, tv_single), (m2, tv_pair)):
-            if m:
-                acc.append(is_correct(rig, o.depth, m.pixels, m.ranges, m.azimuths, bin_width=bw, beam_width=aw))
-    c1 = np.concatenate(tv_single) if tv_single else np.zeros(0, bool)
-    c2 = np.concatenate(tv_pair) if tv_pair else np.zeros(0, bool)
-    two_view = dict(single_precision=float(c1.mean()) if c1.size else float("nan"), single_n=int(c1.size),
-                    single_recall=float(c1.sum() / tv_vis) if tv_vis else float("nan"),
-                    two_view_precision=float(c2.mean()) if c2.size else float("nan"), two_view_n=int(c2.size),
-                    two_view_recall=float(c2.sum() / tv_vis) if tv_vis else float("nan"))
+    # 3. Two views with known motion (thesis ch. 6): every scene gets a random vehicle motion
+    #    (vehicle_motion, MOTION_RANGES); the same matches, scored with one view and with two.
+    single_on_two = [dict(score=e["single"], ok=e["ok"], n_visible=e["n_visible"]) for e in evals_two]
+    r1c, p1c = _fine_curve(single_on_two)
+    r2c, p2c = _fine_curve(evals_two)
+    op1, op2 = _operating_point(single_on_two), _operating_point(evals_two)
+    ok_two = np.concatenate([e["ok"] for e in evals_two]) if evals_two else np.zeros(0, bool)
+    gate = np.concatenate([e["gate_ok"] for e in evals_two]) if evals_two else np.zeros(0, bool)
+    n_vis2 = sum(e["n_visible"] for e in evals_two)
+    baselines = np.array([e["baseline_m"] for e in evals_two])
+    two_view = dict(
+        motion_ranges=MOTION_RANGES, n_visible=n_vis2, n_matches=int(ok_two.size),
+        single_best_precision_at_recall_0_5=_best_at(r1c, p1c, 0.5),
+        two_view_best_precision_at_recall_0_5=_best_at(r2c, p2c, 0.5),
+        single_precision_at_recall_0_25=_best_at(r1c, p1c, 0.25),
+        two_view_precision_at_recall_0_25=_best_at(r2c, p2c, 0.25),
+        single_auc=op1["auc"], two_view_auc=op2["auc"],
+        single_recall_at_precision_0_95=op1["recall"], two_view_recall_at_precision_0_95=op2["recall"],
+        flow_gate_3px_precision=float(ok_two[gate].mean()) if gate.any() else float("nan"),
+        flow_gate_3px_recall=float(ok_two[gate].sum() / n_vis2) if n_vis2 else float("nan"),
+        baseline_m_median=float(np.median(baselines)) if baselines.size else float("nan"),
+        px_per_bin_median=float(np.nanmedian([e["px_per_bin"] for e in evals_two])) if evals_two else float("nan"),
+    )
+    # Precision against the baseline's length: the same scenes, the vehicle moving 0.3 m forward
+    # and ``sway`` to the side (no heave, no yaw).
+    sways = (0.25, 1.0) if quick else (0.0, 0.25, 0.5, 1.0, 2.0)
+    sweep = []
+    for sw in sways:
+        ev = []
+        for k, (sc, pr_) in enumerate(zip(sub, sub_pairs)):
+            e2 = evaluate_two_views(sc, *pr_, dict(surge=0.3, sway=sw, heave=0.0, yaw_deg=0.0), seed + k)
+            e2["n_visible"] = evals[k]["n_visible"]
+            ev.append(e2)
+        rc_, pc_ = _fine_curve(ev)
+        ok_ = np.concatenate([e["ok"] for e in ev]) if ev else np.zeros(0, bool)
+        g_ = np.concatenate([e["gate_ok"] for e in ev]) if ev else np.zeros(0, bool)
+        nv_ = sum(e["n_visible"] for e in ev)
+        sweep.append(dict(sway_m=sw, baseline_m=float(np.hypot(0.3, sw)),
+                          px_per_bin=float(np.nanmedian([e["px_per_bin"] for e in ev])),
+                          precision_at_recall_0_25=_best_at(rc_, pc_, 0.25),
+                          best_precision_at_recall_0_5=_best_at(rc_, pc_, 0.5), auc=_operating_point(ev)["auc"],
+                          gate_precision=float(ok_[g_].mean()) if g_.any() else float("nan"),
+                          gate_recall=float(ok_[g_].sum() / nv_) if nv_ else float("nan")))
+    two_view["baseline_sweep"] = sweep
+    fig, ax = plt.subplots(1, 2, figsize=(11, 4.3))
+    ax[0].plot(r1c, p1c, color="#4363d8", label=f"one view (one pair), AUC {op1['auc']:.2f}")
+    ax[0].plot(r2c, p2c, color="#f58231", label=f"two views, known motion, AUC {op2['auc']:.2f}")
+    ax[0].plot([b_rec], [b_prec], "s", color="#e6194b", ms=8, label="baseline (one view)")
+    ax[0].axhline(0.95, color="0.6", ls=":", lw=1)
+    ax[0].axvline(0.5, color="0.6", ls=":", lw=1)
+    ax[0].set_xlim(0, 1)
+    ax[0].set_ylim(0, 1.02)
+    ax[0].set_xlabel("recall (of sonar features visible in both sensors)")
+    ax[0].set_ylabel("precision")
+    ax[0].set_title(f"{len(evals_two)} scenes, random vehicle motion per scene", fontsize=9)
+    ax[0].legend(fontsize=7, loc="lower left")
+    xb = [d["baseline_m"] for d in sweep]
+    ax[1].plot(xb, [d["precision_at_recall_0_25"] for d in sweep], "o-", color="#f58231",
+               label="two views: precision at recall 0.25")
+    ax[1].plot(xb, [d["best_precision_at_recall_0_5"] for d in sweep], "s-", color="#911eb4",
+               label="two views: precision at recall 0.5")
+    ax[1].plot(xb, [d["gate_precision"] for d in sweep], "^--", color="#3cb44b",
+               label="flow residual <= 3 px: precision")
+    ax[1].plot(xb, [d["gate_recall"] for d in sweep], "v:", color="#3cb44b", label="flow residual <= 3 px: recall")
+    ax[1].set_xlabel("baseline (m): 0.3 m forward and 0 - 2 m sideways")
+    ax[1].set_ylim(0, 1.02)
+    ax2 = ax[1].twinx()
+    ax2.plot(xb, [d["px_per_bin"] for d in sweep], "k:", lw=1)
+    ax2.set_ylabel("image shift in view 2 per range bin of depth (px, dotted)", fontsize=8)
+    ax[1].legend(fontsize=7, loc="upper left")
+    ax[1].set_title(f"{len(sub)} scenes: precision against baseline length", fontsize=9)
+    fig.tight_layout()
+    f_tv = savefig(fig, out_dir / "matching_two_views.png", dpi=110)
+    plt.close(fig)
+    figures.append((f_tv, "Two views with known motion: the PR curves of the same matches scored with one view "
+                          "and with two, and precision against the baseline's length."))
+    if evals_two and evals_two[0]["matches"]:
+        e0 = evals_two[0]
+        f_t0 = draw_matches(out_dir / "matching_two_view_example.png", s0.image, s0.ranges, s0.azimuths, o0.image,
+                            e0["matches"], title=f"{name0}, two-view score", correct=e0["ok"])
+        figures.append((f_t0, f"Matches on {name0} coloured by the two-view score (x = wrong by the depth map)."))
 
     err = np.concatenate([e["err"] for e in evals]) if evals else np.zeros(0)
     err_true = np.concatenate([e["err_true"] for e in evals]) if evals else np.zeros(0)
@@ -482,11 +593,26 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
          [[r_[0], r_[1]] + [fmt(v) for v in r_[2:]] for r_ in turb]),
         ("Sonar noise", ["noise floor", "visible", "prec@cut", "rec@cut", "prec all", "rec all", "base prec", "base rec"],
          [[r_[0], r_[1]] + [fmt(v) for v in r_[2:]] for r_ in noi]),
-        ("Two views (rig moved 0.3 m right, 0.25 m forward; motion known)",
-         ["", "matches", "precision", "recall"],
-         [["one view", two_view["single_n"], fmt(two_view["single_precision"]), fmt(two_view["single_recall"])],
-          ["consistent in both views", two_view["two_view_n"], fmt(two_view["two_view_precision"]),
-           fmt(two_view["two_view_recall"])]]),
+        ("Two views with known motion (random vehicle motion per scene: surge 0.2-1 m, sway +-0.5 m, heave "
+         "+-0.15 m, yaw +-5 deg); the same matches scored with one view and with two",
+         ["", "one view (one pair)", "two views"],
+         [["best precision at recall >= 0.5", fmt(two_view["single_best_precision_at_recall_0_5"]),
+           fmt(two_view["two_view_best_precision_at_recall_0_5"])],
+          ["best precision at recall >= 0.25", fmt(two_view["single_precision_at_recall_0_25"]),
+           fmt(two_view["two_view_precision_at_recall_0_25"])],
+          ["recall at precision >= 0.95", fmt(two_view["single_recall_at_precision_0_95"]),
+           fmt(two_view["two_view_recall_at_precision_0_95"])],
+          ["score AUC", fmt(two_view["single_auc"]), fmt(two_view["two_view_auc"])],
+          ["flow residual <= 3 px only: precision / recall", "",
+           f"{fmt(two_view['flow_gate_3px_precision'])} / {fmt(two_view['flow_gate_3px_recall'])}"],
+          ["median baseline (m); image shift per range bin (px)", "",
+           f"{fmt(two_view['baseline_m_median'])}; {fmt(two_view['px_per_bin_median'])}"]]),
+        ("Two views: precision against baseline (0.3 m forward + sway)",
+         ["sway (m)", "baseline (m)", "px per bin", "prec@rec 0.25", "prec@rec 0.5", "AUC", "gate prec",
+          "gate rec"],
+         [[f"{d['sway_m']:g}", fmt(d["baseline_m"]), f"{d['px_per_bin']:.3f}", fmt(d["precision_at_recall_0_25"]),
+           fmt(d["best_precision_at_recall_0_5"]), fmt(d["auc"]), fmt(d["gate_precision"]), fmt(d["gate_recall"])]
+          for d in sweep]),
         ("Looser criterion (within 3 bins and 3 beams; not the issue's)", ["", "precision"],
          [["matcher (all assigned)", fmt(loose["precision"])], ["baseline", fmt(loose["baseline_precision"])],
           ["matcher, 3D error < 10 cm", fmt(loose["within_10cm"])]]),
@@ -501,7 +627,12 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
                f"(precision >= 0.95 at recall >= 0.5) {'met' if ok_target.size else 'NOT met'}. Median 3D error "
                f"{med_auto:.2f} m (automatic) vs {med_true:.3f} m (true matches). First design (corners): "
                f"{c_prec[0]:.2f} at {c_rec[0]:.2f}. Precision >= 0.95 reached at recall {op['recall']:.2f} "
-               f"({op['n']} matches); score AUC {op['auc']:.2f}.")
+               f"({op['n']} matches); score AUC {op['auc']:.2f}. One view (one pair) vs two views with known "
+               f"motion (random vehicle motion, median baseline {two_view['baseline_m_median']:.2f} m), same "
+               f"matches: best precision at recall >= 0.5 {two_view['single_best_precision_at_recall_0_5']:.2f} vs "
+               f"{two_view['two_view_best_precision_at_recall_0_5']:.2f}, at recall >= 0.25 "
+               f"{two_view['single_precision_at_recall_0_25']:.2f} vs {two_view['two_view_precision_at_recall_0_25']:.2f}"
+               f", AUC {two_view['single_auc']:.2f} vs {two_view['two_view_auc']:.2f}.")
     return ExperimentResult(NAME, figures, numbers, summary, tables)
 
 
@@ -546,3 +677,44 @@ def calibrate_score(seeds=range(5000, 5024), *, ridge: float = 1.0, method: str 
     w = minimize(nll, np.zeros(Z.shape[1]), method="BFGS").x
     return dict(weights=tuple(np.round(w, 3)), mean=tuple(np.round(mu, 4)), std=tuple(np.round(sd_, 4)), n=len(y),
                 positive_rate=float(y.mean()))
+
+
+def _fit_logistic(X, y, ridge):
+    from scipy.optimize import minimize
+
+    mu, sd_ = X.mean(0), X.std(0)
+    sd_ = np.where(sd_ > 0, sd_, 1.0)
+    Z = np.column_stack([np.ones(len(X)), (X - mu) / sd_])
+
+    def nll(w):
+        z = Z @ w
+        return np.sum(np.logaddexp(0, z) - y * z) + ridge * np.sum(w[1:] ** 2)
+
+    w = minimize(nll, np.zeros(Z.shape[1]), method="BFGS").x
+    return dict(weights=tuple(np.round(w, 3)), mean=tuple(np.round(mu, 4)), std=tuple(np.round(sd_, 4)), n=len(y),
+                positive_rate=float(y.mean()))
+
+
+def calibrate_two_view_score(seeds=range(5000, 5024), *, ridge: float = 1.0) -> dict:
+    """Refit ``matching.match.TWO_VIEW_SCORE_MODEL``: logistic regression of correctness on the two-view evidence.
+
+    Each random scene seeded ``seeds`` is matched with a second pair after the random vehicle
+    motion :func:`vehicle_motion` of the same seed (thesis water, default sonar noise); every
+    match is labelled by the depth-map truth. Use seeds disjoint from the evaluation's.
+    """
+    from ..matching import match, truth
+    from ..matching.match import two_view_score_features
+
+    X, y = [], []
+    for sd in seeds:
+        sc = random_scene(int(sd))
+        s, o, rig = simulate_pair(sc, "thesis", "default", int(sd))
+        s2, o2, motion = moved_view(sc, vehicle_motion(int(sd)), int(sd))
+        m = match(s, o.image, rig, min_score=0.0, second=(s2, o2.image), motion=motion)
+        if m:
+            bw, aw = float(np.median(np.diff(s.ranges))), float(np.median(np.diff(s.azimuths)))
+            X.append(two_view_score_features(m.features))
+            y.append(truth.correct(rig, o.depth, m.pixels, m.ranges, m.azimuths, bin_width=bw,
+                                   beam_width=aw).astype(float))
+    return _fit_logistic(np.concatenate(X), np.concatenate(y), ridge)
+

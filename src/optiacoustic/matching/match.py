@@ -283,7 +283,43 @@ def _assign(cost, rows, cols, n_rows, null_cost):
     return chosen[M[ri, ci][: chosen.size] < big] if chosen.size else chosen
 
 
-def _two_view(out: Matches, second, motion, rig, noise, opt) -> Matches:
+#: Logistic model of P(correct) of a match given two views with known motion: intercept and
+#: weights of the standardised :func:`two_view_score_features` (logit of the one-view score, log
+#: of 1 + the optical flow's epipolar residual in px, log of 1 + that residual in metres of depth,
+#: log of the motion's sensitivity in px per metre of depth, no residual available, consistent
+#: with the second pair's own matches). Fitted by
+#: ``experiments.matching.calibrate_two_view_score()`` on random scenes seeded 5000-5023 with
+#: random vehicle motions (``experiments.matching.vehicle_motion``), disjoint from the
+#: evaluation's scenes.
+TWO_VIEW_SCORE_MODEL = dict(
+    weights=(-0.089, 1.037, -0.233, -0.053, 0.102, 0.344, 0.347),
+    mean=(-0.159, 1.4676, 0.677, 1.4757, 0.0392, 0.6569),
+    std=(1.2995, 0.9977, 0.7243, 0.9462, 0.1941, 0.4748),
+)
+
+
+def two_view_score_features(feats: dict) -> np.ndarray:
+    """The two-view score model's inputs ``(N, 6)`` from a :attr:`Matches.features` mapping."""
+    p = np.clip(feats["single_view_score"], 1e-6, 1 - 1e-6)
+    a = np.asarray(feats["flow_residual_px"], float)
+    sens = np.asarray(feats["flow_px_per_m"], float)
+    missing = ~np.isfinite(a) | ~np.isfinite(sens) | (np.nan_to_num(sens) <= 0)
+    a_px = np.where(missing, 0.0, np.abs(np.nan_to_num(a)))
+    a_m = np.where(missing, 0.0, a_px / np.where(missing, 1.0, sens))
+    log_sens = np.where(missing, 0.0, np.log(np.where(missing, 1.0, sens)))
+    return np.column_stack([np.log(p / (1 - p)), np.log1p(a_px), np.log1p(a_m), log_sens, missing.astype(float),
+                            np.asarray(feats["two_view"], float)])
+
+
+def _two_view(out: Matches, image_1, second, motion, rig, noise, opt) -> Matches:
+    """Re-score view 1's matches with a second pair of the moved rig (known motion, thesis ch. 6).
+
+    Two pieces of evidence: where the match's pixel went in the second camera image (dense
+    optical flow, :mod:`.optical_two_view`) against where its 3D point must go under the motion,
+    and whether the point is also reconstructed by the second pair's own matches
+    (:func:`.two_view.consistent`).
+    """
+    from .optical_two_view import epipolar_residuals, flow_field
     from .two_view import consistent, motion_arrays
 
     if motion is None:
@@ -291,17 +327,29 @@ def _two_view(out: Matches, second, motion, rig, noise, opt) -> Matches:
     motion_arrays(motion)  # validates
     if not (isinstance(second, (tuple, list)) and len(second) == 2):
         raise ValueError("second: expected (sonar, camera_image) of the second view")
-    m2 = match(second[0], second[1], rig, noise=noise, options=opt, min_score=0.0)
-    ok = consistent(out.points, m2.points, motion) if m2 else np.zeros(len(out), bool)
-    if not ok.any():
-        return _empty(f"no match of {len(out)} is consistent with the second view ({len(m2)} matches there)",
-                      out.sonar_features, out.camera_features, out.seabed)
-    feats = dict(out.features, two_view=ok)
-    kept = Matches(out.pixels, out.ranges, out.azimuths, out.points, out.score, out.cost, out.sonar_index,
-                   out.camera_index, out.sonar_features, out.camera_features, out.seabed,
-                   f"{int(ok.sum())} of {len(out)} matches consistent with the second view ({len(m2)} matches there)",
-                   feats)
-    return kept.select(ok)
+    image_2 = np.asarray(second[1])
+    if image_2.shape != np.asarray(image_1).shape:
+        raise ValueError(f"second camera_image: expected shape {np.asarray(image_1).shape} like the first, "
+                         f"got {image_2.shape}")
+    m2 = match(second[0], image_2, rig, noise=noise, options=opt, min_score=0.0)
+    cons = consistent(out.points, m2.points, motion) if m2 else np.zeros(len(out), bool)
+    flow = flow_field(image_1, image_2)
+    if flow is None:
+        resid = sens = np.full(len(out), np.nan)
+    else:
+        resid, sens = epipolar_residuals(rig.camera, out.pixels, out.points, flow, motion)
+    feats = dict(out.features, two_view=cons, flow_residual_px=resid, flow_px_per_m=sens,
+                 single_view_score=out.score)
+    score = _logistic(two_view_score_features(feats), TWO_VIEW_SCORE_MODEL)
+    order = np.argsort(-score, kind="stable")
+    n_ok = int(np.sum(np.abs(np.nan_to_num(resid, nan=np.inf)) <= 3.0))
+    msg = (f"{len(out)} matches re-scored with the second view: {n_ok} move in the second image within 3 px of "
+           f"where the motion takes their points, {int(cons.sum())} are also reconstructed by the second pair's "
+           f"{len(m2)} matches")
+    arrays = [np.asarray(x)[order] for x in (out.pixels, out.ranges, out.azimuths, out.points)]
+    feats = {k: np.asarray(v)[order] for k, v in feats.items()}
+    return Matches(*arrays, score[order], -np.log(np.maximum(score[order], 1e-12)), out.sonar_index[order],
+                   out.camera_index[order], out.sonar_features, out.camera_features, out.seabed, msg, feats)
 
 
 def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, options: MatchOptions | None = None,
@@ -326,9 +374,14 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
         for precision-recall curves). The score is a calibrated probability of being
         correct (:data:`SCORE_MODEL`).
     second : (sonar, camera_image), optional
-        A second pair of the same rig after it moved by ``motion``: only matches whose
-        reconstructed point is also reconstructed from the second pair's matches are kept
-        (:func:`.two_view.consistent`); ``features["two_view"]`` says so.
+        A second pair of the same rig after it moved by ``motion``. View 1's matches are
+        re-scored (:data:`TWO_VIEW_SCORE_MODEL`) with two pieces of evidence: where each
+        match's pixel went in the second camera image (dense optical flow) against where the
+        motion takes its 3D point (``features["flow_residual_px"]``, along the epipolar
+        direction, and ``features["flow_px_per_m"]``, px per metre of depth), and whether the
+        point is also reconstructed by the second pair's own matches
+        (:func:`.two_view.consistent`, ``features["two_view"]``). The one-view score is kept in
+        ``features["single_view_score"]``; ``min_score`` applies to the two-view score.
     motion : MotionResult, Pose or (R_o, t_o), optional
         ``P_camera2 = R_o P_camera1 + t_o``; required with ``second``.
 
@@ -368,7 +421,7 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
         return _empty("no sonar features: CFAR found no echo standing out of its background")
     if opt.method == "arc":
         out = _match_arcs(sf, cam_img, img_s, r_bins, th_beams, rig, noise, opt)
-        return _finish(out, second, motion, rig, noise, opt, min_score)
+        return _finish(out, cam_img, second, motion, rig, noise, opt, min_score)
     cf = detect_camera_features(cam_img, opt.keypoints)
     if len(cf) == 0:
         return _empty("no camera features: the image has no corners (blank or too turbid)", sf)
@@ -473,16 +526,16 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     out = Matches(cf.pixels[cols[ch]], sf.ranges[rows[ch]], sf.azimuths[rows[ch]], P[ch], score[order], cost[ch],
                   rows[ch], cols[ch], sf, cf, seabed,
                   f"{ch.size} matches of {len(sf)} sonar and {len(cf)} camera features", feats)
-    return _finish(out, second, motion, rig, noise, opt, min_score)
+    return _finish(out, cam_img, second, motion, rig, noise, opt, min_score)
 
 
-def _finish(out, second, motion, rig, noise, opt, min_score) -> Matches:
+def _finish(out, cam_img, second, motion, rig, noise, opt, min_score) -> Matches:
     """Two-view check (when asked for) and the score threshold."""
     if not out:
         return out
     n = len(out)
     if second is not None:
-        out = _two_view(out, second, motion, rig, noise, opt)
+        out = _two_view(out, cam_img, second, motion, rig, noise, opt)
     res = out.above(min_score)
     if not res:
         return _empty(f"nothing reliable: {n} tentative matches, none with score >= {min_score}",
