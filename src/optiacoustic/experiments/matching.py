@@ -43,10 +43,15 @@ def _rig_for(eye, target):
     return Rig.from_poses(sp, cp, camera, spec), sp
 
 
-def random_scene(seed: int):
-    """Boxes, cylinders and spheres (3-7 of them) on a seabed within 3 m of the origin (seeded)."""
+def random_scene(seed: int, textured: bool = False):
+    """Boxes, cylinders and spheres (3-7 of them) on a seabed within 3 m of the origin (seeded).
+
+    ``textured``: the same scene with every surface checkered (squares of 5-15 cm, the body's colour
+    and half of it; an optical texture only, the sonar sees the same scene), the case of surfaces
+    with visible texture (fouling, rust, sand ripples) that a second camera view can follow.
+    """
     from ..frames import Pose
-    from ..scene import Body, Box, Cylinder, Material, Plane, Scene, Sphere, View
+    from ..scene import Body, Box, Cylinder, Material, Plane, Scene, Sphere, Texture, View
 
     rng = np.random.default_rng(seed)
     bodies = [Body("seabed", Plane(size=(40.0, 40.0)), Pose.identity(),
@@ -67,7 +72,17 @@ def random_scene(seed: int):
             rad = rng.uniform(0.15, 0.5)
             shape, z = Sphere(radius=float(rad)), rad
         bodies.append(Body(f"{kind}_{i}", shape, Pose.from_euler_deg((x, y, float(z)), (0.0, 0.0, yaw)), mat))
-    return Scene(bodies, name=f"random_{seed}", view=View(eye=(0.0, -6.0, 2.0), target=(0.0, 0.0, 0.0)))
+    name = f"random_{seed}"
+    if textured:
+        import dataclasses
+
+        rng_t = np.random.default_rng(seed + 10 ** 6)
+        bodies = [dataclasses.replace(b, material=dataclasses.replace(
+            b.material, texture=Texture("checker", float(rng_t.uniform(0.05, 0.15)),
+                                        color2=tuple(0.5 * float(c) for c in b.material.color))))
+                  for b in bodies]
+        name = f"random_{seed}_textured"
+    return Scene(bodies, name=name, view=View(eye=(0.0, -6.0, 2.0), target=(0.0, 0.0, 0.0)))
 
 
 def _builtin_scenes():
@@ -696,25 +711,45 @@ def _fit_logistic(X, y, ridge):
 
 
 def calibrate_two_view_score(seeds=range(5000, 5024), *, ridge: float = 1.0) -> dict:
-    """Refit ``matching.match.TWO_VIEW_SCORE_MODEL``: logistic regression of correctness on the two-view evidence.
+    """Refit ``matching.match.TWO_VIEW_SCORE_MODEL`` and ``SWEEP_SCORE_MODEL`` (logistic regressions).
 
-    Each random scene seeded ``seeds`` is matched with a second pair after the random vehicle
-    motion :func:`vehicle_motion` of the same seed (thesis water, default sonar noise); every
-    match is labelled by the depth-map truth. Use seeds disjoint from the evaluation's.
+    Each random scene seeded ``seeds``, plain and textured (:func:`random_scene`), is matched with
+    a second pair after the random vehicle motion :func:`vehicle_motion` of the same seed (thesis
+    water, default sonar noise); every candidate of both kinds is labelled by the depth-map
+    truth. Use seeds disjoint from the evaluation's.
+
+    Returns
+    -------
+    dict
+        ``arc`` and ``sweep``: each ``weights`` (intercept first), ``mean``, ``std``, ``n``,
+        ``positive_rate``.
     """
-    from ..matching import match, truth
-    from ..matching.match import two_view_score_features
+    from ..matching import MatchOptions, match, truth
+    from ..matching.match import (_elevation_intervals, sweep_score_features, two_view_candidates,
+                                  two_view_score_features)
 
-    X, y = [], []
+    XA, yA, XB, yB = [], [], [], []
+    opt = MatchOptions()
     for sd in seeds:
-        sc = random_scene(int(sd))
-        s, o, rig = simulate_pair(sc, "thesis", "default", int(sd))
-        s2, o2, motion = moved_view(sc, vehicle_motion(int(sd)), int(sd))
-        m = match(s, o.image, rig, min_score=0.0, second=(s2, o2.image), motion=motion)
-        if m:
+        for textured in (False, True):
+            sc = random_scene(int(sd), textured=textured)
+            s, o, rig = simulate_pair(sc, "thesis", "default", int(sd))
+            s2, o2, motion = moved_view(sc, vehicle_motion(int(sd)), int(sd))
+            out = match(s, o.image, rig, min_score=0.0)
+            sf = out.sonar_features
+            if sf is None or len(sf) == 0:
+                continue
             bw, aw = float(np.median(np.diff(s.ranges))), float(np.median(np.diff(s.azimuths)))
-            X.append(two_view_score_features(m.features))
-            y.append(truth.correct(rig, o.depth, m.pixels, m.ranges, m.azimuths, bin_width=bw,
-                                   beam_width=aw).astype(float))
-    return _fit_logistic(np.concatenate(X), np.concatenate(y), ridge)
-
+            intervals = _elevation_intervals(sf, np.asarray(s.image, float), s.ranges, s.azimuths, rig, opt)
+            arc, sweep = two_view_candidates(out, sf, intervals, o.image, (s2, o2.image), motion, rig, None, opt)
+            if len(out):
+                XA.append(two_view_score_features(arc))
+                yA.append(truth.correct(rig, o.depth, out.pixels, out.ranges, out.azimuths, bin_width=bw,
+                                        beam_width=aw).astype(float))
+            f = np.asarray(sweep["found"], bool)
+            if f.any():
+                XB.append(sweep_score_features({k: np.asarray(v)[f] for k, v in sweep.items() if k != "pixels"}))
+                yB.append(truth.correct(rig, o.depth, sweep["pixels"][f], sf.ranges[f], sf.azimuths[f], bin_width=bw,
+                                        beam_width=aw).astype(float))
+    return dict(arc=_fit_logistic(np.concatenate(XA), np.concatenate(yA), ridge),
+                sweep=_fit_logistic(np.concatenate(XB), np.concatenate(yB), ridge))

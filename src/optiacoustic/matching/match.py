@@ -311,15 +311,43 @@ def two_view_score_features(feats: dict) -> np.ndarray:
                             np.asarray(feats["two_view"], float)])
 
 
-def _two_view(out: Matches, image_1, second, motion, rig, noise, opt) -> Matches:
-    """Re-score view 1's matches with a second pair of the moved rig (known motion, thesis ch. 6).
+#: Logistic model of P(correct) of the sweep's choice (:func:`.optical_two_view.sweep_arcs`):
+#: intercept and weights of the standardised :func:`sweep_score_features` (log of 1 + the
+#: forward-backward flow error, log of the number of crossings, log of 1 + the residual's slope,
+#: log sensitivity, log of 1 + the distance to the arc search's pixel and no arc pixel, log SNR,
+#: onset or peak). Fitted by ``experiments.matching.calibrate_two_view_score()`` (see
+#: :data:`TWO_VIEW_SCORE_MODEL`).
+SWEEP_SCORE_MODEL = dict(
+    weights=(-1.0, -1.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    mean=(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    std=(1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0),
+)
 
-    Two pieces of evidence: where the match's pixel went in the second camera image (dense
-    optical flow, :mod:`.optical_two_view`) against where its 3D point must go under the motion,
-    and whether the point is also reconstructed by the second pair's own matches
-    (:func:`.two_view.consistent`).
+
+def sweep_score_features(feats: dict) -> np.ndarray:
+    """The sweep score model's inputs ``(N, 8)`` from the sweep candidates' evidence."""
+    dist = np.asarray(feats["distance_to_arc_px"], float)
+    no_arc = ~np.isfinite(dist)
+    return np.column_stack([np.log1p(np.minimum(feats["fb_error"], 100.0)), np.log(np.maximum(feats["n_crossings"], 1)),
+                            np.log1p(feats["slope"]), np.log(np.maximum(feats["px_per_m"], 1e-3)),
+                            np.log1p(np.where(no_arc, 0.0, dist)), no_arc.astype(float),
+                            np.log(np.maximum(feats["snr"], 1e-6)), np.asarray(feats["kind"], float)])
+
+
+def two_view_candidates(out: Matches, sf, intervals, image_1, second, motion, rig, noise, opt) -> tuple[dict, dict]:
+    """Both kinds of two-view candidates with their evidence (for :func:`_two_view` and the calibration).
+
+    Returns
+    -------
+    arc : dict
+        View 1's arc-search matches (``out``) with ``flow_residual_px``, ``flow_px_per_m``,
+        ``two_view`` (consistent with the second pair's matches), ``single_view_score``.
+    sweep : dict
+        For every sonar feature of view 1: ``pixels`` ``(N, 2)``, ``elevations``, ``found`` and
+        the :class:`.optical_two_view.ArcSweep` evidence, plus ``distance_to_arc_px``, ``snr``,
+        ``kind``.
     """
-    from .optical_two_view import epipolar_residuals, flow_field
+    from .optical_two_view import epipolar_residuals, flow_field, forward_backward_error, sweep_arcs
     from .two_view import consistent, motion_arrays
 
     if motion is None:
@@ -332,24 +360,94 @@ def _two_view(out: Matches, image_1, second, motion, rig, noise, opt) -> Matches
         raise ValueError(f"second camera_image: expected shape {np.asarray(image_1).shape} like the first, "
                          f"got {image_2.shape}")
     m2 = match(second[0], image_2, rig, noise=noise, options=opt, min_score=0.0)
-    cons = consistent(out.points, m2.points, motion) if m2 else np.zeros(len(out), bool)
+    n = len(out)
     flow = flow_field(image_1, image_2)
+    back = flow_field(image_2, image_1) if flow is not None else None
+    arc = dict(out.features) if n else {}
+    arc.update(two_view=consistent(out.points, m2.points, motion) if (n and m2) else np.zeros(n, bool),
+               single_view_score=out.score, n_second=len(m2))
     if flow is None:
-        resid = sens = np.full(len(out), np.nan)
+        arc["flow_residual_px"] = arc["flow_px_per_m"] = np.full(n, np.nan)
+        nan = np.full(len(sf), np.nan)
+        sweep = dict(pixels=np.full((len(sf), 2), np.nan), elevations=nan, found=np.zeros(len(sf), bool),
+                     n_crossings=nan, fb_error=nan, slope=nan, px_per_m=nan)
     else:
-        resid, sens = epipolar_residuals(rig.camera, out.pixels, out.points, flow, motion)
-    feats = dict(out.features, two_view=cons, flow_residual_px=resid, flow_px_per_m=sens,
-                 single_view_score=out.score)
-    score = _logistic(two_view_score_features(feats), TWO_VIEW_SCORE_MODEL)
+        arc["flow_residual_px"], arc["flow_px_per_m"] = epipolar_residuals(rig.camera, out.pixels, out.points, flow,
+                                                                           motion)
+        lo, hi = intervals[0], intervals[1]
+        sw = sweep_arcs(rig, sf.ranges, sf.azimuths, lo, hi, flow, forward_backward_error(flow, back), motion)
+        sweep = {k: getattr(sw, k) for k in ("pixels", "elevations", "found", "n_crossings", "fb_error", "slope",
+                                             "px_per_m")}
+    dist = np.full(len(sf), np.nan)
+    if n:
+        dist[out.sonar_index] = np.linalg.norm(sweep["pixels"][out.sonar_index] - out.pixels, axis=-1)
+    sweep.update(distance_to_arc_px=dist, snr=sf.snr, kind=sf.kind)
+    return arc, sweep
+
+
+def _two_view(out: Matches, sf, intervals, image_1, second, motion, rig, noise, opt) -> Matches:
+    """Matches from two views of the moved rig (known motion, thesis ch. 6).
+
+    Every sonar feature has up to two candidate pixels: the arc search's (one view), re-scored
+    with the second view (:data:`TWO_VIEW_SCORE_MODEL`: does its pixel move in the second
+    image as the motion moves its point, is its point also reconstructed by the second pair),
+    and the sweep's (:func:`.optical_two_view.sweep_arcs`: the pixel of its arc that moves as
+    the motion says, scored by :data:`SWEEP_SCORE_MODEL`). The more probable one is kept.
+    """
+    arc, sweep = two_view_candidates(out, sf, intervals, image_1, second, motion, rig, noise, opt)
+    N = len(sf)
+    p_arc = np.full(N, -1.0)
+    if len(out):
+        p_arc[out.sonar_index] = _logistic(two_view_score_features(arc), TWO_VIEW_SCORE_MODEL)
+    found = np.asarray(sweep["found"], bool)
+    p_sweep = np.full(N, -1.0)
+    if found.any():
+        p_sweep[found] = _logistic(sweep_score_features({k: np.asarray(v)[found] for k, v in sweep.items()
+                                                          if k != "pixels"}), SWEEP_SCORE_MODEL)
+    use_sweep = p_sweep > p_arc
+    rows = np.nonzero(np.maximum(p_arc, p_sweep) >= 0)[0]
+    if rows.size == 0:
+        return _empty("no match in either view: no arc search choice and no arc pixel whose flow agrees with the "
+                      "motion", sf, out.camera_features, out.seabed)
+    arc_pos = np.full(N, -1)
+    arc_pos[out.sonar_index] = np.arange(len(out))
+    px = np.where(use_sweep[rows, None], sweep["pixels"][rows],
+                  out.pixels[np.maximum(arc_pos[rows], 0)] if len(out) else np.nan)
+    s_px = noise.sigma_pixel or 0.5
+    s_r = noise.sigma_range or float(np.median(sf.sigma_range[rows]))
+    s_a = noise.sigma_azimuth or float(np.median(sf.sigma_azimuth[rows]))
+    ref = rc.refine(rig, px, sf.ranges[rows], sf.azimuths[rows], sigma_pixel=float(s_px), sigma_range=float(s_r),
+                    sigma_azimuth=float(s_a), max_iter=10)
+    from ..geometry.projection import camera_from_sonar
+
+    phi_arc = np.asarray(out.features.get("elevation", np.full(len(out), np.nan)), float)
+    phi = np.where(use_sweep[rows], sweep["elevations"][rows], phi_arc[np.maximum(arc_pos[rows], 0)] if len(out)
+                   else np.nan)
+    P = np.where(ref.valid[:, None], ref.points, camera_from_sonar(rig, sf.ranges[rows], sf.azimuths[rows], phi))
+    score = np.maximum(p_arc, p_sweep)[rows]
+    k_arc = np.maximum(arc_pos[rows], 0)
+
+    def from_arc(key):
+        v = np.asarray(arc[key], float) if len(out) else np.zeros(0)
+        return np.where(arc_pos[rows] >= 0, v[k_arc] if v.size else np.nan, np.nan)
+
+    feats = dict(source=np.where(use_sweep[rows], 1, 0), single_view_score=from_arc("single_view_score"),
+                 arc_two_view_score=np.where(p_arc[rows] >= 0, p_arc[rows], np.nan),
+                 sweep_score=np.where(p_sweep[rows] >= 0, p_sweep[rows], np.nan),
+                 flow_residual_px=from_arc("flow_residual_px"), flow_px_per_m=from_arc("flow_px_per_m"),
+                 two_view=from_arc("two_view"), elevation=phi,
+                 **{f"sweep_{k}": np.asarray(sweep[k], float)[rows] for k in ("n_crossings", "fb_error", "slope",
+                                                                               "px_per_m", "distance_to_arc_px")})
     order = np.argsort(-score, kind="stable")
-    n_ok = int(np.sum(np.abs(np.nan_to_num(resid, nan=np.inf)) <= 3.0))
-    msg = (f"{len(out)} matches re-scored with the second view: {n_ok} move in the second image within 3 px of "
-           f"where the motion takes their points, {int(cons.sum())} are also reconstructed by the second pair's "
-           f"{len(m2)} matches")
-    arrays = [np.asarray(x)[order] for x in (out.pixels, out.ranges, out.azimuths, out.points)]
+    cam_idx = np.where(use_sweep[rows], -1, arc_pos[rows])
+    n_sw = int(use_sweep[rows].sum())
+    msg = (f"{rows.size} matches from two views (second view, known motion): {rows.size - n_sw} arc-search choices "
+           f"re-scored, {n_sw} arc pixels whose optical flow agrees with the motion; {arc.get('n_second', 0)} "
+           f"matches in the second pair")
     feats = {k: np.asarray(v)[order] for k, v in feats.items()}
-    return Matches(*arrays, score[order], -np.log(np.maximum(score[order], 1e-12)), out.sonar_index[order],
-                   out.camera_index[order], out.sonar_features, out.camera_features, out.seabed, msg, feats)
+    return Matches(px[order], sf.ranges[rows[order]], sf.azimuths[rows[order]], P[order], score[order],
+                   -np.log(np.maximum(score[order], 1e-12)), rows[order], cam_idx[order], sf, out.camera_features,
+                   out.seabed, msg, feats)
 
 
 def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, options: MatchOptions | None = None,
@@ -420,8 +518,9 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     if len(sf) == 0:
         return _empty("no sonar features: CFAR found no echo standing out of its background")
     if opt.method == "arc":
-        out = _match_arcs(sf, cam_img, img_s, r_bins, th_beams, rig, noise, opt)
-        return _finish(out, cam_img, second, motion, rig, noise, opt, min_score)
+        intervals = _elevation_intervals(sf, img_s, r_bins, th_beams, rig, opt)
+        out = _match_arcs(sf, cam_img, rig, noise, opt, intervals)
+        return _finish(out, cam_img, second, motion, rig, noise, opt, min_score, sf=sf, intervals=intervals)
     cf = detect_camera_features(cam_img, opt.keypoints)
     if len(cf) == 0:
         return _empty("no camera features: the image has no corners (blank or too turbid)", sf)
@@ -526,16 +625,19 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     out = Matches(cf.pixels[cols[ch]], sf.ranges[rows[ch]], sf.azimuths[rows[ch]], P[ch], score[order], cost[ch],
                   rows[ch], cols[ch], sf, cf, seabed,
                   f"{ch.size} matches of {len(sf)} sonar and {len(cf)} camera features", feats)
-    return _finish(out, cam_img, second, motion, rig, noise, opt, min_score)
+    return _finish(out, cam_img, second, motion, rig, noise, opt, min_score, sf=sf)
 
 
-def _finish(out, cam_img, second, motion, rig, noise, opt, min_score) -> Matches:
+def _finish(out, cam_img, second, motion, rig, noise, opt, min_score, *, sf=None, intervals=None) -> Matches:
     """Two-view check (when asked for) and the score threshold."""
+    if second is not None and sf is not None and len(sf) and np.ptp(np.asarray(cam_img, float)) > 0:
+        if intervals is None:
+            half = rig.fov_elevation / 2
+            intervals = (np.full(len(sf), -half), np.full(len(sf), half), np.zeros(len(sf), bool), out.seabed)
+        out = _two_view(out, sf, intervals, cam_img, second, motion, rig, noise, opt)
     if not out:
         return out
     n = len(out)
-    if second is not None:
-        out = _two_view(out, cam_img, second, motion, rig, noise, opt)
     res = out.above(min_score)
     if not res:
         return _empty(f"nothing reliable: {n} tentative matches, none with score >= {min_score}",
@@ -572,14 +674,8 @@ def _logistic(X, model):
     return 1.0 / (1.0 + np.exp(-z))
 
 
-def _match_arcs(sf, cam_img, img_s, r_bins, th_beams, rig, noise, opt) -> Matches:
-    """Every sonar feature takes the middle of the longest edge-free run of its arc (:mod:`.arc_search`)."""
-    from ..geometry.projection import camera_from_sonar
-    from .arc_search import gradient_image, search_arcs, stretched
-    from .camera_features import to_gray8
-
-    if np.ptp(to_gray8(cam_img)) == 0:
-        return _empty("no camera features: the image is blank (or too turbid to show anything)", sf)
+def _elevation_intervals(sf, img_s, r_bins, th_beams, rig, opt):
+    """Each sonar feature's elevation interval from the seabed and shadows: (low, high, shadowed, seabed)."""
     half = rig.fov_elevation / 2
     lo = np.full(len(sf), -half)
     hi = np.full(len(sf), half)
@@ -594,6 +690,18 @@ def _match_arcs(sf, cam_img, img_s, r_bins, th_beams, rig, noise, opt) -> Matche
                                                            cells=cells)
             lo, hi = low_map[sf.bins, sf.beams], high_map[sf.bins, sf.beams]
             shadowed = shadow_map[sf.bins, sf.beams]
+    return lo, hi, shadowed, seabed
+
+
+def _match_arcs(sf, cam_img, rig, noise, opt, intervals) -> Matches:
+    """Every sonar feature takes the middle of the longest edge-free run of its arc (:mod:`.arc_search`)."""
+    from ..geometry.projection import camera_from_sonar
+    from .arc_search import gradient_image, search_arcs, stretched
+    from .camera_features import to_gray8
+
+    if np.ptp(to_gray8(cam_img)) == 0:
+        return _empty("no camera features: the image is blank (or too turbid to show anything)", sf)
+    lo, hi, shadowed, seabed = intervals
     grad = gradient_image(cam_img)
     colours = stretched(cam_img) if opt.seabed_contrast > 0 else None
     from .sonar_features import ONSET

@@ -20,16 +20,13 @@ to one bin along a face.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from .two_view import motion_arrays
 
-__all__ = ["FLOW_SIGMA_PX", "flow_field", "epipolar_residuals"]
-
-#: Robust (1.4826 MAD) error of DIS optical flow along the epipolar direction at matched pixels,
-#: measured against the depth-map flow on the training scenes 5000-5009 (random vehicle motions):
-#: the scale of :func:`epipolar_residuals`.
-FLOW_SIGMA_PX = 1.0
+__all__ = ["ArcSweep", "epipolar_residuals", "flow_field", "forward_backward_error", "sweep_arcs"]
 
 
 def _gray_pair(image_1, image_2):
@@ -109,3 +106,119 @@ def epipolar_residuals(camera, pixels_1, points_1, flow, motion) -> tuple[np.nda
     along = np.sum((u2 - observed) * direction, axis=-1)
     ok &= np.all(np.isfinite(u2), -1) & camera.in_image(u2)
     return np.where(ok, along, np.nan), np.where(ok, speed, np.nan)
+
+
+def forward_backward_error(flow_12, flow_21) -> np.ndarray:
+    """``|F12(u) + F21(u + F12(u))|`` per pixel of image 1, shape (H, W) px: where the flow is trustworthy."""
+    import cv2
+
+    H, W = flow_12.shape[:2]
+    u, v = np.meshgrid(np.arange(W, dtype=np.float32), np.arange(H, dtype=np.float32))
+    mx = u + flow_12[..., 0]
+    my = v + flow_12[..., 1]
+    back = cv2.remap(flow_21, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=(1e3, 1e3))
+    err = np.linalg.norm(flow_12 + back, axis=-1)
+    outside = (mx < 0) | (mx > W - 1) | (my < 0) | (my > H - 1)
+    return np.where(outside, np.inf, err)
+
+
+@dataclass(frozen=True, eq=False)
+class ArcSweep:
+    """For each sonar feature, the arc pixel whose optical flow agrees with the known motion.
+
+    Attributes
+    ----------
+    pixels : ndarray, shape (N, 2)
+        ``(u, v)`` of view 1; NaN where no crossing was found.
+    elevations : ndarray, shape (N,)
+        Elevation (rad, sonar frame) of the chosen arc point.
+    found : ndarray of bool, shape (N,)
+    n_crossings : ndarray, shape (N,)
+        How many places along the arc (inside the elevation interval) the residual changes sign
+        smoothly: each is a surface at the feature's range as far as the flow can tell.
+    fb_error : ndarray, shape (N,)
+        Forward-backward flow error at the chosen pixel (px).
+    slope : ndarray, shape (N,)
+        ``|d residual / d elevation|`` at the crossing (px per degree): how sharply the flow
+        pins the elevation.
+    px_per_m : ndarray, shape (N,)
+        The motion's sensitivity there (px per metre of depth).
+    """
+
+    pixels: np.ndarray
+    elevations: np.ndarray
+    found: np.ndarray
+    n_crossings: np.ndarray
+    fb_error: np.ndarray
+    slope: np.ndarray
+    px_per_m: np.ndarray
+
+
+def sweep_arcs(rig, ranges, azimuths, low, high, flow, fb_error, motion, *, n_samples: int = 400,
+               max_jump: float = 1.0, margin: float = float(np.deg2rad(0.25))) -> ArcSweep:
+    """Along each sonar feature's arc, the elevation where the pixel moves as the motion says its point must.
+
+    The arc ``r (cos phi sin theta, cos phi cos theta, sin phi)`` is sampled at ``n_samples``
+    elevations across the aperture; at each sample the residual of :func:`epipolar_residuals`
+    (flow against motion, along the epipolar direction) is computed. Where the pixel sees a
+    surface at the feature's range the residual is zero: the residual's sign changes there.
+    A sign change across a jump larger than ``max_jump`` px between neighbouring samples is a
+    depth discontinuity (an occluding edge), not a crossing. Among the crossings inside
+    ``[low - margin, high + margin]`` the one with the smallest forward-backward flow error
+    is taken (sub-sample, by linear interpolation).
+
+    Parameters
+    ----------
+    rig : Rig
+        With the sonar attached.
+    ranges, azimuths, low, high : array_like, shape (N,)
+        Sonar features (m, rad) and their elevation intervals (rad).
+    flow : ndarray, shape (H, W, 2)
+        :func:`flow_field` from image 1 to image 2.
+    fb_error : ndarray, shape (H, W)
+        :func:`forward_backward_error`.
+    motion : MotionResult, Pose or (R_o, t_o)
+
+    Returns
+    -------
+    ArcSweep
+    """
+    from ..geometry.projection import camera_from_sonar
+
+    r = np.asarray(ranges, float).reshape(-1)
+    th = np.asarray(azimuths, float).reshape(-1)
+    N = r.size
+    nan = np.full(N, np.nan)
+    if N == 0:
+        return ArcSweep(np.zeros((0, 2)), nan, np.zeros(0, bool), nan, nan, nan, nan)
+    half = rig.fov_elevation / 2
+    phis = np.linspace(-half, half, n_samples)
+    P = camera_from_sonar(rig, r[:, None], th[:, None], phis[None, :])
+    cam = rig.camera
+    uv = cam.project(P)
+    a, sens = epipolar_residuals(cam, uv.reshape(-1, 2), P.reshape(-1, 3), flow, motion)
+    a, sens = a.reshape(N, n_samples), sens.reshape(N, n_samples)
+    lo = np.asarray(low, float).reshape(-1)[:, None] - margin
+    hi = np.asarray(high, float).reshape(-1)[:, None] + margin
+    ok = np.isfinite(a) & (phis[None, :] >= lo) & (phis[None, :] <= hi)
+    a0, a1 = a[:, :-1], a[:, 1:]
+    cross = ok[:, :-1] & ok[:, 1:] & (np.sign(a0) != np.sign(a1)) & (np.abs(a1 - a0) <= max_jump)
+    H, W = fb_error.shape
+    ui = np.clip(np.rint(np.nan_to_num(uv[..., 0])).astype(int), 0, W - 1)
+    vi = np.clip(np.rint(np.nan_to_num(uv[..., 1])).astype(int), 0, H - 1)
+    fb = fb_error[vi, ui]
+    fb_c = np.where(cross, np.maximum(fb[:, :-1], fb[:, 1:]), np.inf)
+    j = np.argmin(fb_c, axis=1)
+    rows = np.arange(N)
+    found = np.isfinite(fb_c[rows, j])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = np.clip(a0[rows, j] / (a0[rows, j] - a1[rows, j]), 0.0, 1.0)
+    frac = np.where(found, frac, 0.0)
+    step = phis[1] - phis[0]
+    phi = phis[j] + frac * step
+    Pc = camera_from_sonar(rig, r, th, phi)
+    px = cam.project(Pc)
+    slope = np.abs(a1[rows, j] - a0[rows, j]) / np.rad2deg(step)
+    return ArcSweep(np.where(found[:, None], px, np.nan), np.where(found, phi, np.nan), found,
+                    cross.sum(axis=1).astype(float), np.where(found, fb_c[rows, j], np.nan),
+                    np.where(found, slope, np.nan), np.where(found, sens[rows, j], np.nan))
