@@ -9,13 +9,17 @@ structure). The residual ``u1 + flow(u1) - u2`` projected on the direction in wh
 when ``P`` slides along the pixel's ray (the epipolar direction) measures how wrong ``P``'s depth
 is; the perpendicular component is flow error only.
 
+The same residual, computed along a sonar feature's whole arc, changes sign where the pixel sees
+a surface at the feature's range: :func:`sweep_arcs` takes that elevation (a plane sweep along the
+arc, with the sonar's range as the depth hypothesis).
+
 What this can and cannot decide (docs/matching.md, "Two views"): a change of depth ``dZ`` moves
 ``u2`` by about ``f B_perp dZ / Z^2`` px along the epipolar direction (``B_perp`` the baseline
 across the line of sight). At 6 m with ``f`` = 833 px and 0.3 m of baseline, one range bin
-(2.5 cm) is 0.17 px, far below the flow's error on the uniform faces objects present (several
-px, measured), so the test removes matches whose point is on the wrong *surface* (decimetres to
-metres off: the seabed in front, the top face, a neighbouring object) but cannot place a point
-to one bin along a face.
+(2.5 cm) is 0.05-0.2 px, below the flow's error even on textured surfaces and far below it on
+the uniform faces of the plain scenes (several px, measured), so on uniform surfaces the test
+only removes matches whose point is on the wrong *surface* (decimetres to metres off); on
+textured ones the sweep places the point to a few bins.
 """
 
 from __future__ import annotations
@@ -222,3 +226,4 @@ def sweep_arcs(rig, ranges, azimuths, low, high, flow, fb_error, motion, *, n_sa
     return ArcSweep(np.where(found[:, None], px, np.nan), np.where(found, phi, np.nan), found,
                     cross.sum(axis=1).astype(float), np.where(found, fb_c[rows, j], np.nan),
                     np.where(found, slope, np.nan), np.where(found, sens[rows, j], np.nan))
+
