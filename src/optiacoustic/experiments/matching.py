@@ -564,8 +564,10 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
                    label=f"{label}: precision at recall 0.5")
         ax[1].plot(xb, [d["precision_at_recall_0_25"] for d in rows_], mk + "--", color=col, alpha=0.6,
                    label=f"{label}: precision at recall 0.25")
+        ax[1].plot(xb, [d["max_recall"] for d in rows_], mk + ":", color=col, alpha=0.4, mfc="none",
+                   label=f"{label}: recall of all matches")
     ax[1].set_xlabel("baseline (m): 0.3 m forward and 0 - 2 m sideways")
-    ax[1].set_ylabel("precision (two views)")
+    ax[1].set_ylabel("precision, recall (two views)")
     ax[1].set_ylim(0, 1.02)
     ax2 = ax[1].twinx()
     rows_ = [d for d in sweep if d["scenes"] == "plain"]
