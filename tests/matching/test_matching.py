@@ -385,3 +385,15 @@ def test_arc_sweep_finds_the_seabed_from_an_exact_flow():
     np.testing.assert_allclose(sw.elevations, phi, atol=np.deg2rad(0.1))
     np.testing.assert_allclose(sw.pixels, cam.project(P_c), atol=1.5)
     assert np.all(sw.n_crossings == 1)
+
+
+def test_two_view_degenerate_second_views(pairs):
+    """No motion (no parallax) or a blank second image: no sweep match, the arc search's matches stay."""
+    s, o, rig = pairs[0]
+    one = match(s, o.image, rig, min_score=0.0)
+    still = match(s, o.image, rig, min_score=0.0, second=(s, o.image), motion=(np.eye(3), np.zeros(3)))
+    assert len(still) == len(one) and np.all(still.features["source"] == 0)
+    assert np.all(~np.isfinite(still.features["sweep_px_per_m"]))
+    blank = match(s, o.image, rig, min_score=0.0, second=(s, np.zeros_like(o.image)),
+                  motion=(np.eye(3), np.array([0.3, 0.0, 0.0])))
+    assert len(blank) == len(one) and np.all(blank.features["source"] == 0)
