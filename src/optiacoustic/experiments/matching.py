@@ -741,7 +741,7 @@ def _fit_logistic(X, y, ridge):
 
 
 def calibrate_two_view_score(seeds=range(5000, 5024), *, ridge: float = 1.0) -> dict:
-    """Refit ``matching.match.TWO_VIEW_SCORE_MODEL`` and ``SWEEP_SCORE_MODEL`` (logistic regressions).
+    """Refit ``matching.match.TWO_VIEW_SCORE_MODEL``, ``SWEEP_SCORE_MODEL`` and ``CORRELATION_SCORE_MODEL``.
 
     Each random scene seeded ``seeds``, plain and textured (:func:`random_scene`), is matched with
     a second pair after the random vehicle motion :func:`vehicle_motion` of the same seed (thesis
@@ -751,14 +751,14 @@ def calibrate_two_view_score(seeds=range(5000, 5024), *, ridge: float = 1.0) -> 
     Returns
     -------
     dict
-        ``arc`` and ``sweep``: each ``weights`` (intercept first), ``mean``, ``std``, ``n``,
-        ``positive_rate``.
+        ``arc``, ``sweep`` and ``correlation`` (logistic regressions): each ``weights``
+        (intercept first), ``mean``, ``std``, ``n``, ``positive_rate``.
     """
     from ..matching import MatchOptions, match, truth
-    from ..matching.match import (_elevation_intervals, sweep_score_features, two_view_candidates,
-                                  two_view_score_features)
+    from ..matching.match import (_elevation_intervals, correlation_score_features, sweep_score_features,
+                                  two_view_candidates, two_view_score_features)
 
-    XA, yA, XB, yB = [], [], [], []
+    XA, yA, XB, yB, XC, yC = [], [], [], [], [], []
     opt = MatchOptions()
     for sd in seeds:
         for textured in (False, True):
@@ -771,15 +771,19 @@ def calibrate_two_view_score(seeds=range(5000, 5024), *, ridge: float = 1.0) -> 
                 continue
             bw, aw = float(np.median(np.diff(s.ranges))), float(np.median(np.diff(s.azimuths)))
             intervals = _elevation_intervals(sf, np.asarray(s.image, float), s.ranges, s.azimuths, rig, opt)
-            arc, sweep = two_view_candidates(out, sf, intervals, o.image, (s2, o2.image), motion, rig, None, opt)
+            arc, sweep, corr = two_view_candidates(out, sf, intervals, o.image, (s2, o2.image), motion, rig, None,
+                                                   opt)
             if len(out):
                 XA.append(two_view_score_features(arc))
                 yA.append(truth.correct(rig, o.depth, out.pixels, out.ranges, out.azimuths, bin_width=bw,
                                         beam_width=aw).astype(float))
-            f = np.asarray(sweep["found"], bool)
-            if f.any():
-                XB.append(sweep_score_features({k: np.asarray(v)[f] for k, v in sweep.items() if k != "pixels"}))
-                yB.append(truth.correct(rig, o.depth, sweep["pixels"][f], sf.ranges[f], sf.azimuths[f], bin_width=bw,
-                                        beam_width=aw).astype(float))
+            for cand, featurise, X_, y_ in ((sweep, sweep_score_features, XB, yB),
+                                            (corr, correlation_score_features, XC, yC)):
+                f = np.asarray(cand["found"], bool)
+                if f.any():
+                    X_.append(featurise({k: np.asarray(v)[f] for k, v in cand.items() if k != "pixels"}))
+                    y_.append(truth.correct(rig, o.depth, cand["pixels"][f], sf.ranges[f], sf.azimuths[f],
+                                            bin_width=bw, beam_width=aw).astype(float))
     return dict(arc=_fit_logistic(np.concatenate(XA), np.concatenate(yA), ridge),
-                sweep=_fit_logistic(np.concatenate(XB), np.concatenate(yB), ridge))
+                sweep=_fit_logistic(np.concatenate(XB), np.concatenate(yB), ridge),
+                correlation=_fit_logistic(np.concatenate(XC), np.concatenate(yC), ridge))

@@ -335,7 +335,31 @@ def sweep_score_features(feats: dict) -> np.ndarray:
                             np.log(np.maximum(feats["snr"], 1e-6)), np.asarray(feats["kind"], float)])
 
 
-def two_view_candidates(out: Matches, sf, intervals, image_1, second, motion, rig, noise, opt) -> tuple[dict, dict]:
+#: Logistic model of P(correct) of the photo-consistency sweep's choice
+#: (:func:`.optical_two_view.correlate_arcs`): intercept and weights of the standardised
+#: :func:`correlation_score_features` (peak correlation, its margin over the best correlation
+#: 0.5 deg away, log patch texture, log sensitivity, log of 1 + the distance to the arc search's
+#: pixel and no arc pixel, log SNR, onset or peak). Fitted by
+#: ``experiments.matching.calibrate_two_view_score()`` (see :data:`TWO_VIEW_SCORE_MODEL`).
+CORRELATION_SCORE_MODEL = dict(
+    weights=(-5.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    mean=(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    std=(1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0),
+)
+
+
+def correlation_score_features(feats: dict) -> np.ndarray:
+    """The correlation score model's inputs ``(N, 8)`` from the correlation candidates' evidence."""
+    dist = np.asarray(feats["distance_to_arc_px"], float)
+    no_arc = ~np.isfinite(dist)
+    return np.column_stack([feats["ncc"], feats["margin"], np.log(np.maximum(feats["texture"], 1e-3)),
+                            np.log(np.maximum(feats["px_per_m"], 1e-3)), np.log1p(np.where(no_arc, 0.0, dist)),
+                            no_arc.astype(float), np.log(np.maximum(feats["snr"], 1e-6)),
+                            np.asarray(feats["kind"], float)])
+
+
+def two_view_candidates(out: Matches, sf, intervals, image_1, second, motion, rig, noise,
+                        opt) -> tuple[dict, dict, dict]:
     """Both kinds of two-view candidates with their evidence (for :func:`_two_view` and the calibration).
 
     Returns
@@ -347,8 +371,11 @@ def two_view_candidates(out: Matches, sf, intervals, image_1, second, motion, ri
         For every sonar feature of view 1: ``pixels`` ``(N, 2)``, ``elevations``, ``found`` and
         the :class:`.optical_two_view.ArcSweep` evidence, plus ``distance_to_arc_px``, ``snr``,
         ``kind``.
+    correlation : dict
+        The same for :func:`.optical_two_view.correlate_arcs` (``ncc``, ``margin``, ``texture``,
+        ``px_per_m``).
     """
-    from .optical_two_view import epipolar_residuals, flow_field, forward_backward_error, sweep_arcs
+    from .optical_two_view import correlate_arcs, epipolar_residuals, flow_field, forward_backward_error, sweep_arcs
     from .two_view import consistent, motion_arrays
 
     if motion is None:
@@ -379,11 +406,15 @@ def two_view_candidates(out: Matches, sf, intervals, image_1, second, motion, ri
         sw = sweep_arcs(rig, sf.ranges, sf.azimuths, lo, hi, flow, forward_backward_error(flow, back), motion)
         sweep = {k: getattr(sw, k) for k in ("pixels", "elevations", "found", "n_crossings", "fb_error", "slope",
                                              "px_per_m")}
-    dist = np.full(len(sf), np.nan)
-    if n:
-        dist[out.sonar_index] = np.linalg.norm(sweep["pixels"][out.sonar_index] - out.pixels, axis=-1)
-    sweep.update(distance_to_arc_px=dist, snr=sf.snr, kind=sf.kind)
-    return arc, sweep
+    lo, hi = intervals[0], intervals[1]
+    co = correlate_arcs(rig, sf.ranges, sf.azimuths, lo, hi, image_1, image_2, motion)
+    corr = {k: getattr(co, k) for k in ("pixels", "elevations", "found", "ncc", "margin", "texture", "px_per_m")}
+    for cand in (sweep, corr):
+        dist = np.full(len(sf), np.nan)
+        if n:
+            dist[out.sonar_index] = np.linalg.norm(cand["pixels"][out.sonar_index] - out.pixels, axis=-1)
+        cand.update(distance_to_arc_px=dist, snr=sf.snr, kind=sf.kind)
+    return arc, sweep, corr
 
 
 def _two_view(out: Matches, sf, intervals, image_1, second, motion, rig, noise, opt) -> Matches:
@@ -395,16 +426,25 @@ def _two_view(out: Matches, sf, intervals, image_1, second, motion, rig, noise, 
     and the sweep's (:func:`.optical_two_view.sweep_arcs`: the pixel of its arc that moves as
     the motion says, scored by :data:`SWEEP_SCORE_MODEL`). The more probable one is kept.
     """
-    arc, sweep = two_view_candidates(out, sf, intervals, image_1, second, motion, rig, noise, opt)
+    arc, sweep, corr = two_view_candidates(out, sf, intervals, image_1, second, motion, rig, noise, opt)
     N = len(sf)
     p_arc = np.full(N, -1.0)
     if len(out):
         p_arc[out.sonar_index] = _logistic(two_view_score_features(arc), TWO_VIEW_SCORE_MODEL)
-    found = np.asarray(sweep["found"], bool)
-    p_sweep = np.full(N, -1.0)
-    if found.any():
-        p_sweep[found] = _logistic(sweep_score_features({k: np.asarray(v)[found] for k, v in sweep.items()
-                                                          if k != "pixels"}), SWEEP_SCORE_MODEL)
+    p_cand = []
+    for cand, featurise, model in ((sweep, sweep_score_features, SWEEP_SCORE_MODEL),
+                                   (corr, correlation_score_features, CORRELATION_SCORE_MODEL)):
+        found = np.asarray(cand["found"], bool)
+        p = np.full(N, -1.0)
+        if found.any():
+            p[found] = _logistic(featurise({k: np.asarray(v)[found] for k, v in cand.items() if k != "pixels"}),
+                                 model)
+        p_cand.append(p)
+    # The correlation's pixel stands in for the sweep's where it is the more probable of the two.
+    use_corr = p_cand[1] > p_cand[0]
+    sweep = {k: (np.where(use_corr[:, None] if np.ndim(v) == 2 else use_corr, corr[k], v)
+                 if k in ("pixels", "elevations", "px_per_m", "distance_to_arc_px") else v) for k, v in sweep.items()}
+    p_sweep = np.maximum(p_cand[0], p_cand[1])
     use_sweep = p_sweep > p_arc
     rows = np.nonzero(np.maximum(p_arc, p_sweep) >= 0)[0]
     if rows.size == 0:
@@ -432,19 +472,23 @@ def _two_view(out: Matches, sf, intervals, image_1, second, motion, rig, noise, 
         v = np.asarray(arc[key], float) if len(out) else np.zeros(0)
         return np.where(arc_pos[rows] >= 0, v[k_arc] if v.size else np.nan, np.nan)
 
-    feats = dict(source=np.where(use_sweep[rows], 1, 0), single_view_score=from_arc("single_view_score"),
+    feats = dict(source=np.where(use_sweep[rows], np.where(use_corr[rows], 2, 1), 0),
+                 single_view_score=from_arc("single_view_score"),
                  arc_two_view_score=np.where(p_arc[rows] >= 0, p_arc[rows], np.nan),
-                 sweep_score=np.where(p_sweep[rows] >= 0, p_sweep[rows], np.nan),
+                 sweep_score=np.where(p_cand[0][rows] >= 0, p_cand[0][rows], np.nan),
+                 correlation_score=np.where(p_cand[1][rows] >= 0, p_cand[1][rows], np.nan),
+                 correlation_ncc=np.asarray(corr["ncc"], float)[rows],
                  flow_residual_px=from_arc("flow_residual_px"), flow_px_per_m=from_arc("flow_px_per_m"),
                  two_view=from_arc("two_view"), elevation=phi,
                  **{f"sweep_{k}": np.asarray(sweep[k], float)[rows] for k in ("n_crossings", "fb_error", "slope",
                                                                                "px_per_m", "distance_to_arc_px")})
     order = np.argsort(-score, kind="stable")
     cam_idx = np.where(use_sweep[rows], -1, arc_pos[rows])
-    n_sw = int(use_sweep[rows].sum())
-    msg = (f"{rows.size} matches from two views (second view, known motion): {rows.size - n_sw} arc-search choices "
-           f"re-scored, {n_sw} arc pixels whose optical flow agrees with the motion; {arc.get('n_second', 0)} "
-           f"matches in the second pair")
+    n_sw = int(np.sum(use_sweep[rows] & ~use_corr[rows]))
+    n_co = int(np.sum(use_sweep[rows] & use_corr[rows]))
+    msg = (f"{rows.size} matches from two views (second view, known motion): {rows.size - n_sw - n_co} arc-search "
+           f"choices re-scored, {n_sw} arc pixels whose optical flow agrees with the motion, {n_co} whose patch "
+           f"matches its moved point's; {arc.get('n_second', 0)} matches in the second pair")
     feats = {k: np.asarray(v)[order] for k, v in feats.items()}
     return Matches(px[order], sf.ranges[rows[order]], sf.azimuths[rows[order]], P[order], score[order],
                    -np.log(np.maximum(score[order], 1e-12)), rows[order], cam_idx[order], sf, out.camera_features,

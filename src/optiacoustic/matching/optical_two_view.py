@@ -30,7 +30,8 @@ import numpy as np
 
 from .two_view import motion_arrays
 
-__all__ = ["ArcSweep", "epipolar_residuals", "flow_field", "forward_backward_error", "sweep_arcs"]
+__all__ = ["ArcCorrelation", "ArcSweep", "correlate_arcs", "epipolar_residuals", "flow_field",
+           "forward_backward_error", "photo_consistency", "sweep_arcs"]
 
 
 def _gray_pair(image_1, image_2):
@@ -227,3 +228,124 @@ def sweep_arcs(rig, ranges, azimuths, low, high, flow, fb_error, motion, *, n_sa
                     cross.sum(axis=1).astype(float), np.where(found, fb_c[rows, j], np.nan),
                     np.where(found, slope, np.nan), np.where(found, sens[rows, j], np.nan))
 
+
+
+def _sample(gray, uv):
+    """Bilinear samples of ``gray`` (H, W) float32 at ``uv`` (..., 2); NaN outside the image."""
+    import cv2
+
+    shp = uv.shape[:-1]
+    mx = np.ascontiguousarray(uv[..., 0].reshape(-1, 1), np.float32)
+    my = np.ascontiguousarray(uv[..., 1].reshape(-1, 1), np.float32)
+    out = cv2.remap(gray, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+    return out.reshape(shp)
+
+
+def photo_consistency(image_1, image_2, pixels_1, pixels_2, *, half_size: int = 4):
+    """Normalised cross-correlation of square patches around ``pixels_1`` (image 1) and ``pixels_2`` (image 2).
+
+    Parameters
+    ----------
+    image_1, image_2 : ndarray, shape (H, W, 3) or (H, W)
+    pixels_1, pixels_2 : ndarray, shape (..., 2)
+        Hypothesised corresponding pixels.
+    half_size : int
+        Patches of ``2 half_size + 1`` px a side, axis-aligned (the views differ by a small rotation).
+
+    Returns
+    -------
+    ncc : ndarray, shape (...)
+        In [-1, 1]; NaN where a patch leaves an image or is flat (gray sigma < 0.5 of 255).
+    texture : ndarray, shape (...)
+        Standard deviation of image 1's patch (gray levels of the common 0-255 stretch).
+    """
+    u1 = np.asarray(pixels_1, float)
+    u2 = np.asarray(pixels_2, float)
+    g = _gray_pair(image_1, image_2)
+    if g is None:
+        nan = np.full(u1.shape[:-1], np.nan)
+        return nan, nan
+    g1, g2 = (x.astype(np.float32) for x in g)
+    offs = np.arange(-half_size, half_size + 1, dtype=float)
+    dx, dy = np.meshgrid(offs, offs)
+    a = np.stack([_sample(g1, u1 + o) for o in zip(dx.ravel(), dy.ravel())], -1)  # (..., K)
+    b = np.stack([_sample(g2, u2 + o) for o in zip(dx.ravel(), dy.ravel())], -1)
+    a = a - a.mean(-1, keepdims=True)
+    b = b - b.mean(-1, keepdims=True)
+    sa, sb = np.sqrt((a ** 2).mean(-1)), np.sqrt((b ** 2).mean(-1))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ncc = (a * b).mean(-1) / (sa * sb)
+    return np.where((sa > 0.5) & (sb > 0.5), ncc, np.nan), sa
+
+
+@dataclass(frozen=True, eq=False)
+class ArcCorrelation:
+    """For each sonar feature, the arc pixel whose patch looks the same at its point's place in image 2.
+
+    Attributes
+    ----------
+    pixels, elevations, found : as :class:`ArcSweep`.
+    ncc : ndarray, shape (N,)
+        Peak normalised cross-correlation.
+    margin : ndarray, shape (N,)
+        Peak minus the best correlation more than 0.5 deg of elevation away (uniqueness).
+    texture : ndarray, shape (N,)
+        Gray sigma of image 1's patch at the peak.
+    px_per_m : ndarray, shape (N,)
+        The motion's sensitivity there (px per metre of depth).
+    """
+
+    pixels: np.ndarray
+    elevations: np.ndarray
+    found: np.ndarray
+    ncc: np.ndarray
+    margin: np.ndarray
+    texture: np.ndarray
+    px_per_m: np.ndarray
+
+
+def correlate_arcs(rig, ranges, azimuths, low, high, image_1, image_2, motion, *, n_samples: int = 400,
+                   margin: float = float(np.deg2rad(0.25))) -> ArcCorrelation:
+    """Along each sonar feature's arc, the elevation whose pixel and whose moved point look alike in both images.
+
+    A plane sweep by photo-consistency: each arc sample ``P(phi)`` is a hypothesis; its pixel in
+    image 1 and the pixel of ``R_o P + t_o`` in image 2 are compared by the normalised
+    cross-correlation of 9 x 9 patches (:func:`photo_consistency`), and the peak inside
+    ``[low - margin, high + margin]`` is taken. Unlike :func:`sweep_arcs` it needs no optical
+    flow, so it follows baselines of a metre or more, where the image moves by hundreds of
+    pixels; it needs texture.
+    """
+    from ..geometry.projection import camera_from_sonar
+
+    R, t = motion_arrays(motion)
+    r = np.asarray(ranges, float).reshape(-1)
+    th = np.asarray(azimuths, float).reshape(-1)
+    N = r.size
+    nan = np.full(N, np.nan)
+    if N == 0:
+        return ArcCorrelation(np.zeros((0, 2)), nan, np.zeros(0, bool), nan, nan, nan, nan)
+    half = rig.fov_elevation / 2
+    phis = np.linspace(-half, half, n_samples)
+    P = camera_from_sonar(rig, r[:, None], th[:, None], phis[None, :])
+    cam = rig.camera
+    u1 = cam.project(P)
+    Q = P @ R.T + t
+    u2 = cam.project(Q)
+    lo = np.asarray(low, float).reshape(-1)[:, None] - margin
+    hi = np.asarray(high, float).reshape(-1)[:, None] + margin
+    ok = (P[..., 2] > 0) & (Q[..., 2] > 0) & cam.in_image(u1) & cam.in_image(u2) & (phis >= lo) & (phis <= hi)
+    ncc, tex = photo_consistency(image_1, image_2, np.nan_to_num(u1), np.nan_to_num(u2))
+    ncc = np.where(ok, ncc, np.nan)
+    has = np.isfinite(ncc)
+    found = has.any(axis=1)
+    filled = np.where(has, ncc, -np.inf)
+    j = np.argmax(filled, axis=1)
+    rows = np.arange(N)
+    away = np.abs(phis[None, :] - phis[j][:, None]) > np.deg2rad(0.5)
+    second = np.max(np.where(away & has, ncc, -1.0), axis=1)
+    _, sens = epipolar_residuals(cam, u1[rows, j], P[rows, j], np.zeros((cam.height, cam.width, 2), np.float32),
+                                 motion)
+    peak = ncc[rows, j]
+    return ArcCorrelation(np.where(found[:, None], u1[rows, j], np.nan), np.where(found, phis[j], np.nan), found,
+                          np.where(found, peak, np.nan), np.where(found, peak - second, np.nan),
+                          np.where(found, tex[rows, j], np.nan), np.where(found, sens, np.nan))
