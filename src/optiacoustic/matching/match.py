@@ -340,11 +340,12 @@ def sweep_score_features(feats: dict) -> np.ndarray:
 #: :func:`correlation_score_features` (peak correlation, its margin over the best correlation
 #: 0.5 deg away, log patch texture, log sensitivity, log of 1 + the distance to the arc search's
 #: pixel and no arc pixel, log SNR, onset or peak). Fitted by
-#: ``experiments.matching.calibrate_two_view_score()`` (see :data:`TWO_VIEW_SCORE_MODEL`).
+#: ``experiments.matching.calibrate_two_view_score()`` (see :data:`TWO_VIEW_SCORE_MODEL`; 1034
+#: correlation peaks, 27% correct).
 CORRELATION_SCORE_MODEL = dict(
-    weights=(-5.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
-    mean=(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
-    std=(1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0),
+    weights=(-1.199, 0.421, -0.57, 0.202, 0.01, -0.396, -0.561, 0.01, -0.023),
+    mean=(0.9086, 0.3396, 2.7121, 1.468, 2.8751, 0.0629, 2.8556, 0.4913),
+    std=(0.2385, 0.6642, 0.8621, 0.93, 1.3055, 0.2427, 0.6057, 0.4999),
 )
 
 
