@@ -235,10 +235,16 @@ def _sample(gray, uv):
     import cv2
 
     shp = uv.shape[:-1]
-    mx = np.ascontiguousarray(uv[..., 0].reshape(-1, 1), np.float32)
-    my = np.ascontiguousarray(uv[..., 1].reshape(-1, 1), np.float32)
+    flat = uv.reshape(-1, 2)
+    n = flat.shape[0]
+    width = 4096  # OpenCV maps must stay below 32767 px a side
+    rows = max(1, -(-n // width))
+    pad = np.full((rows * width, 2), -1e6, np.float32)
+    pad[:n] = flat
+    mx = np.ascontiguousarray(pad[:, 0].reshape(rows, width))
+    my = np.ascontiguousarray(pad[:, 1].reshape(rows, width))
     out = cv2.remap(gray, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
-    return out.reshape(shp)
+    return out.reshape(-1)[:n].reshape(shp)
 
 
 def photo_consistency(image_1, image_2, pixels_1, pixels_2, *, half_size: int = 4):
