@@ -317,9 +317,8 @@ def correlate_arcs(rig, ranges, azimuths, low, high, image_1, image_2, motion, *
     A plane sweep by photo-consistency: each arc sample ``P(phi)`` is a hypothesis; its pixel in
     image 1 and the pixel of ``R_o P + t_o`` in image 2 are compared by the normalised
     cross-correlation of 9 x 9 patches (:func:`photo_consistency`), and the peak inside
-    ``[low - margin, high + margin]`` is taken when it stands out (by more than 0.01 over the best
-    correlation 0.5 deg away) and the motion gives parallax (more than 0.1 px per metre of
-    depth). Unlike :func:`sweep_arcs` it needs no optical
+    ``[low - margin, high + margin]`` is taken where the motion gives parallax (more than 0.1 px
+    per metre of depth). Unlike :func:`sweep_arcs` it needs no optical
     flow, so it follows baselines of a metre or more, where the image moves by hundreds of
     pixels; it needs texture.
     """
@@ -354,9 +353,9 @@ def correlate_arcs(rig, ranges, azimuths, low, high, image_1, image_2, motion, *
     _, sens = epipolar_residuals(cam, u1[rows, j], P[rows, j], np.zeros((cam.height, cam.width, 2), np.float32),
                                  motion)
     peak = ncc[rows, j]
-    # A peak must stand out along the arc and the motion must move the point across the image:
-    # with no parallax every elevation correlates alike (margin 0) and the peak says nothing.
-    found &= (peak - second > 0.01) & (np.nan_to_num(sens) > 0.1)
+    # The motion must move the point across the image: with no parallax every elevation
+    # correlates alike and the peak says nothing.
+    found &= np.nan_to_num(sens) > 0.1
     return ArcCorrelation(np.where(found[:, None], u1[rows, j], np.nan), np.where(found, phis[j], np.nan), found,
                           np.where(found, peak, np.nan), np.where(found, peak - second, np.nan),
                           np.where(found, tex[rows, j], np.nan), np.where(found, sens, np.nan))
