@@ -62,7 +62,7 @@ def run() -> list[dict]:
              note=note),
         dict(name="match with a second pair (two views, known motion)", value=t_two / 1e3, unit="s",
              reference="target 1 s per pair (2 pairs here)", ratio=t_two / 1e3 / 2,
-             note="view 1 + view 2 matched, optical flow, re-scoring"),
+             note="view 1 + view 2 matched, optical flow both ways, flow and correlation sweeps"),
         dict(name="optical flow between the two camera images (DIS)", value=t_flow, unit="ms",
              reference="match one pair", ratio=t_flow / t_match, note="600 x 400"),
         dict(name="match one pair, first design (corners)", value=t_corners / 1e3, unit="s", reference="target 1 s",
