@@ -107,6 +107,12 @@ def _compressors():
     return [BloscCodec(cname="lz4", clevel=5, shuffle="shuffle")]
 
 
+# Chunk files of the per-frame arrays are named ``c.K.0.0`` in the array's folder (Zarr v3's
+# default chunk key encoding with the "." separator) rather than ``c/K/0/0``: with "/" every
+# frame made two or three new folders per array, which cost as much as the compression.
+_CHUNK_KEYS = {"name": "default", "separator": "."}
+
+
 def _create(path: Path, seq, ground_truth: bool):
     import zarr
 
@@ -117,13 +123,15 @@ def _create(path: Path, seq, ground_truth: bool):
         n = len(sched)
         for name, (shape, dims, dtype, fill) in arrays.items():
             g.create_array(name, shape=(n,) + shape, chunks=(1,) + shape, dtype=dtype, fill_value=fill,
-                           compressors=_compressors(), dimension_names=("frame",) + dims)
+                           compressors=_compressors(), dimension_names=("frame",) + dims,
+                           chunk_key_encoding=_CHUNK_KEYS)
         g.create_array("time", data=sched.times.astype("float64"), chunks=(max(n, 1),),
                        dimension_names=("frame",), attributes={"units": "s"})
         g.create_array("pose", data=sched.poses.astype("float64"), chunks=(max(n, 1), 4, 4),
                        dimension_names=("frame", "pose_row", "pose_col"),
                        attributes={"description": f"{sensor} to world, P_world = T[:3,:3] P_{sensor} + T[:3,3]"})
         g.create_array("done", shape=(n,), chunks=(1,), dtype="bool", fill_value=False, dimension_names=("frame",),
+                       compressors=None, chunk_key_encoding=_CHUNK_KEYS,  # one byte per frame: nothing to compress
                        attributes={"description": "frame k is complete (written after all its arrays)"})
         if sensor == "sonar":
             g.create_array("ranges", data=seq.rig.sonar.ranges.astype("float64"), dimension_names=("bin",),
@@ -180,14 +188,18 @@ def _open_or_create(path: Path, seq, ground_truth: bool):
 
 
 def _remove_partials(path: Path) -> int:
-    """Delete temporary chunk files left by a killed writer (``*.partial``, never read)."""
+    """Delete temporary chunk files left by a killed writer, never read.
+
+    Zarr's own (``*.partial``) and those of :mod:`optiacoustic._atomic` (``.NAME.tmp-*``).
+    """
     n = 0
-    for p in path.rglob("*.partial"):
-        try:
-            p.unlink()
-            n += 1
-        except OSError:
-            pass
+    for pattern in ("*.partial", ".*.tmp-*"):
+        for p in path.rglob(pattern):
+            try:
+                p.unlink()
+                n += 1
+            except OSError:
+                pass
     return n
 
 
@@ -245,11 +257,32 @@ def _context_locked(path: str, fingerprint: str, config: dict, base_dir: str):
         root = zarr.open_group(path, mode="r+")
         # every chunk is written, even one equal to the fill value: no scan of each frame for
         # "empty", and a done frame always has all its chunk files
-        arrays = {s: {n: a.with_config({"write_empty_chunks": True}) for n, a in root[s].arrays()}
+        arrays = {s: {n: _FrameArray(a.with_config({"write_empty_chunks": True})) for n, a in root[s].arrays()}
                   for s in SENSORS if s in root}
         _keep_latest(_STORES, 4)
         _STORES[(path, fingerprint)] = arrays
     return seq, arrays
+
+
+class _FrameArray:
+    """One per-frame array of the store: ``fa[k] = frame`` writes chunk ``k``.
+
+    Through a :class:`~optiacoustic.io._chunks.ChunkWriter` (the same bytes as Zarr, in
+    this thread, without Zarr's per-call thread hand-offs) where the array allows it,
+    otherwise through Zarr.
+    """
+
+    def __init__(self, arr):
+        from ._chunks import ChunkWriter
+
+        self.array = arr
+        self.writer = ChunkWriter.for_array(arr) if len(arr.shape) and arr.chunks[0] == 1 else None
+
+    def __setitem__(self, k: int, value) -> None:
+        if self.writer is not None:
+            self.writer.write(k, value)
+        else:
+            self.array[k] = value
 
 
 def warm_worker(path: str, fingerprint: str, config: dict, base_dir: str) -> int:
