@@ -343,11 +343,20 @@ def test_tasks_batch_small_frames_and_cover_every_frame_once(tmp_path):
     tasks = _batches(seq, todo, n_workers=2)
     got = sorted((s, k) for s, ks in tasks for k in ks)
     assert got == sorted((s, k) for _, s, k in todo)  # every frame exactly once
-    sizes = {s: max(len(ks) for t, ks in tasks if t == s) for s in ("sonar", "camera")}
-    assert sizes["sonar"] == min(TASK_PIXELS // (96 * 48), 160 // 8) and sizes["camera"] == min(TASK_PIXELS // (72 * 48), 80 // 8)
+    n = {"sonar": 160, "camera": 80}
+    px = {"sonar": 96 * 48, "camera": 72 * 48}
+    for sensor in ("sonar", "camera"):
+        sizes = [len(ks) for t, ks in tasks if t == sensor]
+        # the first task as big as allowed, sizes shrinking as frames run out, the last ones single frames
+        assert sizes[0] == min(TASK_PIXELS // px[sensor], n[sensor] // 8), (sensor, sizes)
+        assert sizes == sorted(sizes, reverse=True) and sizes[-8:] == [1] * 8, (sensor, sizes)
+        assert max(sizes) * px[sensor] <= TASK_PIXELS
     firsts = [float(seq.schedule(s).times[ks[0]]) for s, ks in tasks]
     assert firsts == sorted(firsts)  # in time order
-    # thesis-size frames go one per task
-    big = Sequence({**SMALL, "rig": "thesis", "duration": 4.0}, base_dir=tmp_path)
+    # thesis-size frames (750 x 512 sonar, 600 x 400 camera): a few per task, never over TASK_PIXELS
+    big = Sequence({**SMALL, "rig": "thesis", "duration": 40.0}, base_dir=tmp_path)
     todo = [(float(big.schedule(s).times[k]), s, k) for s in ("sonar", "camera") for k in range(len(big.schedule(s)))]
-    assert all(len(ks) == 1 for _, ks in _batches(big, todo, n_workers=1))
+    tasks = _batches(big, todo, n_workers=1)
+    assert sorted((s, k) for s, ks in tasks for k in ks) == sorted((s, k) for _, s, k in todo)
+    assert max(len(ks) for s, ks in tasks if s == "sonar") == TASK_PIXELS // (750 * 512)
+    assert max(len(ks) for s, ks in tasks if s == "camera") == TASK_PIXELS // (600 * 400)

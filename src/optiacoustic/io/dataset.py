@@ -285,14 +285,21 @@ class _FrameArray:
             self.array[k] = value
 
 
-def warm_worker(path: str, fingerprint: str, config: dict, base_dir: str) -> int:
+def warm_worker(path: str, fingerprint: str, config: dict, base_dir: str, render: bool = False) -> int:
     """Resolve the configuration, open the store and build the scene's ray caster on this process.
 
     Called on every worker before the first frame, so that workers warm up in parallel
-    and the first frames are not delayed by it. Returns this process's id.
+    and the first frames are not delayed by it. With ``render``, also render (not write)
+    the first frame of each sensor, so that the one-time costs of each simulator (loading
+    compiled kernels, first-call caches: a few tenths of a second) are paid too; benchmarks
+    use it to time every worker count in the same state. Returns this process's id.
     """
     seq, _ = _context(path, fingerprint, config, base_dir)
     seq.prepare()
+    if render:
+        for sensor in ("sonar", "camera"):
+            if len(seq.schedule(sensor)):
+                _frame_arrays(seq, sensor, 0, True)
     return os.getpid()
 
 
@@ -326,9 +333,11 @@ def write_frame(path: str, fingerprint: str, config: dict, base_dir: str, sensor
 def _batches(seq, todo: list, n_workers: int) -> list:
     """Group the frames to do into tasks: small frames in batches, big frames one per task.
 
-    A task holds about :data:`TASK_PIXELS` pixels (at least one frame), and each worker
-    gets at least four tasks of each sensor so that the last ones finish together.
-    ``todo`` is ``[(time, sensor, k)]``; returns ``[(sensor, [k, ...])]`` in time order.
+    A task holds at most :data:`TASK_PIXELS` pixels (at least one frame), fewer as the
+    frames of a sensor run out (guided self-scheduling): a task holds at most the frames
+    left of its sensor divided by ``4 * n_workers``, so the first tasks are big (few
+    scheduler round trips) and the last ones single frames, which the workers finish
+    together. ``todo`` is ``[(time, sensor, k)]``; returns ``[(sensor, [k, ...])]`` in time order.
     """
     rig = seq.rig
     pixels = {"sonar": rig.sonar.n_bins * rig.sonar.n_beams if rig.sonar is not None else 1,
@@ -336,15 +345,17 @@ def _batches(seq, todo: list, n_workers: int) -> list:
     out = []
     for sensor in ("sonar", "camera"):
         items = [(t, k) for t, s, k in todo if s == sensor]
-        if not items:
-            continue
-        size = max(1, min(TASK_PIXELS // max(pixels[sensor], 1), len(items) // (4 * max(n_workers, 1))))
-        out += [(items[i][0], sensor, [k for _, k in items[i:i + size]]) for i in range(0, len(items), size)]
+        cap = max(1, TASK_PIXELS // max(pixels[sensor], 1))
+        i = 0
+        while i < len(items):
+            size = max(1, min(cap, (len(items) - i) // (4 * max(n_workers, 1))))
+            out.append((items[i][0], sensor, [k for _, k in items[i:i + size]]))
+            i += size
     out.sort(key=lambda b: (b[0], b[1]))
     return [(s, ks) for _, s, ks in out]
 
 
-TASK_PIXELS = 200_000  # pixels of frames per Dask task (small frames are batched up to this)
+TASK_PIXELS = 1_000_000  # pixels of frames per Dask task at most (2 frames of a 750 x 512 sonar, 4 of a 600 x 400 camera)
 
 
 # --------------------------------------------------------------------------- the run
@@ -371,10 +382,16 @@ class DatasetReport:
 
 
 # Dask's background work that a local rendering cluster does not need: each worker's
-# statistical profiler samples its stack every 10 ms, the memory monitors poll every 100 ms.
-# On a machine with as many workers as cores that CPU comes out of the rendering.
+# statistical profiler samples its stack every 10 ms, the memory monitors poll every 100 ms,
+# every event loop (scheduler, nannies, client, each worker) checks its own health every
+# 20 ms (measured: 25 ms CPU per second in the scheduler's process and 13 ms per second in
+# each idle worker; 7 and 4 with a 1 s tick). On a machine with as many workers as cores
+# that CPU comes out of the rendering. One task per worker thread at a time
+# (worker-saturation 1.0, Dask's default is 1.1, i.e. 2 for a one-thread worker): a
+# worker never holds a queued task while another one is idle at the end of a run.
 _LEAN_DASK = {"distributed.worker.profile.enabled": False, "distributed.worker.memory.monitor-interval": "1s",
-              "distributed.admin.system-monitor.interval": "2s"}
+              "distributed.admin.system-monitor.interval": "2s", "distributed.admin.tick.interval": "1s",
+              "distributed.scheduler.worker-saturation": 1.0}
 
 
 def local_cluster(n: int):
