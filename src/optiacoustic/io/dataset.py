@@ -304,28 +304,32 @@ def warm_worker(path: str, fingerprint: str, config: dict, base_dir: str, render
 
 
 def write_frames(path: str, fingerprint: str, config: dict, base_dir: str, sensor: str, ks: list,
-                 ground_truth: bool) -> tuple[str, int, float, float]:
+                 ground_truth: bool) -> tuple:
     """Render frames ``ks`` of ``sensor`` and write each where the worker runs; its ``done`` flag last.
 
-    Only this small record travels back to the client: ``(sensor, frames, render_s, write_s)``.
+    Only this small record travels back to the client: ``(sensor, frames, render_s,
+    write_s, render_cpu_s, write_cpu_s)``: wall and CPU seconds (CPU of this thread, where
+    both happen) spent rendering and writing.
     """
     seq, arrays = _context(path, fingerprint, config, base_dir)
     g = arrays[sensor]
-    render_s = write_s = 0.0
+    render_s = write_s = render_cpu = write_cpu = 0.0
     for k in ks:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         frame = _frame_arrays(seq, sensor, int(k), ground_truth)
-        t1 = time.perf_counter()
+        t1, c1 = time.perf_counter(), time.thread_time()
         for name, a in frame.items():
             g[name][int(k)] = a
         g["done"][int(k)] = True  # last: the frame is complete
         render_s += t1 - t0
         write_s += time.perf_counter() - t1
-    return sensor, len(ks), render_s, write_s
+        render_cpu += c1 - c0
+        write_cpu += time.thread_time() - c1
+    return sensor, len(ks), render_s, write_s, render_cpu, write_cpu
 
 
 def write_frame(path: str, fingerprint: str, config: dict, base_dir: str, sensor: str, k: int,
-                ground_truth: bool) -> tuple[str, int, float, float]:
+                ground_truth: bool) -> tuple:
     """Render frame ``k`` of ``sensor`` and write it; the ``done`` flag last (see :func:`write_frames`)."""
     return write_frames(path, fingerprint, config, base_dir, sensor, [k], ground_truth)
 
@@ -364,8 +368,9 @@ class DatasetReport:
     """What a run of :func:`write_dataset` did.
 
     ``written`` frames rendered now per sensor, ``skipped`` frames found done,
-    ``elapsed`` wall time (s), ``render_s`` / ``write_s`` summed over frames (s),
-    ``workers`` the number of Dask workers (0: in this process).
+    ``elapsed`` wall time (s), ``render_s`` / ``write_s`` wall time summed over frames (s),
+    ``workers`` the number of Dask workers (0: in this process), ``render_cpu_s`` /
+    ``write_cpu_s`` CPU time of the rendering / writing thread summed over frames (s).
     """
 
     path: Path
@@ -375,6 +380,8 @@ class DatasetReport:
     render_s: float
     write_s: float
     workers: int
+    render_cpu_s: float = 0.0
+    write_cpu_s: float = 0.0
 
     @property
     def frames_written(self) -> int:
@@ -460,18 +467,14 @@ def write_dataset(config, out, *, workers: int | None = None, scheduler: str | N
     total = len(todo)
     written = {s: 0 for s in skipped}
     args = (str(path), seq.fingerprint(), seq.config.model_dump(mode="json"), str(seq.base_dir))
-    render_s = write_s = 0.0
+    times = np.zeros(4)  # render_s, write_s, render_cpu_s, write_cpu_s summed over frames
     n_workers = 0
-
     n_done = 0
 
-    def _done(res):
-        nonlocal render_s, write_s, n_done
-        sensor, n, r, w = res
+    def _count(sensor, n):
+        nonlocal n_done
         written[sensor] += n
         n_done += n
-        render_s += r
-        write_s += w
         if progress is not None:
             progress(n_done, total)
 
@@ -479,7 +482,9 @@ def write_dataset(config, out, *, workers: int | None = None, scheduler: str | N
         progress(0, total)
     if total and workers == 0 and scheduler is None:
         for _, sensor, k in todo:
-            _done(write_frames(*args, sensor, [k], gt))
+            res = write_frames(*args, sensor, [k], gt)
+            times += res[2:]
+            _count(sensor, 1)
     elif total:
         from distributed import Client, as_completed
 
@@ -490,18 +495,26 @@ def write_dataset(config, out, *, workers: int | None = None, scheduler: str | N
             with Client(scheduler if scheduler else cluster) as client:
                 n_workers = len(client.scheduler_info().get("workers", {})) or (workers or 0)
                 client.run(warm_worker, *args)  # every worker resolves the scene and builds its BVH, in parallel
-                futs = [client.submit(write_frames, *args, sensor, ks, gt, pure=False,
-                                      key=f"oas-{sensor}-{ks[0]}-{ks[-1]}-{args[1][:12]}")
-                        for sensor, ks in _batches(seq, todo, n_workers)]
-                for fut in as_completed(futs):
-                    res = fut.result()  # a few numbers: the frames are already in the store
-                    fut.release()
-                    _done(res)
-                del futs
+                tasks = {}
+                for sensor, ks in _batches(seq, todo, n_workers):
+                    fut = client.submit(write_frames, *args, sensor, ks, gt, pure=False,
+                                        key=f"oas-{sensor}-{ks[0]}-{ks[-1]}-{args[1][:12]}")
+                    tasks[fut.key] = (fut, sensor, len(ks))
+                # the frames are in the store when a task finishes: count them from what the client
+                # knows, and fetch the tasks' few numbers once at the end (one round trip, not one a task)
+                for fut in as_completed([f for f, _, _ in tasks.values()]):
+                    if fut.status != "finished":
+                        fut.result()  # raises the worker's error
+                    _count(*tasks[fut.key][1:])
+                for res in client.gather([f for f, _, _ in tasks.values()]):
+                    times += res[2:]
+                del tasks
         finally:
             if cluster is not None:
                 cluster.close()
-    return DatasetReport(path, written, skipped, time.perf_counter() - t_start, render_s, write_s, n_workers)
+    render_s, write_s, render_cpu, write_cpu = (float(x) for x in times)
+    return DatasetReport(path, written, skipped, time.perf_counter() - t_start, render_s, write_s, n_workers,
+                         render_cpu, write_cpu)
 
 
 # --------------------------------------------------------------------------- reading
