@@ -78,3 +78,25 @@ def test_wrong_frame_shape_names_array_and_frame(tmp_path):
                                                 compressors=None))
     with pytest.raises(ValueError, match=r"img: frame 2 has shape \(5, 4\), the array's frames are \(4, 5\)"):
         w.write(2, np.zeros((5, 4)))
+
+
+def test_write_file_in_folder_is_atomic_and_names_the_path(tmp_path):
+    import os
+
+    from optiacoustic._atomic import OutputError, write_file_in_folder
+
+    target = tmp_path / "a" / "b" / "c.3.0"  # missing folders are made
+    write_file_in_folder(target, b"\x01\x02")
+    assert target.read_bytes() == b"\x01\x02"
+    umask = os.umask(0)
+    os.umask(umask)
+    assert target.stat().st_mode & 0o777 == 0o666 & ~umask  # as a plain open() would make it
+    write_file_in_folder(target, memoryview(b"xyz"))  # replaces, any bytes-like
+    assert target.read_bytes() == b"xyz"
+    with pytest.raises(TypeError):  # a writer failing mid-way leaves the old file and no temporary one
+        write_file_in_folder(target, object())
+    assert target.read_bytes() == b"xyz"
+    assert sorted(p.name for p in target.parent.iterdir()) == ["c.3.0"]
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(OutputError, match="file/c.0"):
+        write_file_in_folder(tmp_path / "file" / "c.0", b"1")

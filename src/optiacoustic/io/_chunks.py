@@ -8,7 +8,7 @@ per sonar + camera pair, the hand-offs were most of the write time). A
 :class:`ChunkWriter` encodes the chunk with the array's own codec configuration (the
 Zarr v3 ``bytes`` codec, then ``blosc`` through numcodecs, the library Zarr itself calls)
 and writes the file under the array's own chunk key (Zarr's ``chunk_key_encoding``)
-atomically through :mod:`optiacoustic._atomic`. The bytes on disk are those Zarr writes
+atomically through :func:`optiacoustic._atomic.write_file_in_folder`. The bytes on disk are those Zarr writes
 (tested against Zarr's writer); the metadata stays Zarr's. Arrays with any other store or
 codec chain get no ChunkWriter (:meth:`ChunkWriter.for_array` returns None) and are
 written through Zarr.
@@ -16,11 +16,12 @@ written through Zarr.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 
-from .._atomic import write_bytes
+from .._atomic import write_file_in_folder
 
 __all__ = ["ChunkWriter"]
 
@@ -31,7 +32,7 @@ class ChunkWriter:
     Build one with :meth:`for_array`; call :meth:`write` with frame index and value.
     """
 
-    def __init__(self, folder: Path, encode_key, frame_shape: tuple, dtype: np.dtype, compressor):
+    def __init__(self, folder: str, encode_key, frame_shape: tuple, dtype: np.dtype, compressor):
         self.folder = folder
         self._key = encode_key
         self.frame_shape = frame_shape
@@ -72,7 +73,7 @@ class ChunkWriter:
         dtype = np.dtype(arr.dtype).newbyteorder("<")
         if dtype.kind not in "biuf":
             return None
-        folder = Path(arr.store.root) / arr.path
+        folder = str(Path(arr.store.root) / arr.path)
         return cls(folder, md.chunk_key_encoding.encode_chunk_key, shape[1:], dtype, compressor)
 
     def write(self, k: int, value) -> None:
@@ -83,4 +84,4 @@ class ChunkWriter:
         if a.shape != self.frame_shape:
             raise ValueError(f"{self.folder}: frame {k} has shape {a.shape}, the array's frames are {self.frame_shape}")
         data = self._compressor.encode(a) if self._compressor is not None else a.tobytes()
-        write_bytes(self.folder / self._key((int(k),) + self._zeros), data)
+        write_file_in_folder(os.path.join(self.folder, self._key((int(k),) + self._zeros)), data)

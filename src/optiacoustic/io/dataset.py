@@ -396,9 +396,18 @@ class DatasetReport:
 # that CPU comes out of the rendering. One task per worker thread at a time
 # (worker-saturation 1.0, Dask's default is 1.1, i.e. 2 for a one-thread worker): a
 # worker never holds a queued task while another one is idle at the end of a run.
+#
+# Dask's nannies also start their workers with MALLOC_TRIM_THRESHOLD_=65536, which makes
+# glibc hand every freed block over 64 KiB back to the system and switches off its
+# adaptive mmap threshold: every large temporary of a render is then a fresh mmap whose
+# pages the kernel zeroes on first touch. Measured on the thesis pair in one thread: sonar
+# 43 -> 76 ms, camera 120 -> 170 ms CPU per frame with it. Our workers run without it
+# (glibc's defaults; a user's own MALLOC_TRIM_THRESHOLD_ in the environment still applies);
+# their memory stays flat without it (docs/benchmarks.md, worker RSS over a long run).
 _LEAN_DASK = {"distributed.worker.profile.enabled": False, "distributed.worker.memory.monitor-interval": "1s",
               "distributed.admin.system-monitor.interval": "2s", "distributed.admin.tick.interval": "1s",
-              "distributed.scheduler.worker-saturation": 1.0}
+              "distributed.scheduler.worker-saturation": 1.0,
+              "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
 
 
 def local_cluster(n: int):
