@@ -8,8 +8,9 @@ frame's arrays are written by the worker that rendered it, straight into the sto
 chunk per frame, so workers never write the same file), then its flag in ``done``
 (written last); only a few numbers per task travel back to the client. A rerun of the same
 command renders only the frames whose flag is not set, so a run killed at any moment
-(SIGKILL included) resumes without a missing, duplicated or half-written frame: Zarr's
-local store writes every chunk to a temporary file and renames it.
+(SIGKILL included) resumes without a missing, duplicated or half-written frame: every
+chunk is written to a temporary file and renamed (by :mod:`._chunks` in the worker's own
+thread, the same bytes as Zarr's writer, or by Zarr's local store).
 
 A frame's noise depends only on ``(seed, sensor, frame index)``: the output is the same
 whatever the number of workers and the order they finish in.
