@@ -177,7 +177,7 @@ def run() -> list[dict]:
                               + "; 1 worker: " + ", ".join(f"{x:.1f}" for x in shares[1])
                               + "; CPU share (thread CPU time): " + ", ".join(f"{x:.1f}" for x in cpu_shares)
                               + "; the writes run in the worker's own thread after each render (no writer thread), "
-                                "Zarr v3, Blosc LZ4 + shuffle, one chunk file per frame and array"))
+                                "Zarr v3, Blosc LZ4 (shuffle except ground-truth runs), one chunk file per frame and array"))
         size = _du(tmp / f"w2-{repeat - 1}.zarr")
         raw = pairs * (750 * 512 * (4 * 4 + 2 + 1) + 400 * 600 * (12 + 4 + 2 + 12))
         rows.append(dict(name="bytes per pair on disk", value=size / pairs, unit="B", reference="uncompressed arrays",

@@ -17,6 +17,7 @@ CASES = [  # (dtype, frame shape, fill value)
 COMPRESSORS = {
     "none": lambda: None,
     "blosc lz4 shuffle": lambda: [BloscCodec(cname="lz4", clevel=5, shuffle="shuffle")],
+    "blosc lz4 noshuffle": lambda: [BloscCodec(cname="lz4", clevel=5, shuffle="noshuffle")],
     "blosc zstd bitshuffle": lambda: [BloscCodec(cname="zstd", clevel=3, shuffle="bitshuffle")],
 }
 
