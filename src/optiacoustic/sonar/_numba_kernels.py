@@ -500,3 +500,83 @@ def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, 
             sn = np.sqrt(max(np.float32(1.0) - c * c, np.float32(0.0)))  # sin(ang) >= 0 on [0, pi)
             z[i, j, 0] = c * s
             z[i, j, 1] = (sn if u2[i, j] < half else -sn) * s
+
+
+@njit(cache=True, nogil=True)
+def shadow_origins(pos, t, n, eps, origin, d_act, o32, d32):
+    """Continuation rays of the acoustic shadow (``formation._shadow_mask``): for the ``n`` rays
+    ``pos[:n]`` (rows of ``d_act``, float64 unit directions) the float32 origin
+    ``origin + d (t + eps)`` (computed in float64) and direction, into ``o32``/``d32`` rows ``0..n``."""
+    for k in range(n):
+        p = pos[k]
+        s = t[k] + eps
+        for c in range(3):
+            o32[k, c] = origin[c] + d_act[p, c] * s
+            d32[k, c] = d_act[p, c]
+
+
+@njit(cache=True, nogil=True)
+def shadow_step(pos, t, exited, n, eps, geom, tfar, ng, first_body, d_act, hid_r, hid_n):
+    """One round of continuation hits of ``formation._shadow_mask``: a front-facing hit (``n . d < 0``
+    with Embree's geometric normal normalised in float32 as ``RayCaster.cast_raw`` does) of another
+    body, or of the first body after the ray left it, is the hidden surface (``hid_r``, ``hid_n``);
+    a back-facing hit of the first body marks the ray as having left it. Rays that hit something
+    and are not done move on: ``pos``, ``t``, ``exited`` are compacted in place; returns their count."""
+    m = 0
+    for k in range(n):
+        g = geom[k]
+        if g < 0:
+            continue
+        p = pos[k]
+        tt = t[k] + eps + float(tfar[k])
+        n0, n1, n2 = ng[k, 0], ng[k, 1], ng[k, 2]
+        nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2) + np.float32(1e-30)
+        m0, m1, m2 = float(n0 / nn), float(n1 / nn), float(n2 / nn)
+        front = m0 * d_act[p, 0] + m1 * d_act[p, 1] + m2 * d_act[p, 2] < 0
+        same = g == first_body[p]
+        ex = exited[k]
+        if front and (not same or ex):
+            hid_r[p] = tt
+            hid_n[p, 0] = m0
+            hid_n[p, 1] = m1
+            hid_n[p, 2] = m2
+            continue
+        if not front and same:
+            ex = True
+        pos[m] = p
+        t[m] = tt
+        exited[m] = ex
+        m += 1
+    return m
+
+
+@njit(cache=True, nogil=True)
+def shadow_boxes(hid_r, hid_n, d_act, dd_act, step, min_half, lo, hi):
+    """Range footprint ``r -+ half`` of each hidden surface (``half = step r |n.d'| / (2 max(|n.d|, c))``,
+    at least ``min_half``); NaN where the ray found none (``hid_r`` infinite)."""
+    for p in range(hid_r.size):
+        r = hid_r[p]
+        if not np.isfinite(r):
+            lo[p] = np.nan
+            hi[p] = np.nan
+            continue
+        nd = abs(hid_n[p, 0] * d_act[p, 0] + hid_n[p, 1] * d_act[p, 1] + hid_n[p, 2] * d_act[p, 2])
+        ndd = abs(hid_n[p, 0] * dd_act[p, 0] + hid_n[p, 1] * dd_act[p, 1] + hid_n[p, 2] * dd_act[p, 2])
+        half = 0.5 * step * r * ndd / max(nd, _MIN_COS_FOOTPRINT)
+        half = max(half, min_half)
+        lo[p] = r - half
+        hi[p] = r + half
+
+
+@njit(cache=True, nogil=True)
+def grid_directions(idx, cp, sp, a, rz, d, dd):
+    """World ``d = cos(phi) a + sin(phi) R_z`` and ``d' = -sin(phi) a + cos(phi) R_z`` (float64) of the
+    grid rays ``idx`` (flat ``k * J + j``), as ``formation._grid_directions``."""
+    J = a.shape[0]
+    for m in range(idx.size):
+        k = idx[m] // J
+        j = idx[m] - k * J
+        c, s = cp[k], sp[k]
+        for q in range(3):
+            d[m, q] = c * a[j, q] + s * rz[q]
+            dd[m, q] = -s * a[j, q] + c * rz[q]

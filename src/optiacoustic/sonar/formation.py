@@ -1084,6 +1084,8 @@ def _shadow_mask(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.n
     the body it hit first, to the next surface facing the sonar. Cells that surface's
     footprint covers and that no direct ray lights are acoustic shadow.
     """
+    if use_numba():
+        return _shadow_mask_numba(scene, caster, spec, pose, rays, elevation_min)
     first_body = rays.body.reshape(-1)
     r0 = rays.range.reshape(-1)
     hit = first_body >= 0
@@ -1142,4 +1144,53 @@ def _shadow_mask(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.n
         lo = (r - half - spec.range_min) / spec.bin_width
         hi = (r + half - spec.range_min) / spec.bin_width
         hidden = _box_integrate(beam, lo, hi, np.ones_like(r), spec.n_beams, spec.n_bins).T
+    return (hidden > 1e-9) & np.isnan(elevation_min)
+
+
+def _shadow_mask_numba(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.ndarray) -> np.ndarray:
+    """:func:`_shadow_mask` with the continuation rays' bookkeeping in kernels: only the rays that
+    continue are touched (no per-grid-ray arrays of directions or normals)."""
+    kn = kernels()
+    first_body = np.ascontiguousarray(rays.body).reshape(-1)
+    hit = first_body >= 0
+    floors = _floor_planes(scene)
+    if floors:  # nothing lies below a floor plane: a ray going down through it hits nothing more
+        R = pose.R
+        a_z = np.sin(spec.azimuths) * R[2, 0] + np.cos(spec.azimuths) * R[2, 1]
+        down = (np.cos(spec.elevations)[:, None] * a_z + np.sin(spec.elevations)[:, None] * R[2, 2]).reshape(-1) < 0
+        is_floor = np.zeros(int(first_body.max(initial=-1)) + 2, bool)
+        is_floor[[f for f in floors if f < is_floor.size - 1]] = True
+        hit &= ~(is_floor[first_body] & down)  # body -1 reads the last entry: False
+    active = np.flatnonzero(hit)
+    n = active.size
+    if n == 0:
+        return np.zeros((spec.n_bins, spec.n_beams), bool)
+    R = pose.R
+    a_dir = np.sin(spec.azimuths)[:, None] * R[:, 0] + np.cos(spec.azimuths)[:, None] * R[:, 1]  # (J, 3)
+    d_act, dd_act = np.empty((n, 3)), np.empty((n, 3))
+    kn.grid_directions(active, np.cos(spec.elevations), np.sin(spec.elevations), a_dir, np.ascontiguousarray(R[:, 2]),
+                       d_act, dd_act)
+    body_act = first_body[active]
+    pos = np.arange(n, dtype=np.int64)
+    t = np.ascontiguousarray(rays.range, float).reshape(-1)[active]
+    exited = np.zeros(n, bool)
+    hid_r = np.full(n, np.inf)
+    hid_n = np.zeros((n, 3))
+    eps = 1e-4 * max(spec.bin_width, 1e-3)
+    origin = np.asarray(pose.t, float)
+    far = min(np.float32(spec.range_max * 1.5), np.float32(1e30))
+    o32, d32 = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
+    for _ in range(6):  # a few crossings of the occluding body are enough for closed shapes
+        if n == 0:
+            break
+        kn.shadow_origins(pos, t, n, eps, origin, d_act, o32, d32)
+        tfar, geom, _, _, _, ng = caster.intersect_raw(o32[:n], d32[:n], np.full(n, far, np.float32), normals=True)
+        n = kn.shadow_step(pos, t, exited, n, eps, geom, tfar, ng, body_act, d_act, hid_r, hid_n)
+    lo, hi = np.empty(hid_r.size), np.empty(hid_r.size)
+    kn.shadow_boxes(hid_r, hid_n, d_act, dd_act, spec.elevation_step, 0.5 * spec.bin_width * 1e-3, lo, hi)
+    sel = np.isfinite(hid_r)
+    if not sel.any():
+        return np.zeros((spec.n_bins, spec.n_beams), bool)
+    beam = _index_grids(spec)[0][active[sel]]
+    hidden = _box_image_numba(spec, beam, lo[sel], hi[sel], np.ones(int(sel.sum())))
     return (hidden > 1e-9) & np.isnan(elevation_min)
