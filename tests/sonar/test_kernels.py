@@ -217,3 +217,17 @@ def test_kernels_make_no_python_callbacks(thesis, monkeypatch):
     simulate_sonar(sc, SPEC, pose, seed=1, options=SonarOptions(beam_model="aperture", propagation="spreading"),
                    noise=ScattererNoise(density=300.0))
     assert calls == []
+
+
+@pytest.mark.parametrize("table", [False, True])
+def test_fan_kernel_matches_cv2_remap(table, monkeypatch):
+    """The fan through the cached bilinear taps equals cv2.remap's (float maps, border replicated)."""
+    from optiacoustic.sonar.display import polar_to_fan
+
+    spec = SPEC.with_beam_table(SonarSpec.equal_sine_azimuths(SPEC.n_beams, SPEC.fov_azimuth)) if table else SPEC
+    img = np.random.default_rng(6).exponential(1.0, (spec.n_bins, spec.n_beams)).astype(np.float32)
+    for width in (64, 301):
+        a, b = _both(monkeypatch, lambda: polar_to_fan(img, spec, width=width))
+        assert np.array_equal(a.mask, b.mask)
+        np.testing.assert_allclose(a.data, b.data, rtol=1e-5, atol=1e-6)
+        assert np.all(a.data[~a.mask] == 0)

@@ -580,3 +580,27 @@ def grid_directions(idx, cp, sp, a, rz, d, dd):
         for q in range(3):
             d[m, q] = c * a[j, q] + s * rz[q]
             dd[m, q] = -s * a[j, q] + c * rz[q]
+
+
+@njit(cache=True, nogil=True)
+def fan_remap(img, base, flags, fx, fy, n_cols, out):
+    """Bilinear resampling through precomputed taps (``display._fan_taps``): pixel ``p`` reads the
+    polar image (flat) at ``base[p]`` and its right / lower neighbours (``flags`` bit 0: one column
+    on, bit 1: one row on; absent at the image's edge, which replicates the border as
+    ``cv2.BORDER_REPLICATE``) with weights ``fx``, ``fy``; ``base < 0``: outside the fan, 0."""
+    for p in range(base.size):
+        b = base[p]
+        if b < 0:
+            out[p] = 0.0
+            continue
+        f = flags[p]
+        dc = 1 if f & 1 else 0
+        dr = n_cols if f & 2 else 0
+        v00 = img[b]
+        v01 = img[b + dc]
+        v10 = img[b + dr]
+        v11 = img[b + dr + dc]
+        x = fx[p]
+        top = v00 + x * (v01 - v00)
+        bot = v10 + x * (v11 - v10)
+        out[p] = top + fy[p] * (bot - top)
