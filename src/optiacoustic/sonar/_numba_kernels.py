@@ -604,3 +604,41 @@ def fan_remap(img, base, flags, fx, fy, n_cols, out):
         top = v00 + x * (v01 - v00)
         bot = v10 + x * (v11 - v10)
         out[p] = top + fy[p] * (bot - top)
+
+
+@njit(cache=True, nogil=True)
+def finish_echo(parts, scale, thr, slot_of_share, r0, r1, intensity, out):
+    """The echo image and its seabed shares from :func:`echo_rows`' per-beam rows, bins ``r0..r1``:
+    ``intensity[b, j] = parts[0, j, b] scale`` (zeroed below ``thr``, the cumulative sums' rounding
+    residue), and the shares as :func:`shares` computes them from the scaled class rows. One pass:
+    transposition, scaling, thresholding and shares together. ``parts`` (S, J, B) float32,
+    ``intensity`` (B, J), ``out`` (M, B, J) float32 (M = 0: no shares)."""
+    M = slot_of_share.size
+    J = parts.shape[1]
+    for bb in range(r0, r1):
+        for j in range(J):
+            tt = parts[0, j, bb] * scale
+            if tt < thr:
+                tt = np.float32(0.0)
+            intensity[bb, j] = tt
+            if M == 0:
+                continue
+            if not tt > 0:
+                for m in range(M):
+                    out[m, bb, j] = 0.0
+                continue
+            rest = np.float32(1.0)
+            rest_m = -1
+            for m in range(M):
+                s = slot_of_share[m]
+                if s == 0:
+                    rest_m = m
+                    continue
+                v = np.float32(0.0)
+                ps = parts[s, j, bb] * scale
+                if ps != 0:
+                    v = min(max(ps / tt, np.float32(0.0)), np.float32(1.0))
+                out[m, bb, j] = v
+                rest -= v
+            if rest_m >= 0:
+                out[rest_m, bb, j] = min(max(rest, np.float32(0.0)), np.float32(1.0))

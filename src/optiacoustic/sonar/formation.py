@@ -496,6 +496,44 @@ def _mix_and_scale(spec: SonarSpec, echo: np.ndarray, options: SonarOptions) -> 
     return echo
 
 
+def _finish_numba(spec: SonarSpec, rows: np.ndarray, bottom_types: dict, slot_of: dict, threads: int):
+    """Intensity and seabed shares from :func:`_echo_rows_numba`'s ``(n_slots, n_beams, n_bins)`` rows in
+    one pass (``_numba_kernels.finish_echo``): the thesis model's ``_mix_and_scale`` (a scale),
+    threshold and ``shares`` together, with no transposed copy of the class images."""
+    scale = np.float32(1.0 / spec.bin_width)
+    peak = float(rows[0].max() * scale) if rows.size else 0.0  # rounding is monotonic: max of the scaled
+    thr = np.float32(1e-9 * peak)
+    names = list(slot_of) if bottom_types else []
+    table = np.array([slot_of[n] for n in names], np.int64)
+    intensity = np.empty((spec.n_bins, spec.n_beams), np.float32)
+    out = np.empty((len(names), spec.n_bins, spec.n_beams), np.float32)
+    kn = kernels()
+    split_run(lambda r0, r1: kn.finish_echo(rows, scale, thr, table, r0, r1, intensity, out), spec.n_bins, threads)
+    shares = {}
+    for m, name in enumerate(names):
+        if name is not None:
+            sh = out[m]
+            sh.setflags(write=False)
+            shares[name] = sh
+    return intensity, shares
+
+
+def _echo_rows_numba(spec: SonarSpec, rays: SonarRays, slot: np.ndarray, n_slots: int, threads: int,
+                     cells_per_bin: int, sigma_bins: float | None) -> np.ndarray:
+    """:func:`_echo_numba` before its transposition: ``(n_slots, n_beams, n_bins)`` float32, a per-thread
+    workspace that the next frame overwrites."""
+    kn = kernels()
+    q = cells_per_bin
+    H, V, full = _deposit_tables(spec.n_bins, q, sigma_bins)
+    J, n_cells = spec.n_beams, spec.n_bins * q
+    flat = lambda a: np.ascontiguousarray(a).reshape(-1)  # noqa: E731
+    rec, starts = _bucket(flat(rays.beam_index), flat(rays.footprint_lo), flat(rays.footprint_hi), flat(rays.energy),
+                          slot, float(spec.range_min), q / spec.bin_width, n_cells, J)
+    out = _workspace(f"echo{n_slots}", (n_slots, J, spec.n_bins), np.float32)  # fresh pages fault: reuse
+    split_run(lambda j0, j1: kn.echo_rows(rec, starts, n_cells, H, V, full, q, spec.n_bins, j0, j1, out), J, threads)
+    return out
+
+
 def _echo_numba(spec: SonarSpec, rays: SonarRays, slot: np.ndarray, n_slots: int, threads: int,
                 cells_per_bin: int, sigma_bins: float | None) -> np.ndarray:
     """The numba twin of :func:`echo_profile` + :func:`_decimate`, for ``n_slots`` classes at once.
@@ -602,6 +640,9 @@ def _form_with_shares_numba(spec: SonarSpec, rays: SonarRays, options: SonarOpti
         slot, n_slots, slot_of = np.zeros(rays.body.size, np.int8), 1, {}
     else:
         slot, n_slots, slot_of = _class_slots(bottom_types, rays)
+    if not (options.beam_model == "aperture" or options.azimuth_pattern):
+        return _finish_numba(spec, _echo_rows_numba(spec, rays, slot, n_slots, threads, options.range_oversample,
+                                                    sigma_bins), bottom_types, slot_of, threads)
     parts = _echo_numba(spec, rays, slot, n_slots, threads, options.range_oversample, sigma_bins)
     if options.beam_model == "aperture" or options.azimuth_pattern:
         parts = np.stack([_mix_and_scale(spec, parts[s], options) for s in range(n_slots)])
