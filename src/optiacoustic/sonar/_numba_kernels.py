@@ -642,3 +642,24 @@ def finish_echo(parts, scale, thr, slot_of_share, r0, r1, intensity, out):
                 rest -= v
             if rest_m >= 0:
                 out[rest_m, bb, j] = min(max(rest, np.float32(0.0)), np.float32(1.0))
+
+
+@njit(cache=True, nogil=True)
+def shadow_cells(beam, lo_m, hi_m, range_min, inv_bin, n_bins, elevation_min, out):
+    """Acoustic shadow from the hidden surfaces' footprints (``formation._shadow_mask``): a cell is
+    shadow when a footprint ``[lo_m, hi_m]`` (m) puts more than 1e-9 of its unit energy into it
+    (the footprint's energy spread uniformly, as the box integration of the echo) and no direct
+    ray echoes there (``elevation_min`` NaN). ``out`` (n_bins, n_beams) bool, all False on entry."""
+    for i in range(beam.size):
+        x0 = (lo_m[i] - range_min) * inv_bin
+        x1 = (hi_m[i] - range_min) * inv_bin
+        if not (x1 > 0 and x0 < n_bins):
+            continue
+        dens = 1.0 / (x1 - x0)
+        j = beam[i]
+        b0 = int(max(x0, 0.0))
+        b1 = int(min(x1, n_bins - 1.0))
+        for bb in range(b0, b1 + 1):
+            w = dens * (min(x1, bb + 1.0) - max(x0, float(bb)))
+            if w > 1e-9 and np.isnan(elevation_min[bb, j]):
+                out[bb, j] = True

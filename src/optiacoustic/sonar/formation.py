@@ -1233,5 +1233,7 @@ def _shadow_mask_numba(scene, caster, spec, pose, rays: SonarRays, elevation_min
     if not sel.any():
         return np.zeros((spec.n_bins, spec.n_beams), bool)
     beam = _index_grids(spec)[0][active[sel]]
-    hidden = _box_image_numba(spec, beam, lo[sel], hi[sel], np.ones(int(sel.sum())))
-    return (hidden > 1e-9) & np.isnan(elevation_min)
+    out = np.zeros((spec.n_bins, spec.n_beams), bool)
+    kn.shadow_cells(beam, lo[sel], hi[sel], float(spec.range_min), 1.0 / spec.bin_width, spec.n_bins,
+                    np.ascontiguousarray(elevation_min), out)
+    return out
