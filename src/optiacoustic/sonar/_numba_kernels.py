@@ -663,3 +663,61 @@ def shadow_cells(beam, lo_m, hi_m, range_min, inv_bin, n_bins, elevation_min, ou
             w = dens * (min(x1, bb + 1.0) - max(x0, float(bb)))
             if w > 1e-9 and np.isnan(elevation_min[bb, j]):
                 out[bb, j] = True
+
+
+@njit(cache=True, nogil=True)
+def edge_pairs(body, r, slope, K, J, step, min_jump, kk, jj):
+    """Visibility discontinuities between elevation samples ``k`` and ``k + 1`` of each beam
+    (``formation._refine_edges``): another body, a miss, or a range jump larger than
+    ``1.5 (reach_k + reach_k+1) + min_jump`` (``reach = |dr/dphi| step``) onto a hit. Writes the
+    pairs ``(k, j)`` in row-major order into ``kk``, ``jj`` and returns their count."""
+    n = 0
+    for k in range(K - 1):
+        for j in range(J):
+            lo = k * J + j
+            up = lo + J
+            bl, bu = body[lo], body[up]
+            disc = bl != bu
+            if not disc and bu >= 0:
+                reach = np.abs(slope[up]) * step + np.abs(slope[lo]) * step
+                disc = np.abs(r[up] - r[lo]) > 1.5 * reach + min_jump
+            if disc:
+                kk[n] = k
+                jj[n] = j
+                n += 1
+    return n
+
+
+@njit(cache=True, nogil=True)
+def edge_split(kk, jj, h_body, h_dist, body, r, slope, step, S, J, a, b):
+    """Move the shared cell boundary of each discontinuity to where its ``S`` sub-rays change
+    from the surface below to the one above (``formation._refine_edges``). ``h_body`` (int32) and
+    ``h_dist`` (float32, Embree's) of the sub-rays ``(len(kk) * S,)``; ``a``, ``b`` updated in place."""
+    for e in range(kk.size):
+        lower = kk[e] * J + jj[e]
+        upper = lower + J
+        bl, bu = body[lower], body[upper]
+        sl, su = slope[lower] * step, slope[upper] * step
+        cnt = 0
+        for s in range(S):
+            frac = (s + 0.5) / S
+            hb = h_body[e * S + s]
+            hd = float(h_dist[e * S + s])
+            miss = hb < 0
+            if miss and bl < 0:
+                err_l = 0.0
+            elif hb == bl:
+                err_l = abs(hd - (r[lower] + sl * frac))
+            else:
+                err_l = np.inf
+            if miss and bu < 0:
+                err_u = 0.0
+            elif hb == bu:
+                err_u = abs(hd - (r[upper] - su * (1 - frac)))
+            else:
+                err_u = np.inf
+            if err_l < err_u or (np.isinf(err_u) and np.isinf(err_l) and frac < 0.5):
+                cnt += 1
+        t = cnt / S
+        b[lower] = step * t
+        a[upper] = step * (1 - t)

@@ -996,6 +996,9 @@ def _refine_edges(caster, spec, pose, body, r, slope, a, b) -> None:
     """
     K, J = spec.elevation_samples, spec.n_beams
     step = spec.elevation_step
+    if use_numba():
+        _refine_edges_numba(caster, spec, pose, body, r, slope, a, b)
+        return
     B = body.reshape(K, J)
     Rg = r.reshape(K, J)
     S_ = slope.reshape(K, J)
@@ -1030,6 +1033,31 @@ def _refine_edges(caster, spec, pose, body, r, slope, a, b) -> None:
     t = like_lower.sum(1) / S  # transition, as a fraction of the step above ray k
     b[lower] = step * t
     a[upper] = step * (1 - t)
+
+
+def _refine_edges_numba(caster, spec, pose, body, r, slope, a, b) -> None:
+    """:func:`_refine_edges` with the discontinuities found and the sub-rays classified by kernels
+    (the sub-rays' directions as the numpy path computes them, so both cast the same rays)."""
+    K, J = spec.elevation_samples, spec.n_beams
+    step = spec.elevation_step
+    kn = kernels()
+    kk, jj = np.empty((K - 1) * J, np.int64), np.empty((K - 1) * J, np.int64)
+    m = kn.edge_pairs(body, r, slope, K, J, step, 0.5 * spec.bin_width, kk, jj)
+    if m == 0:
+        return
+    kk, jj = kk[:m], jj[:m]
+    S = _EDGE_SUBRAYS
+    frac = (np.arange(S) + 0.5) / S
+    phi = spec.elevations[kk][:, None] + step * frac[None, :]
+    th = spec.azimuths[jj][:, None]
+    cp = np.cos(phi)
+    d = pose.directions_to_world(np.stack(np.broadcast_arrays(cp * np.sin(th), cp * np.cos(th), np.sin(phi)), -1))
+    d32 = np.ascontiguousarray(d.reshape(-1, 3), np.float32)
+    o32 = np.empty_like(d32)
+    o32[...] = np.asarray(pose.t, np.float32)
+    dist32 = np.full(len(d32), min(np.float32(spec.range_max * 1.5), np.float32(1e30)), np.float32)
+    tfar, h_body, _, _, _, _ = caster.intersect_raw(o32, d32, dist32, normals=False)
+    kn.edge_split(kk, jj, h_body, tfar, body, r, slope, step, S, J, a, b)
 
 
 def _truth_maps(spec: SonarSpec, rays: SonarRays):
