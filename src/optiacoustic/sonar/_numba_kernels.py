@@ -270,6 +270,9 @@ def noise_gaussian(I, shares, N, cumw, lams, U, E, psi, target_speckle, use_psi,
     C = lams.shape[1]
     J = I.shape[1]
     two = np.float32(2.0)
+    if T == 1 and target_speckle and C <= 4:  # one bottom type, speckled targets: the thesis scenes
+        _noise_one_bottom(I, shares, N, cumw, lams, U, E, r0, r1, out)
+        return
     for bb in range(r0, r1):
         n = N[bb]
         for j in range(J):
@@ -296,6 +299,38 @@ def noise_gaussian(I, shares, N, cumw, lams, U, E, psi, target_speckle, use_psi,
                 if use_psi:
                     v += two * np.sqrt(target * pe) * np.cos(psi[bb, j])
                 out[bb, j] = max(v, np.float32(0.0))
+
+
+@njit(cache=True, nogil=True)
+def _noise_one_bottom(I, shares, N, cumw, lams, U, E, r0, r1, out):
+    """:func:`noise_gaussian` for one bottom type of at most 4 mixture components with target
+    speckle: ``(N + I share lam_c + max(I - I share, 0)) E``, the component by selects (no inner
+    loops, no branches on the data), the same numbers as the general loop."""
+    C = lams.shape[1]
+    two = np.float32(2.0)  # above any uniform: a threshold never passed
+    c0 = cumw[0, 0] if C > 1 else two
+    c1 = cumw[0, 1] if C > 2 else two
+    c2 = cumw[0, 2] if C > 3 else two
+    l0 = np.float32(lams[0, 0])
+    l1 = np.float32(lams[0, 1]) if C > 1 else l0
+    l2 = np.float32(lams[0, 2]) if C > 2 else l0
+    l3 = np.float32(lams[0, 3]) if C > 3 else l0
+    J = I.shape[1]
+    zero = np.float32(0.0)
+    for bb in range(r0, r1):
+        n = N[bb]
+        for j in range(J):
+            x = I[bb, j]
+            part = x * shares[0, bb, j]
+            lam = l0
+            if C > 1:
+                uu = U[0, bb, j]
+                lam = l1 if uu >= c0 else lam
+                lam = l2 if uu >= c1 else lam
+                lam = l3 if uu >= c2 else lam
+            P = n + part * lam
+            target = max(x - part, zero)
+            out[bb, j] = (P + target) * E[bb, j]
 
 
 @njit(cache=True, nogil=True)
