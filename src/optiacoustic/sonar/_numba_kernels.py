@@ -650,9 +650,6 @@ def finish_echo(parts, scale, thr, slot_of_share, r0, r1, intensity, out):
     ``intensity`` (B, J), ``out`` (M, B, J) float32 (M = 0: no shares)."""
     M = slot_of_share.size
     J = parts.shape[1]
-    if M == 2 and parts.shape[0] == 2 and slot_of_share[0] == 0 and slot_of_share[1] == 1:
-        _finish_two(parts, scale, thr, r0, r1, intensity, out)  # one bottom type and the targets
-        return
     for bb in range(r0, r1):
         for j in range(J):
             tt = parts[0, j, bb] * scale
@@ -762,9 +759,10 @@ def edge_split(kk, jj, h_body, h_dist, body, r, slope, step, S, J, a, b):
 
 
 @njit(cache=True, nogil=True)
-def _finish_two(parts, scale, thr, r0, r1, intensity, out):
-    """:func:`finish_echo` for one bottom type (slot 0, the remainder) and the targets (slot 1):
-    the same numbers from a loop without inner loops or data branches (selects)."""
+def finish_two(parts, scale, thr, r0, r1, intensity, share):
+    """:func:`finish_echo` for one bottom type (slot 0, the class with most rays) and the targets
+    (slot 1), the thesis scenes' case: the bottom type's share ``clip(1 - clip(target / echo))``
+    only (the targets' share is not kept), from a loop without inner loops or data branches."""
     J = parts.shape[1]
     zero, one = np.float32(0.0), np.float32(1.0)
     for bb in range(r0, r1):
@@ -774,6 +772,4 @@ def _finish_two(parts, scale, thr, r0, r1, intensity, out):
             intensity[bb, j] = tt
             lit = tt > 0
             v = min(max((parts[1, j, bb] * scale) / (tt if lit else one), zero), one)
-            v = v if lit else zero
-            out[1, bb, j] = v
-            out[0, bb, j] = min(max(one - v, zero), one) if lit else zero
+            share[bb, j] = min(max(one - v, zero), one) if lit else zero

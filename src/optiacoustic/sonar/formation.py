@@ -506,8 +506,13 @@ def _finish_numba(spec: SonarSpec, rows: np.ndarray, bottom_types: dict, slot_of
     names = list(slot_of) if bottom_types else []
     table = np.array([slot_of[n] for n in names], np.int64)
     intensity = np.empty((spec.n_bins, spec.n_beams), np.float32)
-    out = np.empty((len(names), spec.n_bins, spec.n_beams), np.float32)
     kn = kernels()
+    if len(names) == 2 and names[1] is None and rows.shape[0] == 2 and list(table) == [0, 1]:
+        share = np.empty((spec.n_bins, spec.n_beams), np.float32)  # one bottom type, most rays: its share only
+        split_run(lambda r0, r1: kn.finish_two(rows, scale, thr, r0, r1, intensity, share), spec.n_bins, threads)
+        share.setflags(write=False)
+        return intensity, {names[0]: share}
+    out = np.empty((len(names), spec.n_bins, spec.n_beams), np.float32)
     split_run(lambda r0, r1: kn.finish_echo(rows, scale, thr, table, r0, r1, intensity, out), spec.n_bins, threads)
     shares = {}
     for m, name in enumerate(names):
