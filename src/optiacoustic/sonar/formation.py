@@ -394,20 +394,29 @@ def simulate_sonar(
     caster = caster_for(scene)
     bottom_types = _bottom_types(scene)
     draws = None
-    if noise is not False:
-        # the noise variates do not depend on the echo: draw them on the other core meanwhile
-        draws = _background().submit(noise.draw, (spec.n_bins, spec.n_beams), list(bottom_types), as_rng(seed))
+    draw_args = (noise.draw, (spec.n_bins, spec.n_beams), list(bottom_types), as_rng(seed)) if noise is not False else None
+
+    def start_draws():
+        # the noise variates do not depend on the echo: with a second thread, draw them on the other
+        # core once the primary cast (which takes every thread) is done, beside the one-thread stages
+        nonlocal draws
+        if draw_args is not None and caster.threads > 1:
+            draws = _background().submit(*draw_args)
+
     sspec = scan_spec(spec, options.beam_model)
     if options.beam_model == "aperture":
         rays, img_rays = _scan(scene, caster, sspec, pose, options, _aperture_elevation_weights(spec),
-                               spec.elevation_pattern())
+                               spec.elevation_pattern(), after_cast=start_draws)
     else:
-        rays = img_rays = _scan(scene, caster, sspec, pose, options)
+        rays = img_rays = _scan(scene, caster, sspec, pose, options, after_cast=start_draws)
+    if draws is None and draw_args is not None:  # one thread: drawn here, in line
+        draws = _done(draw_args[0](*draw_args[1:]))
     area = None
     if use_numba():
         # one pass forms the echo and the seabed/target split together
         if getattr(noise, "needs_cell_area", False):
-            area = _background().submit(cell_area, spec, img_rays, bottom_types)
+            area = (_background().submit(cell_area, spec, img_rays, bottom_types) if caster.threads > 1
+                    else _done(cell_area(spec, img_rays, bottom_types)))
         intensity, shares = _form_with_shares_numba(spec, img_rays, options, bottom_types, caster.threads)
     else:
         # the seabed/target split needs only the rays: integrate it on the other core meanwhile
@@ -756,6 +765,16 @@ def _seabed_shares(bottom_types: dict, parts, largest, intensity) -> dict:
     return out
 
 
+class _done:
+    """A finished result with the ``Future.result()`` interface."""
+
+    def __init__(self, value):
+        self._value = value
+
+    def result(self):
+        return self._value
+
+
 _BACKGROUND = None
 
 
@@ -770,10 +789,11 @@ def _background():
 
 
 def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options: SonarOptions,
-          weights=None, pattern=None):
+          weights=None, pattern=None, after_cast=None):
     """Cast the beams' rays and compute each ray's echo energy and range footprint (sec. 2.6.1).
 
     ``weights`` (``(elevation_samples,)``) overrides the elevation pattern's weights.
+    ``after_cast`` (no arguments) is called once the primary rays are cast.
     With ``pattern`` (the aperture model's elevation pattern) returns ``(rays, image_rays)``:
     ``image_rays`` splits every ray whose footprint is long in range into sub-cells
     (:func:`_subdivide`), so that the echo's density follows the surface within it.
@@ -784,6 +804,8 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
         body, r, nd, ndd, cos_inc, slope = _scan_hits_numba(caster, spec, pose)
     else:
         body, r, nd, ndd, cos_inc, slope = _scan_hits_numpy(caster, spec, pose)
+    if after_cast is not None:
+        after_cast()
     hit = body >= 0
     # angular extent of each ray's elevation cell below (a) and above (b) the ray
     step = spec.elevation_step
