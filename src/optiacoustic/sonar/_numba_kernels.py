@@ -335,15 +335,21 @@ def _noise_one_bottom(I, shares, N, cumw, lams, U, E, r0, r1, out):
 
 @njit(cache=True, nogil=True)
 def truth_maps(beam, lo_m, hi_m, energy, body, el_lo, el_hi, range_min, inv_bin, n_bins, n_beams,
-               body_map, el_min, el_max):
+               body_map, el_min, el_max, best, j0, j1):
     """Per cell the body of the strongest single contribution and the elevation span that echoes
-    (``formation._truth_maps``): every lit ray visits the bins its footprint overlaps."""
-    best = np.zeros(n_bins * n_beams, np.float32)
-    for c in range(n_bins * n_beams):
-        body_map.flat[c] = -1
-        el_min.flat[c] = np.inf
-        el_max.flat[c] = -np.inf
+    (``formation._truth_maps``): every lit ray visits the bins its footprint overlaps. Beams
+    ``j0..j1`` only (their columns of the maps; the rays of other beams are skipped), so that
+    beam ranges can run on several threads; ``best`` (n_bins, n_beams) float32 is scratch."""
+    for bb in range(n_bins):
+        for j in range(j0, j1):
+            best[bb, j] = 0.0
+            body_map[bb, j] = -1
+            el_min[bb, j] = np.inf
+            el_max[bb, j] = -np.inf
     for i in range(beam.size):
+        j = beam[i]
+        if j < j0 or j >= j1:
+            continue
         e = energy[i]
         if not e > 0:
             continue
@@ -354,23 +360,22 @@ def truth_maps(beam, lo_m, hi_m, energy, body, el_lo, el_hi, range_min, inv_bin,
         dens = np.float32(e / (x1 - x0))
         b0 = int(min(max(x0, 0.0), n_bins - 1))
         b1 = int(min(max(x1, 0.0), n_bins - 1))
-        j = beam[i]
         lo_e = np.float32(el_lo[i])
         hi_e = np.float32(el_hi[i])
         for bb in range(b0, b1 + 1):
             w = dens * max(min(x1, np.float32(bb + 1)) - max(x0, np.float32(bb)), np.float32(0.0))
-            c = bb * n_beams + j
-            if w > best[c] or (w == best[c] and body[i] > body_map.flat[c]):
-                best[c] = w
-                body_map.flat[c] = body[i]
-            if lo_e < el_min.flat[c]:
-                el_min.flat[c] = lo_e
-            if hi_e > el_max.flat[c]:
-                el_max.flat[c] = hi_e
-    for c in range(n_bins * n_beams):
-        if not np.isfinite(el_min.flat[c]):
-            el_min.flat[c] = np.nan
-            el_max.flat[c] = np.nan
+            if w > best[bb, j] or (w == best[bb, j] and body[i] > body_map[bb, j]):
+                best[bb, j] = w
+                body_map[bb, j] = body[i]
+            if lo_e < el_min[bb, j]:
+                el_min[bb, j] = lo_e
+            if hi_e > el_max[bb, j]:
+                el_max[bb, j] = hi_e
+    for bb in range(n_bins):
+        for j in range(j0, j1):
+            if not np.isfinite(el_min[bb, j]):
+                el_min[bb, j] = np.nan
+                el_max[bb, j] = np.nan
 
 
 @njit(cache=True, nogil=True)

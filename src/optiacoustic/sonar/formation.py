@@ -437,7 +437,7 @@ def simulate_sonar(
     image.setflags(write=False)
     gt = SonarGroundTruth(
         rays.range.astype(np.float32),
-        functools.partial(_truth_maps, spec, rays),
+        functools.partial(_truth_maps, spec, rays, caster.threads),
         functools.partial(_shadow_mask, scene, caster, sspec, pose, rays),
     )
     return SonarFrame(spec=spec, pose=pose, intensity=intensity, image=image, ground_truth=gt, rays=rays,
@@ -1087,7 +1087,7 @@ def _refine_edges_numba(caster, spec, pose, body, r, slope, a, b) -> None:
     kn.edge_split(kk, jj, h_body, tfar, body, r, slope, step, S, J, a, b)
 
 
-def _truth_maps(spec: SonarSpec, rays: SonarRays):
+def _truth_maps(spec: SonarSpec, rays: SonarRays, threads: int = 1):
     """Per cell: the body of the strongest single contribution and the elevation span that echoes."""
     B, J = spec.n_bins, spec.n_beams
     if use_numba():
@@ -1095,9 +1095,11 @@ def _truth_maps(spec: SonarSpec, rays: SonarRays):
         el_min = np.empty((B, J), np.float32)
         el_max = np.empty((B, J), np.float32)
         flat = lambda a: np.ascontiguousarray(a).reshape(-1)  # noqa: E731
-        kernels().truth_maps(flat(rays.beam_index), flat(rays.footprint_lo), flat(rays.footprint_hi),
-                             flat(rays.energy), flat(rays.body), flat(rays.elevation_lo), flat(rays.elevation_hi),
-                             float(spec.range_min), 1.0 / spec.bin_width, B, J, body_map, el_min, el_max)
+        args = (flat(rays.beam_index), flat(rays.footprint_lo), flat(rays.footprint_hi), flat(rays.energy),
+                flat(rays.body), flat(rays.elevation_lo), flat(rays.elevation_hi), float(spec.range_min),
+                1.0 / spec.bin_width, B, J, body_map, el_min, el_max, _workspace("truth_best", (B, J), np.float32))
+        kn = kernels()
+        split_run(lambda j0, j1: kn.truth_maps(*args, j0, j1), J, threads)  # beam ranges: disjoint columns
         return body_map, el_min, el_max
     ok = rays.energy > 0
     inv = np.float32(1.0 / spec.bin_width)
