@@ -657,11 +657,9 @@ def _form_with_shares_numba(spec: SonarSpec, rays: SonarRays, options: SonarOpti
     if not (options.beam_model == "aperture" or options.azimuth_pattern):
         return _finish_numba(spec, _echo_rows_numba(spec, rays, slot, n_slots, threads, options.range_oversample,
                                                     sigma_bins), bottom_types, slot_of, threads)
+    # beam patterns across beams: each class image is mixed on its own (in the image layout)
     parts = _echo_numba(spec, rays, slot, n_slots, threads, options.range_oversample, sigma_bins)
-    if options.beam_model == "aperture" or options.azimuth_pattern:
-        parts = np.stack([_mix_and_scale(spec, parts[s], options) for s in range(n_slots)])
-    else:
-        parts *= np.float32(1.0 / spec.bin_width)
+    parts = np.stack([_mix_and_scale(spec, parts[s], options) for s in range(n_slots)])
     intensity = parts[0]  # parts is fresh; thresholding it in place only zeroes cells whose shares are 0
     peak = float(intensity.max()) if intensity.size else 0.0
     intensity[intensity < np.float32(1e-9 * peak)] = 0.0  # the cumulative sums' rounding residue
