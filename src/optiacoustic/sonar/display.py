@@ -73,7 +73,7 @@ def fan_geometry(spec: SonarSpec, width: int):
     return col, row, mask, extent, px
 
 
-@functools.lru_cache(maxsize=8)
+@functools.lru_cache(maxsize=4)  # about 13 bytes per fan pixel each (6 MB at 800 px wide)
 def _fan_taps(spec: SonarSpec, width: int):
     """The bilinear taps of :func:`fan_geometry`'s maps for ``_numba_kernels.fan_remap`` (cached):
     per fan pixel the flat index of its upper-left polar sample (-1 outside the fan), whether
