@@ -172,3 +172,33 @@ def imwrite(path: str | os.PathLike, image) -> Path:
             raise OutputError(f"cannot write {path}: OpenCV could not encode a {getattr(image, 'shape', '?')} "
                               f"{getattr(image, 'dtype', '?')} image as {Path(path).suffix or 'an image'}")
     return Path(path)
+
+
+def write_file_in_folder(path: str | os.PathLike, data) -> None:
+    """Write ``data`` (bytes-like) to ``path`` atomically, for many files into a folder that exists.
+
+    The same guarantee as :func:`write_bytes` (a ``.NAME.tmp-*`` file beside ``path``,
+    renamed onto it once complete, removed on error) without its checks of the
+    destination, which cost more than writing a small file: the caller writes regular files
+    it names itself (a dataset's chunk files). A missing folder is created.
+    """
+    path = os.fspath(path)
+    folder, name = os.path.split(path)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{name}.tmp-", dir=folder)
+    except FileNotFoundError:
+        ensure_dir(folder)
+        fd, tmp = tempfile.mkstemp(prefix=f".{name}.tmp-", dir=folder)
+    except OSError as exc:
+        raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes the file private (0600)
+        os.replace(tmp, path)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        if isinstance(exc, OSError):
+            raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
+        raise

@@ -196,8 +196,9 @@ def test_one_and_two_workers_give_identical_output(reference, tmp_path):
 
 
 def _done_count(path: Path) -> int:
-    return sum(1 for g in ("sonar", "camera") for _ in (path / g / "done" / "c").glob("*")) \
-        if (path / "sonar" / "done" / "c").exists() else 0
+    # chunk files c.K (a temporary file of an unfinished write starts with a dot and is not counted)
+    return sum(1 for g in ("sonar", "camera") if (path / g / "done").is_dir()
+               for _ in (path / g / "done").glob("c.*"))
 
 
 @pytest.fixture(scope="module")
@@ -243,7 +244,7 @@ def test_kill_9_at_any_moment_then_resume(reference24, tmp_path):
     # finished frames were not recomputed, and every frame is now there exactly once
     assert sum(rep.skipped.values()) == done_at_kill
     assert sum(rep.skipped.values()) + rep.frames_written == total
-    assert not list(out.rglob("*.partial"))
+    assert not list(out.rglob("*.partial")) and not list(out.rglob(".*.tmp-*"))
     _assert_identical(_arrays(ref), _arrays(out))
 
 
@@ -309,23 +310,27 @@ def test_kill_9_a_two_worker_dask_run_then_resume(reference24, tmp_path):
     # finished frames were not recomputed (their files untouched); every frame is there once
     assert {k: v for k, v in _chunk_stamps(out).items() if k in finished} == finished
     assert _done_count(out) == total
-    assert not list(out.rglob("*.partial"))
+    assert not list(out.rglob("*.partial")) and not list(out.rglob(".*.tmp-*"))
     _assert_identical(_arrays(ref), _arrays(out))
 
 
 def _chunk_stamps(path: Path) -> dict:
-    """(inode, mtime) of every chunk file of every frame whose done flag is set, by relative path."""
+    """(inode, mtime) of every chunk file of every frame whose done flag is set, by relative path.
+
+    Chunk files are named ``c.K`` or ``c.K.0.0...`` (Zarr v3 default keys, "." separator).
+    """
     root = zarr.open_group(str(path), mode="r")
     stamps = {}
     for sensor in ("sonar", "camera"):
+        per_frame = [n for n, a in root[sensor].arrays() if n not in ("time", "pose") and a.chunks[0] == 1
+                     and a.shape[0] == root[sensor]["time"].shape[0]]
         for k in np.flatnonzero(root[sensor]["done"][:]):
-            for f in (path / sensor).glob(f"*/c/{k}/**/*"):
-                if f.is_file():
-                    st = f.stat()
-                    stamps[str(f.relative_to(path))] = (st.st_ino, st.st_mtime_ns)
-            f = path / sensor / "done" / "c" / str(k)
-            st = f.stat()
-            stamps[str(f.relative_to(path))] = (st.st_ino, st.st_mtime_ns)
+            files = [f for f in (path / sensor).glob(f"*/c.{k}") if f.is_file()] + \
+                    [f for f in (path / sensor).glob(f"*/c.{k}.*") if f.is_file()]
+            assert sorted(f.parent.name for f in files) == sorted(per_frame), (sensor, k, files)
+            for f in files:
+                st = f.stat()
+                stamps[str(f.relative_to(path))] = (st.st_ino, st.st_mtime_ns)
     return stamps
 
 
@@ -338,11 +343,20 @@ def test_tasks_batch_small_frames_and_cover_every_frame_once(tmp_path):
     tasks = _batches(seq, todo, n_workers=2)
     got = sorted((s, k) for s, ks in tasks for k in ks)
     assert got == sorted((s, k) for _, s, k in todo)  # every frame exactly once
-    sizes = {s: max(len(ks) for t, ks in tasks if t == s) for s in ("sonar", "camera")}
-    assert sizes["sonar"] == min(TASK_PIXELS // (96 * 48), 160 // 8) and sizes["camera"] == min(TASK_PIXELS // (72 * 48), 80 // 8)
+    n = {"sonar": 160, "camera": 80}
+    px = {"sonar": 96 * 48, "camera": 72 * 48}
+    for sensor in ("sonar", "camera"):
+        sizes = [len(ks) for t, ks in tasks if t == sensor]
+        # the first task as big as allowed, sizes shrinking as frames run out, the last ones single frames
+        assert sizes[0] == min(TASK_PIXELS // px[sensor], n[sensor] // 8), (sensor, sizes)
+        assert sizes == sorted(sizes, reverse=True) and sizes[-8:] == [1] * 8, (sensor, sizes)
+        assert max(sizes) * px[sensor] <= TASK_PIXELS
     firsts = [float(seq.schedule(s).times[ks[0]]) for s, ks in tasks]
     assert firsts == sorted(firsts)  # in time order
-    # thesis-size frames go one per task
-    big = Sequence({**SMALL, "rig": "thesis", "duration": 4.0}, base_dir=tmp_path)
+    # thesis-size frames (750 x 512 sonar, 600 x 400 camera): a few per task, never over TASK_PIXELS
+    big = Sequence({**SMALL, "rig": "thesis", "duration": 40.0}, base_dir=tmp_path)
     todo = [(float(big.schedule(s).times[k]), s, k) for s in ("sonar", "camera") for k in range(len(big.schedule(s)))]
-    assert all(len(ks) == 1 for _, ks in _batches(big, todo, n_workers=1))
+    tasks = _batches(big, todo, n_workers=1)
+    assert sorted((s, k) for s, ks in tasks for k in ks) == sorted((s, k) for _, s, k in todo)
+    assert max(len(ks) for s, ks in tasks if s == "sonar") == TASK_PIXELS // (750 * 512)
+    assert max(len(ks) for s, ks in tasks if s == "camera") == TASK_PIXELS // (600 * 400)

@@ -56,8 +56,10 @@ def dataset_cmd(
     finally:
         if bar is not None:
             bar.stop()
-    busy = rep.render_s + rep.write_s
+    busy, busy_cpu = rep.render_s + rep.write_s, rep.render_cpu_s + rep.write_cpu_s
     share = f", {100 * rep.write_s / busy:.0f} % of frame time writing" if busy > 0 else ""
+    if busy_cpu > 0:
+        share += f" ({100 * rep.write_cpu_s / busy_cpu:.0f} % of its CPU)"
     out.print(f"{rep.path}: wrote {rep.written}, already done {rep.skipped} in {rep.elapsed:.1f} s{share}",
               highlight=False)
 

@@ -8,8 +8,9 @@ frame's arrays are written by the worker that rendered it, straight into the sto
 chunk per frame, so workers never write the same file), then its flag in ``done``
 (written last); only a few numbers per task travel back to the client. A rerun of the same
 command renders only the frames whose flag is not set, so a run killed at any moment
-(SIGKILL included) resumes without a missing, duplicated or half-written frame: Zarr's
-local store writes every chunk to a temporary file and renames it.
+(SIGKILL included) resumes without a missing, duplicated or half-written frame: every
+chunk is written to a temporary file and renamed (by :mod:`._chunks` in the worker's own
+thread, the same bytes as Zarr's writer, or by Zarr's local store).
 
 A frame's noise depends only on ``(seed, sensor, frame index)``: the output is the same
 whatever the number of workers and the order they finish in.
@@ -97,14 +98,34 @@ def _metadata(seq) -> dict:
     })
 
 
-def _compressors():
+def _compressors(shuffle: str = "shuffle"):
     """Blosc LZ4 with byte shuffle: per pair as small as zstd level 3 and the fastest to write.
 
     Chosen from benchmarks/bench_dataset_codecs.py on the real frame arrays (docs/benchmarks.md).
     """
     from zarr.codecs import BloscCodec
 
-    return [BloscCodec(cname="lz4", clevel=5, shuffle="shuffle")]
+    return [BloscCodec(cname="lz4", clevel=5, shuffle=shuffle)]
+
+
+# Ground-truth arrays made of runs of equal values (body ids, elevation spans that are NaN
+# wherever nothing echoes, the shadow mask) compress better and twice as fast without the
+# byte shuffle (measured on the thesis pair, bench_dataset_codecs.py: elevation_min 8 % of
+# raw in 0.7 ms against 15 % in 1.2 ms with it); images, intensity, depth and normals
+# compress better with it.
+_NO_SHUFFLE = {("sonar", "body"), ("sonar", "elevation_min"), ("sonar", "elevation_max"), ("sonar", "shadow"),
+               ("camera", "body")}
+
+
+def _frame_compressors(sensor: str, name: str):
+    """The compressor of per-frame array ``name`` of ``sensor`` (Blosc LZ4, shuffle or not)."""
+    return _compressors("noshuffle" if (sensor, name) in _NO_SHUFFLE else "shuffle")
+
+
+# Chunk files of the per-frame arrays are named ``c.K.0.0`` in the array's folder (Zarr v3's
+# default chunk key encoding with the "." separator) rather than ``c/K/0/0``: with "/" every
+# frame made two or three new folders per array, which cost as much as the compression.
+_CHUNK_KEYS = {"name": "default", "separator": "."}
 
 
 def _create(path: Path, seq, ground_truth: bool):
@@ -117,13 +138,15 @@ def _create(path: Path, seq, ground_truth: bool):
         n = len(sched)
         for name, (shape, dims, dtype, fill) in arrays.items():
             g.create_array(name, shape=(n,) + shape, chunks=(1,) + shape, dtype=dtype, fill_value=fill,
-                           compressors=_compressors(), dimension_names=("frame",) + dims)
+                           compressors=_frame_compressors(sensor, name), dimension_names=("frame",) + dims,
+                           chunk_key_encoding=_CHUNK_KEYS)
         g.create_array("time", data=sched.times.astype("float64"), chunks=(max(n, 1),),
                        dimension_names=("frame",), attributes={"units": "s"})
         g.create_array("pose", data=sched.poses.astype("float64"), chunks=(max(n, 1), 4, 4),
                        dimension_names=("frame", "pose_row", "pose_col"),
                        attributes={"description": f"{sensor} to world, P_world = T[:3,:3] P_{sensor} + T[:3,3]"})
         g.create_array("done", shape=(n,), chunks=(1,), dtype="bool", fill_value=False, dimension_names=("frame",),
+                       compressors=None, chunk_key_encoding=_CHUNK_KEYS,  # one byte per frame: nothing to compress
                        attributes={"description": "frame k is complete (written after all its arrays)"})
         if sensor == "sonar":
             g.create_array("ranges", data=seq.rig.sonar.ranges.astype("float64"), dimension_names=("bin",),
@@ -180,14 +203,18 @@ def _open_or_create(path: Path, seq, ground_truth: bool):
 
 
 def _remove_partials(path: Path) -> int:
-    """Delete temporary chunk files left by a killed writer (``*.partial``, never read)."""
+    """Delete temporary chunk files left by a killed writer, never read.
+
+    Zarr's own (``*.partial``) and those of :mod:`optiacoustic._atomic` (``.NAME.tmp-*``).
+    """
     n = 0
-    for p in path.rglob("*.partial"):
-        try:
-            p.unlink()
-            n += 1
-        except OSError:
-            pass
+    for pattern in ("*.partial", ".*.tmp-*"):
+        for p in path.rglob(pattern):
+            try:
+                p.unlink()
+                n += 1
+            except OSError:
+                pass
     return n
 
 
@@ -245,47 +272,79 @@ def _context_locked(path: str, fingerprint: str, config: dict, base_dir: str):
         root = zarr.open_group(path, mode="r+")
         # every chunk is written, even one equal to the fill value: no scan of each frame for
         # "empty", and a done frame always has all its chunk files
-        arrays = {s: {n: a.with_config({"write_empty_chunks": True}) for n, a in root[s].arrays()}
+        arrays = {s: {n: _FrameArray(a.with_config({"write_empty_chunks": True})) for n, a in root[s].arrays()}
                   for s in SENSORS if s in root}
         _keep_latest(_STORES, 4)
         _STORES[(path, fingerprint)] = arrays
     return seq, arrays
 
 
-def warm_worker(path: str, fingerprint: str, config: dict, base_dir: str) -> int:
+class _FrameArray:
+    """One per-frame array of the store: ``fa[k] = frame`` writes chunk ``k``.
+
+    Through a :class:`~optiacoustic.io._chunks.ChunkWriter` (the same bytes as Zarr, in
+    this thread, without Zarr's per-call thread hand-offs) where the array allows it,
+    otherwise through Zarr.
+    """
+
+    def __init__(self, arr):
+        from ._chunks import ChunkWriter
+
+        self.array = arr
+        self.writer = ChunkWriter.for_array(arr) if len(arr.shape) and arr.chunks[0] == 1 else None
+
+    def __setitem__(self, k: int, value) -> None:
+        if self.writer is not None:
+            self.writer.write(k, value)
+        else:
+            self.array[k] = value
+
+
+def warm_worker(path: str, fingerprint: str, config: dict, base_dir: str, render: bool = False) -> int:
     """Resolve the configuration, open the store and build the scene's ray caster on this process.
 
     Called on every worker before the first frame, so that workers warm up in parallel
-    and the first frames are not delayed by it. Returns this process's id.
+    and the first frames are not delayed by it. With ``render``, also render (not write)
+    the first frame of each sensor, so that the one-time costs of each simulator (loading
+    compiled kernels, first-call caches: a few tenths of a second) are paid too; benchmarks
+    use it to time every worker count in the same state. Returns this process's id.
     """
     seq, _ = _context(path, fingerprint, config, base_dir)
     seq.prepare()
+    if render:
+        for sensor in ("sonar", "camera"):
+            if len(seq.schedule(sensor)):
+                _frame_arrays(seq, sensor, 0, True)
     return os.getpid()
 
 
 def write_frames(path: str, fingerprint: str, config: dict, base_dir: str, sensor: str, ks: list,
-                 ground_truth: bool) -> tuple[str, int, float, float]:
+                 ground_truth: bool) -> tuple:
     """Render frames ``ks`` of ``sensor`` and write each where the worker runs; its ``done`` flag last.
 
-    Only this small record travels back to the client: ``(sensor, frames, render_s, write_s)``.
+    Only this small record travels back to the client: ``(sensor, frames, render_s,
+    write_s, render_cpu_s, write_cpu_s)``: wall and CPU seconds (CPU of this thread, where
+    both happen) spent rendering and writing.
     """
     seq, arrays = _context(path, fingerprint, config, base_dir)
     g = arrays[sensor]
-    render_s = write_s = 0.0
+    render_s = write_s = render_cpu = write_cpu = 0.0
     for k in ks:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         frame = _frame_arrays(seq, sensor, int(k), ground_truth)
-        t1 = time.perf_counter()
+        t1, c1 = time.perf_counter(), time.thread_time()
         for name, a in frame.items():
             g[name][int(k)] = a
         g["done"][int(k)] = True  # last: the frame is complete
         render_s += t1 - t0
         write_s += time.perf_counter() - t1
-    return sensor, len(ks), render_s, write_s
+        render_cpu += c1 - c0
+        write_cpu += time.thread_time() - c1
+    return sensor, len(ks), render_s, write_s, render_cpu, write_cpu
 
 
 def write_frame(path: str, fingerprint: str, config: dict, base_dir: str, sensor: str, k: int,
-                ground_truth: bool) -> tuple[str, int, float, float]:
+                ground_truth: bool) -> tuple:
     """Render frame ``k`` of ``sensor`` and write it; the ``done`` flag last (see :func:`write_frames`)."""
     return write_frames(path, fingerprint, config, base_dir, sensor, [k], ground_truth)
 
@@ -293,9 +352,11 @@ def write_frame(path: str, fingerprint: str, config: dict, base_dir: str, sensor
 def _batches(seq, todo: list, n_workers: int) -> list:
     """Group the frames to do into tasks: small frames in batches, big frames one per task.
 
-    A task holds about :data:`TASK_PIXELS` pixels (at least one frame), and each worker
-    gets at least four tasks of each sensor so that the last ones finish together.
-    ``todo`` is ``[(time, sensor, k)]``; returns ``[(sensor, [k, ...])]`` in time order.
+    A task holds at most :data:`TASK_PIXELS` pixels (at least one frame), fewer as the
+    frames of a sensor run out (guided self-scheduling): a task holds at most the frames
+    left of its sensor divided by ``4 * n_workers``, so the first tasks are big (few
+    scheduler round trips) and the last ones single frames, which the workers finish
+    together. ``todo`` is ``[(time, sensor, k)]``; returns ``[(sensor, [k, ...])]`` in time order.
     """
     rig = seq.rig
     pixels = {"sonar": rig.sonar.n_bins * rig.sonar.n_beams if rig.sonar is not None else 1,
@@ -303,15 +364,17 @@ def _batches(seq, todo: list, n_workers: int) -> list:
     out = []
     for sensor in ("sonar", "camera"):
         items = [(t, k) for t, s, k in todo if s == sensor]
-        if not items:
-            continue
-        size = max(1, min(TASK_PIXELS // max(pixels[sensor], 1), len(items) // (4 * max(n_workers, 1))))
-        out += [(items[i][0], sensor, [k for _, k in items[i:i + size]]) for i in range(0, len(items), size)]
+        cap = max(1, TASK_PIXELS // max(pixels[sensor], 1))
+        i = 0
+        while i < len(items):
+            size = max(1, min(cap, (len(items) - i) // (4 * max(n_workers, 1))))
+            out.append((items[i][0], sensor, [k for _, k in items[i:i + size]]))
+            i += size
     out.sort(key=lambda b: (b[0], b[1]))
     return [(s, ks) for _, s, ks in out]
 
 
-TASK_PIXELS = 200_000  # pixels of frames per Dask task (small frames are batched up to this)
+TASK_PIXELS = 1_000_000  # pixels of frames per Dask task at most (2 frames of a 750 x 512 sonar, 4 of a 600 x 400 camera)
 
 
 # --------------------------------------------------------------------------- the run
@@ -320,8 +383,9 @@ class DatasetReport:
     """What a run of :func:`write_dataset` did.
 
     ``written`` frames rendered now per sensor, ``skipped`` frames found done,
-    ``elapsed`` wall time (s), ``render_s`` / ``write_s`` summed over frames (s),
-    ``workers`` the number of Dask workers (0: in this process).
+    ``elapsed`` wall time (s), ``render_s`` / ``write_s`` wall time summed over frames (s),
+    ``workers`` the number of Dask workers (0: in this process), ``render_cpu_s`` /
+    ``write_cpu_s`` CPU time of the rendering / writing thread summed over frames (s).
     """
 
     path: Path
@@ -331,6 +395,8 @@ class DatasetReport:
     render_s: float
     write_s: float
     workers: int
+    render_cpu_s: float = 0.0
+    write_cpu_s: float = 0.0
 
     @property
     def frames_written(self) -> int:
@@ -338,10 +404,25 @@ class DatasetReport:
 
 
 # Dask's background work that a local rendering cluster does not need: each worker's
-# statistical profiler samples its stack every 10 ms, the memory monitors poll every 100 ms.
-# On a machine with as many workers as cores that CPU comes out of the rendering.
+# statistical profiler samples its stack every 10 ms, the memory monitors poll every 100 ms,
+# every event loop (scheduler, nannies, client, each worker) checks its own health every
+# 20 ms (measured: 25 ms CPU per second in the scheduler's process and 13 ms per second in
+# each idle worker; 7 and 4 with a 1 s tick). On a machine with as many workers as cores
+# that CPU comes out of the rendering. One task per worker thread at a time
+# (worker-saturation 1.0, Dask's default is 1.1, i.e. 2 for a one-thread worker): a
+# worker never holds a queued task while another one is idle at the end of a run.
+#
+# Dask's nannies also start their workers with MALLOC_TRIM_THRESHOLD_=65536, which makes
+# glibc hand every freed block over 64 KiB back to the system and switches off its
+# adaptive mmap threshold: every large temporary of a render is then a fresh mmap whose
+# pages the kernel zeroes on first touch. Measured on the thesis pair in one thread: sonar
+# 43 -> 76 ms, camera 120 -> 170 ms CPU per frame with it. Our workers run without it
+# (glibc's defaults; a user's own MALLOC_TRIM_THRESHOLD_ in the environment still applies);
+# their memory stays flat without it (docs/benchmarks.md, worker RSS over a long run).
 _LEAN_DASK = {"distributed.worker.profile.enabled": False, "distributed.worker.memory.monitor-interval": "1s",
-              "distributed.admin.system-monitor.interval": "2s"}
+              "distributed.admin.system-monitor.interval": "2s", "distributed.admin.tick.interval": "1s",
+              "distributed.scheduler.worker-saturation": 1.0,
+              "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
 
 
 def local_cluster(n: int):
@@ -410,18 +491,14 @@ def write_dataset(config, out, *, workers: int | None = None, scheduler: str | N
     total = len(todo)
     written = {s: 0 for s in skipped}
     args = (str(path), seq.fingerprint(), seq.config.model_dump(mode="json"), str(seq.base_dir))
-    render_s = write_s = 0.0
+    times = np.zeros(4)  # render_s, write_s, render_cpu_s, write_cpu_s summed over frames
     n_workers = 0
-
     n_done = 0
 
-    def _done(res):
-        nonlocal render_s, write_s, n_done
-        sensor, n, r, w = res
+    def _count(sensor, n):
+        nonlocal n_done
         written[sensor] += n
         n_done += n
-        render_s += r
-        write_s += w
         if progress is not None:
             progress(n_done, total)
 
@@ -429,7 +506,9 @@ def write_dataset(config, out, *, workers: int | None = None, scheduler: str | N
         progress(0, total)
     if total and workers == 0 and scheduler is None:
         for _, sensor, k in todo:
-            _done(write_frames(*args, sensor, [k], gt))
+            res = write_frames(*args, sensor, [k], gt)
+            times += res[2:]
+            _count(sensor, 1)
     elif total:
         from distributed import Client, as_completed
 
@@ -440,18 +519,26 @@ def write_dataset(config, out, *, workers: int | None = None, scheduler: str | N
             with Client(scheduler if scheduler else cluster) as client:
                 n_workers = len(client.scheduler_info().get("workers", {})) or (workers or 0)
                 client.run(warm_worker, *args)  # every worker resolves the scene and builds its BVH, in parallel
-                futs = [client.submit(write_frames, *args, sensor, ks, gt, pure=False,
-                                      key=f"oas-{sensor}-{ks[0]}-{ks[-1]}-{args[1][:12]}")
-                        for sensor, ks in _batches(seq, todo, n_workers)]
-                for fut in as_completed(futs):
-                    res = fut.result()  # a few numbers: the frames are already in the store
-                    fut.release()
-                    _done(res)
-                del futs
+                tasks = {}
+                for sensor, ks in _batches(seq, todo, n_workers):
+                    fut = client.submit(write_frames, *args, sensor, ks, gt, pure=False,
+                                        key=f"oas-{sensor}-{ks[0]}-{ks[-1]}-{args[1][:12]}")
+                    tasks[fut.key] = (fut, sensor, len(ks))
+                # the frames are in the store when a task finishes: count them from what the client
+                # knows, and fetch the tasks' few numbers once at the end (one round trip, not one a task)
+                for fut in as_completed([f for f, _, _ in tasks.values()]):
+                    if fut.status != "finished":
+                        fut.result()  # raises the worker's error
+                    _count(*tasks[fut.key][1:])
+                for res in client.gather([f for f, _, _ in tasks.values()]):
+                    times += res[2:]
+                del tasks
         finally:
             if cluster is not None:
                 cluster.close()
-    return DatasetReport(path, written, skipped, time.perf_counter() - t_start, render_s, write_s, n_workers)
+    render_s, write_s, render_cpu, write_cpu = (float(x) for x in times)
+    return DatasetReport(path, written, skipped, time.perf_counter() - t_start, render_s, write_s, n_workers,
+                         render_cpu, write_cpu)
 
 
 # --------------------------------------------------------------------------- reading
