@@ -184,9 +184,9 @@ class RayCaster:
     def _run_chunks(self, origins: np.ndarray, directions: np.ndarray, dists: np.ndarray, query: str, output: bool,
                     copy: bool = True):
         n = len(origins)
-        # a few thousand rays are worth splitting: rays that start on a surface (shadow continuations,
-        # edge sub-rays) cost several times a primary ray
-        n_chunks = 1 if n < 4096 or self.threads == 1 else 2 * self.threads
+        # a few thousand rays are worth splitting: rays that start on a surface (shadow continuations)
+        # or graze one (edge sub-rays) cost two to four primary rays each
+        n_chunks = 1 if n < 2048 or self.threads == 1 else 2 * self.threads
         bounds = np.linspace(0, n, n_chunks + 1).astype(int)
 
         def job(k):
