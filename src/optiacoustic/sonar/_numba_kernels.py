@@ -778,3 +778,25 @@ def finish_two(parts, scale, thr, r0, r1, intensity, share):
             lit = tt > 0
             v = min(max((parts[1, j, bb] * scale) / (tt if lit else one), zero), one)
             share[bb, j] = min(max(one - v, zero), one) if lit else zero
+
+
+@njit(cache=True, nogil=True)
+def shadow_active(body, is_floor, cp, sp, a, rz, r, active, t):
+    """The grid rays whose continuation the acoustic shadow needs (``formation._shadow_mask``): every
+    hit but those going down (``d_z < 0``, ``d = cos(phi) a + sin(phi) R_z``) through a floor plane
+    (``is_floor[body]``). Their flat indices into ``active`` and ranges into ``t``; returns the count."""
+    J = a.shape[0]
+    n = 0
+    for i in range(body.size):
+        g = body[i]
+        if g < 0:
+            continue
+        if is_floor[g]:
+            k = i // J
+            j = i - k * J
+            if cp[k] * a[j, 2] + sp[k] * rz[2] < 0:
+                continue
+        active[n] = i
+        t[n] = r[i]
+        n += 1
+    return n

@@ -1248,27 +1248,23 @@ def _shadow_mask_numba(scene, caster, spec, pose, rays: SonarRays, elevation_min
     continue are touched (no per-grid-ray arrays of directions or normals)."""
     kn = kernels()
     first_body = np.ascontiguousarray(rays.body).reshape(-1)
-    hit = first_body >= 0
+    # nothing lies below a floor plane: a ray going down through it hits nothing more
     floors = _floor_planes(scene)
-    if floors:  # nothing lies below a floor plane: a ray going down through it hits nothing more
-        R = pose.R
-        a_z = np.sin(spec.azimuths) * R[2, 0] + np.cos(spec.azimuths) * R[2, 1]
-        down = (np.cos(spec.elevations)[:, None] * a_z + np.sin(spec.elevations)[:, None] * R[2, 2]).reshape(-1) < 0
-        is_floor = np.zeros(int(first_body.max(initial=-1)) + 2, bool)
-        is_floor[[f for f in floors if f < is_floor.size - 1]] = True
-        hit &= ~(is_floor[first_body] & down)  # body -1 reads the last entry: False
-    active = np.flatnonzero(hit)
-    n = active.size
-    if n == 0:
-        return np.zeros((spec.n_bins, spec.n_beams), bool)
+    is_floor = np.zeros(int(first_body.max(initial=-1)) + 1, bool)
+    is_floor[[f for f in floors if f < is_floor.size]] = True
     R = pose.R
     a_dir = np.sin(spec.azimuths)[:, None] * R[:, 0] + np.cos(spec.azimuths)[:, None] * R[:, 1]  # (J, 3)
+    cp, sp, rz = np.cos(spec.elevations), np.sin(spec.elevations), np.ascontiguousarray(R[:, 2])
+    active, t = np.empty(first_body.size, np.int64), np.empty(first_body.size)
+    n = kn.shadow_active(first_body, is_floor, cp, sp, a_dir, rz, np.ascontiguousarray(rays.range, float).reshape(-1),
+                         active, t)
+    if n == 0:
+        return np.zeros((spec.n_bins, spec.n_beams), bool)
+    active, t = active[:n], t[:n]
     d_act, dd_act = np.empty((n, 3)), np.empty((n, 3))
-    kn.grid_directions(active, np.cos(spec.elevations), np.sin(spec.elevations), a_dir, np.ascontiguousarray(R[:, 2]),
-                       d_act, dd_act)
+    kn.grid_directions(active, cp, sp, a_dir, rz, d_act, dd_act)
     body_act = first_body[active]
     pos = np.arange(n, dtype=np.int64)
-    t = np.ascontiguousarray(rays.range, float).reshape(-1)[active]
     exited = np.zeros(n, bool)
     hid_r = np.full(n, np.inf)
     hid_n = np.zeros((n, 3))
