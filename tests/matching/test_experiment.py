@@ -10,7 +10,7 @@ from optiacoustic import experiments
 def test_matching_experiment(tmp_path):
     res = experiments.run("matching", tmp_path, quick=True)
     data = json.loads((tmp_path / "results.json").read_text())
-    assert data["name"] == "matching" and len(res.figures) == 4
+    assert data["name"] == "matching" and len(res.figures) == 6
     for path, caption in res.figures:
         assert path.is_file() and path.stat().st_size > 10_000 and caption
     n = res.numbers
@@ -22,3 +22,11 @@ def test_matching_experiment(tmp_path):
     assert n["precision_all_assigned"] > n["baseline_precision"]
     assert n["median_error_true_matches_m"] < n["median_error_auto_m"]
     assert n["target_met"] == bool(np.any((prec >= 0.95) & (rec >= 0.5)))
+    # One view and two views reported side by side, on plain and textured scenes.
+    tv = n["two_view"]
+    for kind in ("plain", "textured"):
+        d = tv[kind]
+        assert d["n_visible"] > 0
+        for key in ("single_precision_all", "two_view_precision_all", "single_max_recall", "two_view_max_recall"):
+            assert 0 <= d[key] <= 1
+    assert {row["scenes"] for row in tv["baseline_sweep"]} == {"plain", "textured"}

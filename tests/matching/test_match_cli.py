@@ -33,3 +33,23 @@ def test_match_command_reports_bad_input(tmp_path):
     assert r.exit_code == 2 and "pair.json" in r.output
     r = runner.invoke(app, ["match", str(tmp_path / "p"), "--min-score", "2"])
     assert r.exit_code == 2 and "--min-score" in r.output
+
+
+def test_match_command_with_a_second_pair(tmp_path):
+    """Two rendered pairs of one scene from two sonar positions: two-view matching from the CLI."""
+    pairs = []
+    for name, eye in (("a", ["0", "-6", "2"]), ("b", ["0.4", "-5.7", "2.05"])):
+        p = tmp_path / name
+        r = runner.invoke(app, ["render", "cuboids", "--rig", str(RIG), "--eye", *eye, "--target", "0", "0", "0",
+                                "--out", str(p)])
+        assert r.exit_code == 0, r.output
+        pairs.append(p)
+    out = tmp_path / "m"
+    r = runner.invoke(app, ["match", str(pairs[0]), "--second", str(pairs[1]), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    data = json.loads((out / "matches.json").read_text())
+    assert data["second_pair"] == str(pairs[1]) and "second view" in data["message"]
+    assert data["n_matches"] == len(data["matches"]) > 0
+    (pairs[1] / "pair.json").write_text("{}")
+    r = runner.invoke(app, ["match", str(pairs[0]), "--second", str(pairs[1]), "--out", str(out)])
+    assert r.exit_code == 2 and "pair.json" in r.output

@@ -190,18 +190,79 @@ def test_two_view_consistency_identity():
         consistent(P1, P2, (2 * R, t))
 
 
-def test_two_view_match_keeps_a_consistent_subset(pairs):
-    from optiacoustic.experiments.matching import second_view
+def test_two_view_match(pairs):
+    from optiacoustic.experiments.matching import moved_view
 
     s, o, rig = pairs[0]
-    s2, o2, motion = second_view(random_scene(201), 201)
+    motion = dict(surge=0.3, sway=0.25, heave=0.0, yaw_deg=2.0)
+    s2, o2, mo = moved_view(random_scene(201), motion, 201)
     one = match(s, o.image, rig, min_score=0.0)
-    two = match(s, o.image, rig, min_score=0.0, second=(s2, o2.image), motion=motion)
-    assert 0 < len(two) < len(one)
-    assert set(map(tuple, two.pixels.tolist())) <= set(map(tuple, one.pixels.tolist()))
-    assert "second view" in two.message
+    two = match(s, o.image, rig, min_score=0.0, second=(s2, o2.image), motion=mo)
+    assert len(two) > 0 and "second view" in two.message
+    assert np.unique(two.sonar_index).size == len(two)  # one pixel per sonar feature
+    assert np.all(np.diff(two.score) <= 0)  # best first
+    for key in ("source", "single_view_score", "flow_residual_px", "flow_px_per_m", "two_view", "sweep_fb_error"):
+        assert two.features[key].shape == (len(two),)
+    arc = two.features["source"] == 0
+    # The arc search's choices keep their pixel and their one-view score.
+    k1 = {tuple(p): sc for p, sc in zip(one.pixels.tolist(), one.score)}
+    assert all(np.isclose(k1[tuple(p)], sc) for p, sc in zip(two.pixels[arc].tolist(),
+                                                              two.features["single_view_score"][arc]))
+    assert np.all(np.isfinite(two.pixels)) and np.all(np.isfinite(two.points))
+    # 0.25 m sideways at 5-9 m: the motion's sensitivity, f B / Z^2, is a few px per metre of depth.
+    sens = np.concatenate([two.features["flow_px_per_m"], two.features["sweep_px_per_m"]])
+    assert 1.0 < np.nanmedian(sens) < 15.0
     with pytest.raises(ValueError, match="motion"):
         match(s, o.image, rig, second=(s2, o2.image))
+    with pytest.raises(ValueError, match="second camera_image"):
+        match(s, o.image, rig, second=(s2, o2.image[:10]), motion=mo)
+
+
+def test_two_views_beat_one_view_on_textured_scenes():
+    """On checkered surfaces a second view (known motion) finds more right matches than one view."""
+    from optiacoustic.experiments.matching import evaluate_two_views, moved_view  # noqa: F401
+
+    ok1, ok2, n_vis = [], [], 0
+    for sd in (203, 204):
+        sc = random_scene(sd, textured=True)
+        s, o, rig = simulate_pair(sc, "thesis", "default", sd)
+        e1 = evaluate_pair(s, o, rig)
+        e2 = evaluate_two_views(sc, s, o, rig, dict(surge=0.4, sway=0.3, heave=0.05, yaw_deg=1.0), sd)
+        ok1.append(e1["ok"])
+        ok2.append(e2["ok"])
+        n_vis += e1["n_visible"]
+    ok1, ok2 = np.concatenate(ok1), np.concatenate(ok2)
+    assert n_vis >= 10
+    assert ok2.sum() > ok1.sum()  # recall
+    assert ok2.mean() > ok1.mean()  # precision of all matches
+
+
+def test_epipolar_residual_identity():
+    """Flow made from known points and motion: zero residual at the true points, f B dZ / Z^2 off them."""
+    from optiacoustic.camera import PinholeCamera
+    from optiacoustic.frames import rot_y
+    from optiacoustic.matching.optical_two_view import epipolar_residuals
+
+    cam = PinholeCamera.from_sensor(600, 400, (36, 24), 50)
+    rng = np.random.default_rng(3)
+    H, W = 400, 600
+    u, v = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
+    Z = 6.0 + 0.002 * u  # a slanted plane, depth 6-7.2 m
+    rays = cam.pixel_rays(np.stack([u, v], -1).reshape(-1, 2))
+    P = rays / rays[:, 2:3] * Z.reshape(-1, 1)
+    R, t = rot_y(0.02), np.array([0.4, 0.05, 0.2])
+    flow = (cam.project(P @ R.T + t) - np.stack([u, v], -1).reshape(-1, 2)).reshape(H, W, 2)
+    pix = rng.uniform([50, 50], [550, 350], (40, 2)).round()
+    Ptrue = cam.pixel_rays(pix)
+    Ptrue = Ptrue / Ptrue[:, 2:3] * (6.0 + 0.002 * pix[:, :1])
+    a, sens = epipolar_residuals(cam, pix, Ptrue, flow, (R, t))
+    assert np.all(np.abs(a) < 1e-6)
+    # Expected sensitivity: lateral baseline 0.4 m, f = 833 px, Z about 6-7 m.
+    assert np.all((sens > 833 * 0.3 / 7.3 ** 2) & (sens < 833 * 0.5 / 6.0 ** 2))
+    dz = 0.2
+    far = Ptrue * (1 + dz / np.linalg.norm(Ptrue, axis=1, keepdims=True))
+    a2, _ = epipolar_residuals(cam, pix, far, flow, (R, t))
+    np.testing.assert_allclose(a2, sens * dz, rtol=0.05)
 
 
 @pytest.mark.parametrize("name", ["oculus/one_ping_8bit.raw", "aris/sample.aris"])
@@ -292,3 +353,47 @@ def test_arc_search_skips_seabed_coloured_pixels(pairs):
     skip = search_arcs(rig, r, th, lo, np.array([half]), G, colours=C, min_contrast=0.1)
     assert 200 <= free.pixels[0, 1] <= 300 and 100 <= skip.pixels[0, 1] <= 140
     assert free.contrast[0] < 1e-6 and skip.contrast[0] > 0.4
+
+
+def test_arc_sweep_finds_the_seabed_from_an_exact_flow():
+    """A flat seabed, its exact flow under a known motion: the sweep lands on the seabed point of each arc."""
+    from optiacoustic.experiments.matching import _rig_for
+    from optiacoustic.frames import spherical_from_sonar
+    from optiacoustic.matching.optical_two_view import sweep_arcs
+
+    eye, target = np.array([0.0, -6.0, 2.0]), np.array([0.0, 0.0, 0.0])
+    rig, sp1 = _rig_for(eye, target)
+    _, sp2 = _rig_for(eye + [0.4, 0.3, 0.05], target + [0.4, 0.3, 0.0])
+    c1, c2 = rig.camera_pose(sp1), rig.camera_pose(sp2)
+    R, t = c2.R.T @ c1.R, c2.R.T @ (c1.t - c2.t)
+    cam = rig.camera
+    u, v = np.meshgrid(np.arange(cam.width, dtype=float), np.arange(cam.height, dtype=float))
+    uv = np.stack([u, v], -1).reshape(-1, 2)
+    d_world = cam.pixel_rays(uv) @ c1.R.T  # ray directions in the world (not normalised)
+    lam = -c1.t[2] / d_world[:, 2]  # hits z = 0
+    P_cam = cam.pixel_rays(uv) * lam[:, None]
+    flow = np.where((lam > 0)[:, None], cam.project(P_cam @ R.T + t) - uv, 50.0).reshape(cam.height, cam.width, 2)
+    # Sonar features: seabed points in the fan and the image.
+    pts_w = np.array([[x, y, 0.0] for x in (-1.0, 0.0, 1.2) for y in (-0.5, 0.5, 1.5)])
+    P_c = c1.to_body(pts_w)
+    r, th, phi = spherical_from_sonar(rig.sonar_from_camera(P_c))
+    half = rig.fov_elevation / 2
+    assert np.all(np.abs(phi) < half)
+    sw = sweep_arcs(rig, r, th, np.full(r.size, -half), np.full(r.size, half), flow.astype(np.float32),
+                    np.zeros(flow.shape[:2]), (R, t))
+    assert sw.found.all()
+    np.testing.assert_allclose(sw.elevations, phi, atol=np.deg2rad(0.1))
+    np.testing.assert_allclose(sw.pixels, cam.project(P_c), atol=1.5)
+    assert np.all(sw.n_crossings == 1)
+
+
+def test_two_view_degenerate_second_views(pairs):
+    """No motion (no parallax) or a blank second image: no sweep match, the arc search's matches stay."""
+    s, o, rig = pairs[0]
+    one = match(s, o.image, rig, min_score=0.0)
+    still = match(s, o.image, rig, min_score=0.0, second=(s, o.image), motion=(np.eye(3), np.zeros(3)))
+    assert len(still) == len(one) and np.all(still.features["source"] == 0)
+    assert np.all(~np.isfinite(still.features["sweep_px_per_m"]))
+    blank = match(s, o.image, rig, min_score=0.0, second=(s, np.zeros_like(o.image)),
+                  motion=(np.eye(3), np.array([0.3, 0.0, 0.0])))
+    assert len(blank) == len(one) and np.all(blank.features["source"] == 0)

@@ -17,8 +17,14 @@ def match_cmd(
     out_dir: Path = typer.Option(Path("out/match"), "--out", help="Output folder."),
     min_score: float = typer.Option(0.0, "--min-score", help="Keep matches with at least this score (0..1)."),
     truth: bool = typer.Option(True, "--truth/--no-truth", help="Mark wrong matches when the pair has a depth map."),
+    second: Path = typer.Option(None, "--second", metavar="PAIR2", help="A second pair folder of the same rig after "
+                                "it moved: two-view matching (the motion from the two folders' camera poses)."),
 ):
-    """Match sonar and camera features of a pair; writes matches.png (colour = score) and matches.json."""
+    """Match sonar and camera features of a pair; writes matches.png (colour = score) and matches.json.
+
+    With --second, the motion between the pairs is taken from the camera poses their pair.json
+    files record (P_camera2 = R_o P_camera1 + t_o): known motion, as a navigation system gives it.
+    """
     import numpy as np
 
     from .._atomic import write_json
@@ -30,7 +36,11 @@ def match_cmd(
         raise ValueError(f"--min-score: must be in [0, 1], got {min_score}")
     res, bw = _preset_resolution(pair_dir)
     sonar, image, rig, depth = read_pair(pair_dir, range_resolution=res, beamwidth_azimuth=bw)
-    m = match(sonar, image, rig, min_score=min_score)
+    kw = {}
+    if second is not None:
+        sonar2, image2, _, _ = read_pair(second, range_resolution=res, beamwidth_azimuth=bw)
+        kw = dict(second=(sonar2, image2), motion=_motion(pair_dir, second))
+    m = match(sonar, image, rig, min_score=min_score, **kw)
     correct = None
     if truth and depth is not None and m:
         from ..matching.truth import correct as is_correct
@@ -42,7 +52,8 @@ def match_cmd(
     fig = draw_matches(out_dir / "matches.png", sonar.image, sonar.ranges, sonar.azimuths, image, m,
                        title=pair_dir.name, correct=correct)
     data = {
-        "pair": str(pair_dir), "message": m.message, "n_matches": len(m),
+        "pair": str(pair_dir), "second_pair": None if second is None else str(second), "message": m.message,
+        "n_matches": len(m),
         "columns": ["u_px", "v_px", "range_m", "azimuth_rad", "X_cam_m", "Y_cam_m", "Z_cam_m", "score"],
         "matches": np.column_stack([m.pixels, m.ranges, m.azimuths, m.points, m.score]).tolist() if m else [],
     }
@@ -68,3 +79,22 @@ def _preset_resolution(pair_dir: Path):
         return float(spec.range_resolution), float(spec.beamwidth_azimuth)
     except Exception:  # noqa: BLE001 - no preset: read_pair falls back to the bin and beam spacing
         return None, None
+
+
+def _motion(pair_1: Path, pair_2: Path):
+    """``(R_o, t_o)`` with ``P_camera2 = R_o P_camera1 + t_o`` from the camera poses of two pair folders."""
+    import json
+
+    import numpy as np
+
+    poses = []
+    for folder in (pair_1, pair_2):
+        path = folder / "pair.json"
+        try:
+            cp = json.loads(path.read_text())["camera_pose"]
+            poses.append((np.asarray(cp["R"], float).reshape(3, 3), np.asarray(cp["t"], float).reshape(3)))
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise ValueError(f"{path}: field 'camera_pose' (R, t) needed for --second: {exc!r}") from None
+    (R1, t1), (R2, t2) = poses
+    return R2.T @ R1, R2.T @ (t1 - t2)
+

@@ -7,7 +7,9 @@ Nothing here imports a simulator: it works on any sonar frame through the shared
 Submodules: :mod:`.sonar_features` (CFAR), :mod:`.arc_search` (pixels along each arc),
 :mod:`.camera_features` (OpenCV corners),
 :mod:`.gating` (epipolar Mahalanobis gate), :mod:`.acoustic` (seabed and shadow evidence),
-:mod:`.match` (assignment), :mod:`.truth` (ground truth from a depth map, for evaluation).
+:mod:`.match` (assignment), :mod:`.optical_two_view` and :mod:`.two_view` (a second pair with known
+motion: optical flow against the motion, the arc sweep, acoustic consistency), :mod:`.truth`
+(ground truth from a depth map, for evaluation).
 """
 
 from .acoustic import SeabedPlane, elevation_bounds, fit_seabed

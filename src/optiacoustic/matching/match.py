@@ -283,7 +283,100 @@ def _assign(cost, rows, cols, n_rows, null_cost):
     return chosen[M[ri, ci][: chosen.size] < big] if chosen.size else chosen
 
 
-def _two_view(out: Matches, second, motion, rig, noise, opt) -> Matches:
+#: Logistic model of P(correct) of a match given two views with known motion: intercept and
+#: weights of the standardised :func:`two_view_score_features` (logit of the one-view score, log
+#: of 1 + the optical flow's epipolar residual in px, log of 1 + that residual in metres of depth,
+#: log of the motion's sensitivity in px per metre of depth, no residual available, consistent
+#: with the second pair's own matches). Fitted by
+#: ``experiments.matching.calibrate_two_view_score()`` on random scenes seeded 5000-5023, plain
+#: and textured, each with the random vehicle motion of its seed
+#: (``experiments.matching.vehicle_motion``), disjoint from the evaluation's scenes (1023 arc
+#: matches, 41% correct).
+TWO_VIEW_SCORE_MODEL = dict(
+    weights=(-0.522, 0.715, -0.373, -0.128, 0.203, 0.246, 0.322),
+    mean=(-0.5592, 1.1959, 0.5622, 1.4745, 0.0391, 0.566),
+    std=(1.532, 1.0404, 0.7155, 0.939, 0.1938, 0.4956),
+)
+
+
+def two_view_score_features(feats: dict) -> np.ndarray:
+    """The two-view score model's inputs ``(N, 6)`` from a :attr:`Matches.features` mapping."""
+    p = np.clip(feats["single_view_score"], 1e-6, 1 - 1e-6)
+    a = np.asarray(feats["flow_residual_px"], float)
+    sens = np.asarray(feats["flow_px_per_m"], float)
+    missing = ~np.isfinite(a) | ~np.isfinite(sens) | (np.nan_to_num(sens) <= 0)
+    a_px = np.where(missing, 0.0, np.abs(np.nan_to_num(a)))
+    a_m = np.where(missing, 0.0, a_px / np.where(missing, 1.0, sens))
+    log_sens = np.where(missing, 0.0, np.log(np.where(missing, 1.0, sens)))
+    return np.column_stack([np.log(p / (1 - p)), np.log1p(a_px), np.log1p(a_m), log_sens, missing.astype(float),
+                            np.asarray(feats["two_view"], float)])
+
+
+#: Logistic model of P(correct) of the sweep's choice (:func:`.optical_two_view.sweep_arcs`):
+#: intercept and weights of the standardised :func:`sweep_score_features` (log of 1 + the
+#: forward-backward flow error, log of the number of crossings, log of 1 + the residual's slope,
+#: log sensitivity, log of 1 + the distance to the arc search's pixel and no arc pixel, log SNR,
+#: onset or peak). Fitted by ``experiments.matching.calibrate_two_view_score()`` (see
+#: :data:`TWO_VIEW_SCORE_MODEL`; 624 sweep choices, 51% correct).
+SWEEP_SCORE_MODEL = dict(
+    weights=(-0.012, -0.39, 0.065, -0.519, 0.517, -0.237, -0.512, -0.043, 0.017),
+    mean=(0.4967, 0.916, 1.0869, 1.5753, 3.2255, 0.0096, 2.8849, 0.476),
+    std=(0.6205, 0.7511, 0.6572, 0.8567, 0.9989, 0.0976, 0.5826, 0.4994),
+)
+
+
+def sweep_score_features(feats: dict) -> np.ndarray:
+    """The sweep score model's inputs ``(N, 8)`` from the sweep candidates' evidence."""
+    dist = np.asarray(feats["distance_to_arc_px"], float)
+    no_arc = ~np.isfinite(dist)
+    return np.column_stack([np.log1p(np.minimum(feats["fb_error"], 100.0)), np.log(np.maximum(feats["n_crossings"], 1)),
+                            np.log1p(feats["slope"]), np.log(np.maximum(feats["px_per_m"], 1e-3)),
+                            np.log1p(np.where(no_arc, 0.0, dist)), no_arc.astype(float),
+                            np.log(np.maximum(feats["snr"], 1e-6)), np.asarray(feats["kind"], float)])
+
+
+#: Logistic model of P(correct) of the photo-consistency sweep's choice
+#: (:func:`.optical_two_view.correlate_arcs`): intercept and weights of the standardised
+#: :func:`correlation_score_features` (peak correlation, its margin over the best correlation
+#: 0.5 deg away, log patch texture, log sensitivity, log of 1 + the distance to the arc search's
+#: pixel and no arc pixel, log SNR, onset or peak). Fitted by
+#: ``experiments.matching.calibrate_two_view_score()`` (see :data:`TWO_VIEW_SCORE_MODEL`; 1034
+#: correlation peaks, 27% correct).
+CORRELATION_SCORE_MODEL = dict(
+    weights=(-1.199, 0.421, -0.57, 0.202, 0.01, -0.396, -0.561, 0.01, -0.023),
+    mean=(0.9086, 0.3396, 2.7121, 1.468, 2.8751, 0.0629, 2.8556, 0.4913),
+    std=(0.2385, 0.6642, 0.8621, 0.93, 1.3055, 0.2427, 0.6057, 0.4999),
+)
+
+
+def correlation_score_features(feats: dict) -> np.ndarray:
+    """The correlation score model's inputs ``(N, 8)`` from the correlation candidates' evidence."""
+    dist = np.asarray(feats["distance_to_arc_px"], float)
+    no_arc = ~np.isfinite(dist)
+    return np.column_stack([feats["ncc"], feats["margin"], np.log(np.maximum(feats["texture"], 1e-3)),
+                            np.log(np.maximum(feats["px_per_m"], 1e-3)), np.log1p(np.where(no_arc, 0.0, dist)),
+                            no_arc.astype(float), np.log(np.maximum(feats["snr"], 1e-6)),
+                            np.asarray(feats["kind"], float)])
+
+
+def two_view_candidates(out: Matches, sf, intervals, image_1, second, motion, rig, noise,
+                        opt) -> tuple[dict, dict, dict]:
+    """Both kinds of two-view candidates with their evidence (for :func:`_two_view` and the calibration).
+
+    Returns
+    -------
+    arc : dict
+        View 1's arc-search matches (``out``) with ``flow_residual_px``, ``flow_px_per_m``,
+        ``two_view`` (consistent with the second pair's matches), ``single_view_score``.
+    sweep : dict
+        For every sonar feature of view 1: ``pixels`` ``(N, 2)``, ``elevations``, ``found`` and
+        the :class:`.optical_two_view.ArcSweep` evidence, plus ``distance_to_arc_px``, ``snr``,
+        ``kind``.
+    correlation : dict
+        The same for :func:`.optical_two_view.correlate_arcs` (``ncc``, ``margin``, ``texture``,
+        ``px_per_m``).
+    """
+    from .optical_two_view import correlate_arcs, epipolar_residuals, flow_field, forward_backward_error, sweep_arcs
     from .two_view import consistent, motion_arrays
 
     if motion is None:
@@ -291,17 +384,116 @@ def _two_view(out: Matches, second, motion, rig, noise, opt) -> Matches:
     motion_arrays(motion)  # validates
     if not (isinstance(second, (tuple, list)) and len(second) == 2):
         raise ValueError("second: expected (sonar, camera_image) of the second view")
-    m2 = match(second[0], second[1], rig, noise=noise, options=opt, min_score=0.0)
-    ok = consistent(out.points, m2.points, motion) if m2 else np.zeros(len(out), bool)
-    if not ok.any():
-        return _empty(f"no match of {len(out)} is consistent with the second view ({len(m2)} matches there)",
-                      out.sonar_features, out.camera_features, out.seabed)
-    feats = dict(out.features, two_view=ok)
-    kept = Matches(out.pixels, out.ranges, out.azimuths, out.points, out.score, out.cost, out.sonar_index,
-                   out.camera_index, out.sonar_features, out.camera_features, out.seabed,
-                   f"{int(ok.sum())} of {len(out)} matches consistent with the second view ({len(m2)} matches there)",
-                   feats)
-    return kept.select(ok)
+    image_2 = np.asarray(second[1])
+    if image_2.shape != np.asarray(image_1).shape:
+        raise ValueError(f"second camera_image: expected shape {np.asarray(image_1).shape} like the first, "
+                         f"got {image_2.shape}")
+    m2 = match(second[0], image_2, rig, noise=noise, options=opt, min_score=0.0)
+    n = len(out)
+    flow = flow_field(image_1, image_2)
+    back = flow_field(image_2, image_1) if flow is not None else None
+    arc = dict(out.features) if n else {}
+    arc.update(two_view=consistent(out.points, m2.points, motion) if (n and m2) else np.zeros(n, bool),
+               single_view_score=out.score, n_second=len(m2))
+    if flow is None:
+        arc["flow_residual_px"] = arc["flow_px_per_m"] = np.full(n, np.nan)
+        nan = np.full(len(sf), np.nan)
+        sweep = dict(pixels=np.full((len(sf), 2), np.nan), elevations=nan, found=np.zeros(len(sf), bool),
+                     n_crossings=nan, fb_error=nan, slope=nan, px_per_m=nan)
+    else:
+        arc["flow_residual_px"], arc["flow_px_per_m"] = epipolar_residuals(rig.camera, out.pixels, out.points, flow,
+                                                                           motion)
+        lo, hi = intervals[0], intervals[1]
+        sw = sweep_arcs(rig, sf.ranges, sf.azimuths, lo, hi, flow, forward_backward_error(flow, back), motion)
+        sweep = {k: getattr(sw, k) for k in ("pixels", "elevations", "found", "n_crossings", "fb_error", "slope",
+                                             "px_per_m")}
+    lo, hi = intervals[0], intervals[1]
+    co = correlate_arcs(rig, sf.ranges, sf.azimuths, lo, hi, image_1, image_2, motion)
+    corr = {k: getattr(co, k) for k in ("pixels", "elevations", "found", "ncc", "margin", "texture", "px_per_m")}
+    for cand in (sweep, corr):
+        dist = np.full(len(sf), np.nan)
+        if n:
+            dist[out.sonar_index] = np.linalg.norm(cand["pixels"][out.sonar_index] - out.pixels, axis=-1)
+        cand.update(distance_to_arc_px=dist, snr=sf.snr, kind=sf.kind)
+    return arc, sweep, corr
+
+
+def _two_view(out: Matches, sf, intervals, image_1, second, motion, rig, noise, opt) -> Matches:
+    """Matches from two views of the moved rig (known motion, thesis ch. 6).
+
+    Every sonar feature has up to two candidate pixels: the arc search's (one view), re-scored
+    with the second view (:data:`TWO_VIEW_SCORE_MODEL`: does its pixel move in the second
+    image as the motion moves its point, is its point also reconstructed by the second pair),
+    and the sweep's (:func:`.optical_two_view.sweep_arcs`: the pixel of its arc that moves as
+    the motion says, scored by :data:`SWEEP_SCORE_MODEL`). The more probable one is kept.
+    """
+    arc, sweep, corr = two_view_candidates(out, sf, intervals, image_1, second, motion, rig, noise, opt)
+    N = len(sf)
+    p_arc = np.full(N, -1.0)
+    if len(out):
+        p_arc[out.sonar_index] = _logistic(two_view_score_features(arc), TWO_VIEW_SCORE_MODEL)
+    p_cand = []
+    for cand, featurise, model in ((sweep, sweep_score_features, SWEEP_SCORE_MODEL),
+                                   (corr, correlation_score_features, CORRELATION_SCORE_MODEL)):
+        found = np.asarray(cand["found"], bool)
+        p = np.full(N, -1.0)
+        if found.any():
+            p[found] = _logistic(featurise({k: np.asarray(v)[found] for k, v in cand.items() if k != "pixels"}),
+                                 model)
+        p_cand.append(p)
+    # The correlation's pixel stands in for the sweep's where it is the more probable of the two.
+    use_corr = p_cand[1] > p_cand[0]
+    sweep = {k: (np.where(use_corr[:, None] if np.ndim(v) == 2 else use_corr, corr[k], v)
+                 if k in ("pixels", "elevations", "px_per_m", "distance_to_arc_px") else v) for k, v in sweep.items()}
+    p_sweep = np.maximum(p_cand[0], p_cand[1])
+    use_sweep = p_sweep > p_arc
+    rows = np.nonzero(np.maximum(p_arc, p_sweep) >= 0)[0]
+    if rows.size == 0:
+        return _empty("no match in either view: no arc search choice and no arc pixel whose flow agrees with the "
+                      "motion", sf, out.camera_features, out.seabed)
+    arc_pos = np.full(N, -1)
+    arc_pos[out.sonar_index] = np.arange(len(out))
+    px = np.where(use_sweep[rows, None], sweep["pixels"][rows],
+                  out.pixels[np.maximum(arc_pos[rows], 0)] if len(out) else np.nan)
+    s_px = noise.sigma_pixel or 0.5
+    s_r = noise.sigma_range or float(np.median(sf.sigma_range[rows]))
+    s_a = noise.sigma_azimuth or float(np.median(sf.sigma_azimuth[rows]))
+    ref = rc.refine(rig, px, sf.ranges[rows], sf.azimuths[rows], sigma_pixel=float(s_px), sigma_range=float(s_r),
+                    sigma_azimuth=float(s_a), max_iter=10)
+    from ..geometry.projection import camera_from_sonar
+
+    phi_arc = np.asarray(out.features.get("elevation", np.full(len(out), np.nan)), float)
+    phi = np.where(use_sweep[rows], sweep["elevations"][rows], phi_arc[np.maximum(arc_pos[rows], 0)] if len(out)
+                   else np.nan)
+    P = np.where(ref.valid[:, None], ref.points, camera_from_sonar(rig, sf.ranges[rows], sf.azimuths[rows], phi))
+    score = np.maximum(p_arc, p_sweep)[rows]
+    k_arc = np.maximum(arc_pos[rows], 0)
+
+    def from_arc(key):
+        v = np.asarray(arc[key], float) if len(out) else np.zeros(0)
+        return np.where(arc_pos[rows] >= 0, v[k_arc] if v.size else np.nan, np.nan)
+
+    feats = dict(source=np.where(use_sweep[rows], np.where(use_corr[rows], 2, 1), 0),
+                 single_view_score=from_arc("single_view_score"),
+                 arc_two_view_score=np.where(p_arc[rows] >= 0, p_arc[rows], np.nan),
+                 sweep_score=np.where(p_cand[0][rows] >= 0, p_cand[0][rows], np.nan),
+                 correlation_score=np.where(p_cand[1][rows] >= 0, p_cand[1][rows], np.nan),
+                 correlation_ncc=np.asarray(corr["ncc"], float)[rows],
+                 flow_residual_px=from_arc("flow_residual_px"), flow_px_per_m=from_arc("flow_px_per_m"),
+                 two_view=from_arc("two_view"), elevation=phi,
+                 **{f"sweep_{k}": np.asarray(sweep[k], float)[rows] for k in ("n_crossings", "fb_error", "slope",
+                                                                               "px_per_m", "distance_to_arc_px")})
+    order = np.argsort(-score, kind="stable")
+    cam_idx = np.where(use_sweep[rows], -1, arc_pos[rows])
+    n_sw = int(np.sum(use_sweep[rows] & ~use_corr[rows]))
+    n_co = int(np.sum(use_sweep[rows] & use_corr[rows]))
+    msg = (f"{rows.size} matches from two views (second view, known motion): {rows.size - n_sw - n_co} arc-search "
+           f"choices re-scored, {n_sw} arc pixels whose optical flow agrees with the motion, {n_co} whose patch "
+           f"matches its moved point's; {arc.get('n_second', 0)} matches in the second pair")
+    feats = {k: np.asarray(v)[order] for k, v in feats.items()}
+    return Matches(px[order], sf.ranges[rows[order]], sf.azimuths[rows[order]], P[order], score[order],
+                   -np.log(np.maximum(score[order], 1e-12)), rows[order], cam_idx[order], sf, out.camera_features,
+                   out.seabed, msg, feats)
 
 
 def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, options: MatchOptions | None = None,
@@ -326,9 +518,14 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
         for precision-recall curves). The score is a calibrated probability of being
         correct (:data:`SCORE_MODEL`).
     second : (sonar, camera_image), optional
-        A second pair of the same rig after it moved by ``motion``: only matches whose
-        reconstructed point is also reconstructed from the second pair's matches are kept
-        (:func:`.two_view.consistent`); ``features["two_view"]`` says so.
+        A second pair of the same rig after it moved by ``motion``. View 1's matches are
+        re-scored (:data:`TWO_VIEW_SCORE_MODEL`) with two pieces of evidence: where each
+        match's pixel went in the second camera image (dense optical flow) against where the
+        motion takes its 3D point (``features["flow_residual_px"]``, along the epipolar
+        direction, and ``features["flow_px_per_m"]``, px per metre of depth), and whether the
+        point is also reconstructed by the second pair's own matches
+        (:func:`.two_view.consistent`, ``features["two_view"]``). The one-view score is kept in
+        ``features["single_view_score"]``; ``min_score`` applies to the two-view score.
     motion : MotionResult, Pose or (R_o, t_o), optional
         ``P_camera2 = R_o P_camera1 + t_o``; required with ``second``.
 
@@ -367,8 +564,9 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     if len(sf) == 0:
         return _empty("no sonar features: CFAR found no echo standing out of its background")
     if opt.method == "arc":
-        out = _match_arcs(sf, cam_img, img_s, r_bins, th_beams, rig, noise, opt)
-        return _finish(out, second, motion, rig, noise, opt, min_score)
+        intervals = _elevation_intervals(sf, img_s, r_bins, th_beams, rig, opt)
+        out = _match_arcs(sf, cam_img, rig, noise, opt, intervals)
+        return _finish(out, cam_img, second, motion, rig, noise, opt, min_score, sf=sf, intervals=intervals)
     cf = detect_camera_features(cam_img, opt.keypoints)
     if len(cf) == 0:
         return _empty("no camera features: the image has no corners (blank or too turbid)", sf)
@@ -473,16 +671,19 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     out = Matches(cf.pixels[cols[ch]], sf.ranges[rows[ch]], sf.azimuths[rows[ch]], P[ch], score[order], cost[ch],
                   rows[ch], cols[ch], sf, cf, seabed,
                   f"{ch.size} matches of {len(sf)} sonar and {len(cf)} camera features", feats)
-    return _finish(out, second, motion, rig, noise, opt, min_score)
+    return _finish(out, cam_img, second, motion, rig, noise, opt, min_score, sf=sf)
 
 
-def _finish(out, second, motion, rig, noise, opt, min_score) -> Matches:
+def _finish(out, cam_img, second, motion, rig, noise, opt, min_score, *, sf=None, intervals=None) -> Matches:
     """Two-view check (when asked for) and the score threshold."""
+    if second is not None and sf is not None and len(sf) and np.ptp(np.asarray(cam_img, float)) > 0:
+        if intervals is None:
+            half = rig.fov_elevation / 2
+            intervals = (np.full(len(sf), -half), np.full(len(sf), half), np.zeros(len(sf), bool), out.seabed)
+        out = _two_view(out, sf, intervals, cam_img, second, motion, rig, noise, opt)
     if not out:
         return out
     n = len(out)
-    if second is not None:
-        out = _two_view(out, second, motion, rig, noise, opt)
     res = out.above(min_score)
     if not res:
         return _empty(f"nothing reliable: {n} tentative matches, none with score >= {min_score}",
@@ -519,14 +720,8 @@ def _logistic(X, model):
     return 1.0 / (1.0 + np.exp(-z))
 
 
-def _match_arcs(sf, cam_img, img_s, r_bins, th_beams, rig, noise, opt) -> Matches:
-    """Every sonar feature takes the middle of the longest edge-free run of its arc (:mod:`.arc_search`)."""
-    from ..geometry.projection import camera_from_sonar
-    from .arc_search import gradient_image, search_arcs, stretched
-    from .camera_features import to_gray8
-
-    if np.ptp(to_gray8(cam_img)) == 0:
-        return _empty("no camera features: the image is blank (or too turbid to show anything)", sf)
+def _elevation_intervals(sf, img_s, r_bins, th_beams, rig, opt):
+    """Each sonar feature's elevation interval from the seabed and shadows: (low, high, shadowed, seabed)."""
     half = rig.fov_elevation / 2
     lo = np.full(len(sf), -half)
     hi = np.full(len(sf), half)
@@ -541,6 +736,18 @@ def _match_arcs(sf, cam_img, img_s, r_bins, th_beams, rig, noise, opt) -> Matche
                                                            cells=cells)
             lo, hi = low_map[sf.bins, sf.beams], high_map[sf.bins, sf.beams]
             shadowed = shadow_map[sf.bins, sf.beams]
+    return lo, hi, shadowed, seabed
+
+
+def _match_arcs(sf, cam_img, rig, noise, opt, intervals) -> Matches:
+    """Every sonar feature takes the middle of the longest edge-free run of its arc (:mod:`.arc_search`)."""
+    from ..geometry.projection import camera_from_sonar
+    from .arc_search import gradient_image, search_arcs, stretched
+    from .camera_features import to_gray8
+
+    if np.ptp(to_gray8(cam_img)) == 0:
+        return _empty("no camera features: the image is blank (or too turbid to show anything)", sf)
+    lo, hi, shadowed, seabed = intervals
     grad = gradient_image(cam_img)
     colours = stretched(cam_img) if opt.seabed_contrast > 0 else None
     from .sonar_features import ONSET
