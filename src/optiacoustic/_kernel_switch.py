@@ -28,6 +28,18 @@ def use_numba() -> bool:
         return False
     if mode != "numba":
         raise ValueError(f"{ENV}: expected 'numba' or 'numpy', got {mode!r}")
-    import importlib.util
+    return _numba_installed()
 
-    return importlib.util.find_spec("numba") is not None  # numba is a core dependency; checked, not imported
+
+_NUMBA_FOUND = None
+
+
+def _numba_installed() -> bool:
+    """Whether numba can be imported (looked up once per process: a lookup costs tens of us and
+    the switch is read several times a frame); numba is checked, not imported."""
+    global _NUMBA_FOUND
+    if _NUMBA_FOUND is None:
+        import importlib.util
+
+        _NUMBA_FOUND = importlib.util.find_spec("numba") is not None  # a core dependency
+    return _NUMBA_FOUND

@@ -217,3 +217,38 @@ def test_kernels_make_no_python_callbacks(thesis, monkeypatch):
     simulate_sonar(sc, SPEC, pose, seed=1, options=SonarOptions(beam_model="aperture", propagation="spreading"),
                    noise=ScattererNoise(density=300.0))
     assert calls == []
+
+
+@pytest.mark.parametrize("table", [False, True])
+def test_fan_kernel_matches_cv2_remap(table, monkeypatch):
+    """The fan through the cached bilinear taps equals cv2.remap's (float maps, border replicated)."""
+    from optiacoustic.sonar.display import polar_to_fan
+
+    spec = SPEC.with_beam_table(SonarSpec.equal_sine_azimuths(SPEC.n_beams, SPEC.fov_azimuth)) if table else SPEC
+    img = np.random.default_rng(6).exponential(1.0, (spec.n_bins, spec.n_beams)).astype(np.float32)
+    for width in (64, 301):
+        a, b = _both(monkeypatch, lambda: polar_to_fan(img, spec, width=width))
+        assert np.array_equal(a.mask, b.mask)
+        np.testing.assert_allclose(a.data, b.data, rtol=1e-5, atol=1e-6)
+        assert np.all(a.data[~a.mask] == 0)
+
+
+@pytest.mark.parametrize("bottom_types", [{"sand/shell": [0], "mud": [1, 2]}, {"mud": [3]}])
+def test_echo_and_shares_of_several_classes_agree(thesis, bottom_types, monkeypatch):
+    """The general finishing pass (two bottom types, or a class with most rays that is not a
+    bottom type) against the numpy path's class images and shares."""
+    sc, pose = thesis
+    f = simulate_sonar(sc, SPEC, pose, noise=False)
+    opts = SonarOptions()
+    monkeypatch.setenv("OAS_KERNELS", "numba")
+    inten_a, sh_a = F._form_with_shares_numba(SPEC, f.rays, opts, bottom_types, 2)
+    monkeypatch.setenv("OAS_KERNELS", "numpy")
+    inten_b = F._form_image(SPEC, f.rays, opts)
+    sh_b = F._seabed_shares(bottom_types, *F._class_parts(bottom_types, SPEC, f.rays, opts), inten_b)
+    _close(inten_a, inten_b)
+    lit = inten_b > 1e-6 * inten_b.max()
+    assert set(sh_a) == set(sh_b) == set(bottom_types)
+    for k in sh_b:
+        np.testing.assert_allclose(sh_a[k][lit], sh_b[k][lit], atol=1e-3)
+        assert np.all(sh_a[k][inten_a <= 0] == 0)
+    assert any(sh_b[k][lit].max() > 0.5 for k in sh_b)

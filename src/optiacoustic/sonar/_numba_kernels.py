@@ -270,6 +270,9 @@ def noise_gaussian(I, shares, N, cumw, lams, U, E, psi, target_speckle, use_psi,
     C = lams.shape[1]
     J = I.shape[1]
     two = np.float32(2.0)
+    if T == 1 and target_speckle and C <= 4:  # one bottom type, speckled targets: the thesis scenes
+        _noise_one_bottom(I, shares, N, cumw, lams, U, E, r0, r1, out)
+        return
     for bb in range(r0, r1):
         n = N[bb]
         for j in range(J):
@@ -299,16 +302,54 @@ def noise_gaussian(I, shares, N, cumw, lams, U, E, psi, target_speckle, use_psi,
 
 
 @njit(cache=True, nogil=True)
+def _noise_one_bottom(I, shares, N, cumw, lams, U, E, r0, r1, out):
+    """:func:`noise_gaussian` for one bottom type of at most 4 mixture components with target
+    speckle: ``(N + I share lam_c + max(I - I share, 0)) E``, the component by selects (no inner
+    loops, no branches on the data), the same numbers as the general loop."""
+    C = lams.shape[1]
+    two = np.float32(2.0)  # above any uniform: a threshold never passed
+    c0 = cumw[0, 0] if C > 1 else two
+    c1 = cumw[0, 1] if C > 2 else two
+    c2 = cumw[0, 2] if C > 3 else two
+    l0 = np.float32(lams[0, 0])
+    l1 = np.float32(lams[0, 1]) if C > 1 else l0
+    l2 = np.float32(lams[0, 2]) if C > 2 else l0
+    l3 = np.float32(lams[0, 3]) if C > 3 else l0
+    J = I.shape[1]
+    zero = np.float32(0.0)
+    for bb in range(r0, r1):
+        n = N[bb]
+        for j in range(J):
+            x = I[bb, j]
+            part = x * shares[0, bb, j]
+            lam = l0
+            if C > 1:
+                uu = U[0, bb, j]
+                lam = l1 if uu >= c0 else lam
+                lam = l2 if uu >= c1 else lam
+                lam = l3 if uu >= c2 else lam
+            P = n + part * lam
+            target = max(x - part, zero)
+            out[bb, j] = (P + target) * E[bb, j]
+
+
+@njit(cache=True, nogil=True)
 def truth_maps(beam, lo_m, hi_m, energy, body, el_lo, el_hi, range_min, inv_bin, n_bins, n_beams,
-               body_map, el_min, el_max):
+               body_map, el_min, el_max, best, j0, j1):
     """Per cell the body of the strongest single contribution and the elevation span that echoes
-    (``formation._truth_maps``): every lit ray visits the bins its footprint overlaps."""
-    best = np.zeros(n_bins * n_beams, np.float32)
-    for c in range(n_bins * n_beams):
-        body_map.flat[c] = -1
-        el_min.flat[c] = np.inf
-        el_max.flat[c] = -np.inf
+    (``formation._truth_maps``): every lit ray visits the bins its footprint overlaps. Beams
+    ``j0..j1`` only (their columns of the maps; the rays of other beams are skipped), so that
+    beam ranges can run on several threads; ``best`` (n_bins, n_beams) float32 is scratch."""
+    for bb in range(n_bins):
+        for j in range(j0, j1):
+            best[bb, j] = 0.0
+            body_map[bb, j] = -1
+            el_min[bb, j] = np.inf
+            el_max[bb, j] = -np.inf
     for i in range(beam.size):
+        j = beam[i]
+        if j < j0 or j >= j1:
+            continue
         e = energy[i]
         if not e > 0:
             continue
@@ -319,23 +360,22 @@ def truth_maps(beam, lo_m, hi_m, energy, body, el_lo, el_hi, range_min, inv_bin,
         dens = np.float32(e / (x1 - x0))
         b0 = int(min(max(x0, 0.0), n_bins - 1))
         b1 = int(min(max(x1, 0.0), n_bins - 1))
-        j = beam[i]
         lo_e = np.float32(el_lo[i])
         hi_e = np.float32(el_hi[i])
         for bb in range(b0, b1 + 1):
             w = dens * max(min(x1, np.float32(bb + 1)) - max(x0, np.float32(bb)), np.float32(0.0))
-            c = bb * n_beams + j
-            if w > best[c] or (w == best[c] and body[i] > body_map.flat[c]):
-                best[c] = w
-                body_map.flat[c] = body[i]
-            if lo_e < el_min.flat[c]:
-                el_min.flat[c] = lo_e
-            if hi_e > el_max.flat[c]:
-                el_max.flat[c] = hi_e
-    for c in range(n_bins * n_beams):
-        if not np.isfinite(el_min.flat[c]):
-            el_min.flat[c] = np.nan
-            el_max.flat[c] = np.nan
+            if w > best[bb, j] or (w == best[bb, j] and body[i] > body_map[bb, j]):
+                best[bb, j] = w
+                body_map[bb, j] = body[i]
+            if lo_e < el_min[bb, j]:
+                el_min[bb, j] = lo_e
+            if hi_e > el_max[bb, j]:
+                el_max[bb, j] = hi_e
+    for bb in range(n_bins):
+        for j in range(j0, j1):
+            if not np.isfinite(el_min[bb, j]):
+                el_min[bb, j] = np.nan
+                el_max[bb, j] = np.nan
 
 
 @njit(cache=True, nogil=True)
@@ -547,3 +587,263 @@ def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, 
             s = np.sqrt(power * half) * r
             z[i, j, 0] = co * s
             z[i, j, 1] = sn * s
+
+
+@njit(cache=True, nogil=True)
+def shadow_origins(pos, t, n, eps, origin, d_act, o32, d32):
+    """Continuation rays of the acoustic shadow (``formation._shadow_mask``): for the ``n`` rays
+    ``pos[:n]`` (rows of ``d_act``, float64 unit directions) the float32 origin
+    ``origin + d (t + eps)`` (computed in float64) and direction, into ``o32``/``d32`` rows ``0..n``."""
+    for k in range(n):
+        p = pos[k]
+        s = t[k] + eps
+        for c in range(3):
+            o32[k, c] = origin[c] + d_act[p, c] * s
+            d32[k, c] = d_act[p, c]
+
+
+@njit(cache=True, nogil=True)
+def shadow_step(pos, t, exited, n, eps, geom, tfar, ng, first_body, d_act, hid_r, hid_n):
+    """One round of continuation hits of ``formation._shadow_mask``: a front-facing hit (``n . d < 0``
+    with Embree's geometric normal normalised in float32 as ``RayCaster.cast_raw`` does) of another
+    body, or of the first body after the ray left it, is the hidden surface (``hid_r``, ``hid_n``);
+    a back-facing hit of the first body marks the ray as having left it. Rays that hit something
+    and are not done move on: ``pos``, ``t``, ``exited`` are compacted in place; returns their count."""
+    m = 0
+    for k in range(n):
+        g = geom[k]
+        if g < 0:
+            continue
+        p = pos[k]
+        tt = t[k] + eps + float(tfar[k])
+        n0, n1, n2 = ng[k, 0], ng[k, 1], ng[k, 2]
+        nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2) + np.float32(1e-30)
+        m0, m1, m2 = float(n0 / nn), float(n1 / nn), float(n2 / nn)
+        front = m0 * d_act[p, 0] + m1 * d_act[p, 1] + m2 * d_act[p, 2] < 0
+        same = g == first_body[p]
+        ex = exited[k]
+        if front and (not same or ex):
+            hid_r[p] = tt
+            hid_n[p, 0] = m0
+            hid_n[p, 1] = m1
+            hid_n[p, 2] = m2
+            continue
+        if not front and same:
+            ex = True
+        pos[m] = p
+        t[m] = tt
+        exited[m] = ex
+        m += 1
+    return m
+
+
+@njit(cache=True, nogil=True)
+def shadow_boxes(hid_r, hid_n, d_act, dd_act, step, min_half, lo, hi):
+    """Range footprint ``r -+ half`` of each hidden surface (``half = step r |n.d'| / (2 max(|n.d|, c))``,
+    at least ``min_half``); NaN where the ray found none (``hid_r`` infinite)."""
+    for p in range(hid_r.size):
+        r = hid_r[p]
+        if not np.isfinite(r):
+            lo[p] = np.nan
+            hi[p] = np.nan
+            continue
+        nd = abs(hid_n[p, 0] * d_act[p, 0] + hid_n[p, 1] * d_act[p, 1] + hid_n[p, 2] * d_act[p, 2])
+        ndd = abs(hid_n[p, 0] * dd_act[p, 0] + hid_n[p, 1] * dd_act[p, 1] + hid_n[p, 2] * dd_act[p, 2])
+        half = 0.5 * step * r * ndd / max(nd, _MIN_COS_FOOTPRINT)
+        half = max(half, min_half)
+        lo[p] = r - half
+        hi[p] = r + half
+
+
+@njit(cache=True, nogil=True)
+def grid_directions(idx, cp, sp, a, rz, d, dd):
+    """World ``d = cos(phi) a + sin(phi) R_z`` and ``d' = -sin(phi) a + cos(phi) R_z`` (float64) of the
+    grid rays ``idx`` (flat ``k * J + j``), as ``formation._grid_directions``."""
+    J = a.shape[0]
+    for m in range(idx.size):
+        k = idx[m] // J
+        j = idx[m] - k * J
+        c, s = cp[k], sp[k]
+        for q in range(3):
+            d[m, q] = c * a[j, q] + s * rz[q]
+            dd[m, q] = -s * a[j, q] + c * rz[q]
+
+
+@njit(cache=True, nogil=True)
+def fan_remap(img, base, flags, fx, fy, n_cols, out):
+    """Bilinear resampling through precomputed taps (``display._fan_taps``): pixel ``p`` reads the
+    polar image (flat) at ``base[p]`` and its right / lower neighbours (``flags`` bit 0: one column
+    on, bit 1: one row on; absent at the image's edge, which replicates the border as
+    ``cv2.BORDER_REPLICATE``) with weights ``fx``, ``fy``; ``base < 0``: outside the fan, 0."""
+    for p in range(base.size):
+        b = base[p]
+        if b < 0:
+            out[p] = 0.0
+            continue
+        f = flags[p]
+        dc = 1 if f & 1 else 0
+        dr = n_cols if f & 2 else 0
+        v00 = img[b]
+        v01 = img[b + dc]
+        v10 = img[b + dr]
+        v11 = img[b + dr + dc]
+        x = fx[p]
+        top = v00 + x * (v01 - v00)
+        bot = v10 + x * (v11 - v10)
+        out[p] = top + fy[p] * (bot - top)
+
+
+@njit(cache=True, nogil=True)
+def finish_echo(parts, scale, thr, slot_of_share, r0, r1, intensity, out):
+    """The echo image and its seabed shares from :func:`echo_rows`' per-beam rows, bins ``r0..r1``:
+    ``intensity[b, j] = parts[0, j, b] scale`` (zeroed below ``thr``, the cumulative sums' rounding
+    residue), and the shares as :func:`shares` computes them from the scaled class rows. One pass:
+    transposition, scaling, thresholding and shares together. ``parts`` (S, J, B) float32,
+    ``intensity`` (B, J), ``out`` (M, B, J) float32 (M = 0: no shares)."""
+    M = slot_of_share.size
+    J = parts.shape[1]
+    for bb in range(r0, r1):
+        for j in range(J):
+            tt = parts[0, j, bb] * scale
+            if tt < thr:
+                tt = np.float32(0.0)
+            intensity[bb, j] = tt
+            if M == 0:
+                continue
+            if not tt > 0:
+                for m in range(M):
+                    out[m, bb, j] = 0.0
+                continue
+            rest = np.float32(1.0)
+            rest_m = -1
+            for m in range(M):
+                s = slot_of_share[m]
+                if s == 0:
+                    rest_m = m
+                    continue
+                v = np.float32(0.0)
+                ps = parts[s, j, bb] * scale
+                if ps != 0:
+                    v = min(max(ps / tt, np.float32(0.0)), np.float32(1.0))
+                out[m, bb, j] = v
+                rest -= v
+            if rest_m >= 0:
+                out[rest_m, bb, j] = min(max(rest, np.float32(0.0)), np.float32(1.0))
+
+
+@njit(cache=True, nogil=True)
+def shadow_cells(beam, lo_m, hi_m, range_min, inv_bin, n_bins, elevation_min, out):
+    """Acoustic shadow from the hidden surfaces' footprints (``formation._shadow_mask``): a cell is
+    shadow when a footprint ``[lo_m, hi_m]`` (m) puts more than 1e-9 of its unit energy into it
+    (the footprint's energy spread uniformly, as the box integration of the echo) and no direct
+    ray echoes there (``elevation_min`` NaN). ``out`` (n_bins, n_beams) bool, all False on entry."""
+    for i in range(beam.size):
+        x0 = (lo_m[i] - range_min) * inv_bin
+        x1 = (hi_m[i] - range_min) * inv_bin
+        if not (x1 > 0 and x0 < n_bins):
+            continue
+        dens = 1.0 / (x1 - x0)
+        j = beam[i]
+        b0 = int(max(x0, 0.0))
+        b1 = int(min(x1, n_bins - 1.0))
+        for bb in range(b0, b1 + 1):
+            w = dens * (min(x1, bb + 1.0) - max(x0, float(bb)))
+            if w > 1e-9 and np.isnan(elevation_min[bb, j]):
+                out[bb, j] = True
+
+
+@njit(cache=True, nogil=True)
+def edge_pairs(body, r, slope, K, J, step, min_jump, kk, jj):
+    """Visibility discontinuities between elevation samples ``k`` and ``k + 1`` of each beam
+    (``formation._refine_edges``): another body, a miss, or a range jump larger than
+    ``1.5 (reach_k + reach_k+1) + min_jump`` (``reach = |dr/dphi| step``) onto a hit. Writes the
+    pairs ``(k, j)`` in row-major order into ``kk``, ``jj`` and returns their count."""
+    n = 0
+    for k in range(K - 1):
+        for j in range(J):
+            lo = k * J + j
+            up = lo + J
+            bl, bu = body[lo], body[up]
+            disc = bl != bu
+            if not disc and bu >= 0:
+                reach = np.abs(slope[up]) * step + np.abs(slope[lo]) * step
+                disc = np.abs(r[up] - r[lo]) > 1.5 * reach + min_jump
+            if disc:
+                kk[n] = k
+                jj[n] = j
+                n += 1
+    return n
+
+
+@njit(cache=True, nogil=True)
+def edge_split(kk, jj, h_body, h_dist, body, r, slope, step, S, J, a, b):
+    """Move the shared cell boundary of each discontinuity to where its ``S`` sub-rays change
+    from the surface below to the one above (``formation._refine_edges``). ``h_body`` (int32) and
+    ``h_dist`` (float32, Embree's) of the sub-rays ``(len(kk) * S,)``; ``a``, ``b`` updated in place."""
+    for e in range(kk.size):
+        lower = kk[e] * J + jj[e]
+        upper = lower + J
+        bl, bu = body[lower], body[upper]
+        sl, su = slope[lower] * step, slope[upper] * step
+        cnt = 0
+        for s in range(S):
+            frac = (s + 0.5) / S
+            hb = h_body[e * S + s]
+            hd = float(h_dist[e * S + s])
+            miss = hb < 0
+            if miss and bl < 0:
+                err_l = 0.0
+            elif hb == bl:
+                err_l = abs(hd - (r[lower] + sl * frac))
+            else:
+                err_l = np.inf
+            if miss and bu < 0:
+                err_u = 0.0
+            elif hb == bu:
+                err_u = abs(hd - (r[upper] - su * (1 - frac)))
+            else:
+                err_u = np.inf
+            if err_l < err_u or (np.isinf(err_u) and np.isinf(err_l) and frac < 0.5):
+                cnt += 1
+        t = cnt / S
+        b[lower] = step * t
+        a[upper] = step * (1 - t)
+
+
+@njit(cache=True, nogil=True)
+def finish_two(parts, scale, thr, r0, r1, intensity, share):
+    """:func:`finish_echo` for one bottom type (slot 0, the class with most rays) and the targets
+    (slot 1), the thesis scenes' case: the bottom type's share ``clip(1 - clip(target / echo))``
+    only (the targets' share is not kept), from a loop without inner loops or data branches."""
+    J = parts.shape[1]
+    zero, one = np.float32(0.0), np.float32(1.0)
+    for bb in range(r0, r1):
+        for j in range(J):
+            tt = parts[0, j, bb] * scale
+            tt = zero if tt < thr else tt
+            intensity[bb, j] = tt
+            lit = tt > 0
+            v = min(max((parts[1, j, bb] * scale) / (tt if lit else one), zero), one)
+            share[bb, j] = min(max(one - v, zero), one) if lit else zero
+
+
+@njit(cache=True, nogil=True)
+def shadow_active(body, is_floor, cp, sp, a, rz, r, active, t):
+    """The grid rays whose continuation the acoustic shadow needs (``formation._shadow_mask``): every
+    hit but those going down (``d_z < 0``, ``d = cos(phi) a + sin(phi) R_z``) through a floor plane
+    (``is_floor[body]``). Their flat indices into ``active`` and ranges into ``t``; returns the count."""
+    J = a.shape[0]
+    n = 0
+    for i in range(body.size):
+        g = body[i]
+        if g < 0:
+            continue
+        if is_floor[g]:
+            k = i // J
+            j = i - k * J
+            if cp[k] * a[j, 2] + sp[k] * rz[2] < 0:
+                continue
+        active[n] = i
+        t[n] = r[i]
+        n += 1
+    return n

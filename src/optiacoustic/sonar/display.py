@@ -73,15 +73,47 @@ def fan_geometry(spec: SonarSpec, width: int):
     return col, row, mask, extent, px
 
 
-def polar_to_fan(image: np.ndarray, spec: SonarSpec, *, width: int = 800) -> FanImage:
-    """Resample a polar ``(n_bins, n_beams)`` image to the fan with ``cv2.remap`` (bilinear)."""
-    import cv2
+@functools.lru_cache(maxsize=4)  # about 13 bytes per fan pixel each (6 MB at 800 px wide)
+def _fan_taps(spec: SonarSpec, width: int):
+    """The bilinear taps of :func:`fan_geometry`'s maps for ``_numba_kernels.fan_remap`` (cached):
+    per fan pixel the flat index of its upper-left polar sample (-1 outside the fan), whether
+    its right and lower neighbours exist (flags bits 0, 1; at the border they are the sample
+    itself, as ``cv2.BORDER_REPLICATE``) and the weights ``fx``, ``fy`` (float32)."""
+    col, row, mask, _, _ = fan_geometry(spec, width)
+    J, B = spec.n_beams, spec.n_bins
+    c, r = col.astype(np.float64).reshape(-1), row.astype(np.float64).reshape(-1)
+    c0, r0 = np.floor(c), np.floor(r)
+    fx, fy = (c - c0).astype(np.float32), (r - r0).astype(np.float32)
+    cl, cr = np.clip(c0, 0, J - 1).astype(np.int64), np.clip(c0 + 1, 0, J - 1).astype(np.int64)
+    rl, rr = np.clip(r0, 0, B - 1).astype(np.int64), np.clip(r0 + 1, 0, B - 1).astype(np.int64)
+    base = np.where(mask.reshape(-1), rl * J + cl, -1).astype(np.int32)
+    flags = ((cr > cl).astype(np.int8) | ((rr > rl).astype(np.int8) << 1)).astype(np.int8)
+    for a in (base, flags, fx, fy):
+        a.setflags(write=False)
+    return base, flags, fx, fy
 
+
+def polar_to_fan(image: np.ndarray, spec: SonarSpec, *, width: int = 800) -> FanImage:
+    """Resample a polar ``(n_bins, n_beams)`` image to the fan, bilinear with the border replicated
+    (``cv2.remap``; with the numba kernels, one pass through taps cached per spec and width)."""
     img = np.asarray(image)
     if img.shape != (spec.n_bins, spec.n_beams):
         raise ValueError(f"image: expected shape (n_bins, n_beams) = {(spec.n_bins, spec.n_beams)}, got {img.shape}")
     col, row, mask, extent, px = fan_geometry(spec, int(width))
     src = np.ascontiguousarray(img, dtype=np.float32)
+    from ._kernels import kernels, split_run, use_numba
+
+    if use_numba():
+        from ..raycast import default_threads
+
+        base, flags, fx, fy = _fan_taps(spec, int(width))
+        out = np.empty(mask.shape, np.float32)
+        flat_src, flat_out, kn = src.reshape(-1), out.reshape(-1), kernels()
+        split_run(lambda p0, p1: kn.fan_remap(flat_src, base[p0:p1], flags[p0:p1], fx[p0:p1], fy[p0:p1], spec.n_beams,
+                                              flat_out[p0:p1]), base.size, default_threads())
+        return FanImage(out, mask, extent, px)
+    import cv2
+
     out = cv2.remap(src, col, row, interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     out[~mask] = 0.0
     return FanImage(out, mask, extent, px)

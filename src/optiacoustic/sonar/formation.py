@@ -394,20 +394,29 @@ def simulate_sonar(
     caster = caster_for(scene)
     bottom_types = _bottom_types(scene)
     draws = None
-    if noise is not False:
-        # the noise variates do not depend on the echo: draw them on the other core meanwhile
-        draws = _background().submit(noise.draw, (spec.n_bins, spec.n_beams), list(bottom_types), as_rng(seed))
+    draw_args = (noise.draw, (spec.n_bins, spec.n_beams), list(bottom_types), as_rng(seed)) if noise is not False else None
+
+    def start_draws():
+        # the noise variates do not depend on the echo: with a second thread, draw them on the other
+        # core once the primary cast (which takes every thread) is done, beside the one-thread stages
+        nonlocal draws
+        if draw_args is not None and caster.threads > 1:
+            draws = _background().submit(*draw_args)
+
     sspec = scan_spec(spec, options.beam_model)
     if options.beam_model == "aperture":
         rays, img_rays = _scan(scene, caster, sspec, pose, options, _aperture_elevation_weights(spec),
-                               spec.elevation_pattern())
+                               spec.elevation_pattern(), after_cast=start_draws)
     else:
-        rays = img_rays = _scan(scene, caster, sspec, pose, options)
+        rays = img_rays = _scan(scene, caster, sspec, pose, options, after_cast=start_draws)
+    if draws is None and draw_args is not None:  # one thread: drawn here, in line
+        draws = _done(draw_args[0](*draw_args[1:]))
     area = None
     if use_numba():
         # one pass forms the echo and the seabed/target split together
         if getattr(noise, "needs_cell_area", False):
-            area = _background().submit(cell_area, spec, img_rays, bottom_types)
+            area = (_background().submit(cell_area, spec, img_rays, bottom_types) if caster.threads > 1
+                    else _done(cell_area(spec, img_rays, bottom_types)))
         intensity, shares = _form_with_shares_numba(spec, img_rays, options, bottom_types, caster.threads)
     else:
         # the seabed/target split needs only the rays: integrate it on the other core meanwhile
@@ -428,7 +437,7 @@ def simulate_sonar(
     image.setflags(write=False)
     gt = SonarGroundTruth(
         rays.range.astype(np.float32),
-        functools.partial(_truth_maps, spec, rays),
+        functools.partial(_truth_maps, spec, rays, caster.threads),
         functools.partial(_shadow_mask, scene, caster, sspec, pose, rays),
     )
     return SonarFrame(spec=spec, pose=pose, intensity=intensity, image=image, ground_truth=gt, rays=rays,
@@ -494,6 +503,49 @@ def _mix_and_scale(spec: SonarSpec, echo: np.ndarray, options: SonarOptions) -> 
         echo = gaussian_filter1d(echo, sigma_beams, axis=1, mode="constant", truncate=3.5)
     echo *= np.float32(1.0 / spec.bin_width)
     return echo
+
+
+def _finish_numba(spec: SonarSpec, rows: np.ndarray, bottom_types: dict, slot_of: dict, threads: int):
+    """Intensity and seabed shares from :func:`_echo_rows_numba`'s ``(n_slots, n_beams, n_bins)`` rows in
+    one pass (``_numba_kernels.finish_echo``): the thesis model's ``_mix_and_scale`` (a scale),
+    threshold and ``shares`` together, with no transposed copy of the class images."""
+    scale = np.float32(1.0 / spec.bin_width)
+    peak = float(rows[0].max() * scale) if rows.size else 0.0  # rounding is monotonic: max of the scaled
+    thr = np.float32(1e-9 * peak)
+    names = list(slot_of) if bottom_types else []
+    table = np.array([slot_of[n] for n in names], np.int64)
+    intensity = np.empty((spec.n_bins, spec.n_beams), np.float32)
+    kn = kernels()
+    if len(names) == 2 and names[1] is None and rows.shape[0] == 2 and list(table) == [0, 1]:
+        share = np.empty((spec.n_bins, spec.n_beams), np.float32)  # one bottom type, most rays: its share only
+        split_run(lambda r0, r1: kn.finish_two(rows, scale, thr, r0, r1, intensity, share), spec.n_bins, threads)
+        share.setflags(write=False)
+        return intensity, {names[0]: share}
+    out = np.empty((len(names), spec.n_bins, spec.n_beams), np.float32)
+    split_run(lambda r0, r1: kn.finish_echo(rows, scale, thr, table, r0, r1, intensity, out), spec.n_bins, threads)
+    shares = {}
+    for m, name in enumerate(names):
+        if name is not None:
+            sh = out[m]
+            sh.setflags(write=False)
+            shares[name] = sh
+    return intensity, shares
+
+
+def _echo_rows_numba(spec: SonarSpec, rays: SonarRays, slot: np.ndarray, n_slots: int, threads: int,
+                     cells_per_bin: int, sigma_bins: float | None) -> np.ndarray:
+    """:func:`_echo_numba` before its transposition: ``(n_slots, n_beams, n_bins)`` float32, a per-thread
+    workspace that the next frame overwrites."""
+    kn = kernels()
+    q = cells_per_bin
+    H, V, full = _deposit_tables(spec.n_bins, q, sigma_bins)
+    J, n_cells = spec.n_beams, spec.n_bins * q
+    flat = lambda a: np.ascontiguousarray(a).reshape(-1)  # noqa: E731
+    rec, starts = _bucket(flat(rays.beam_index), flat(rays.footprint_lo), flat(rays.footprint_hi), flat(rays.energy),
+                          slot, float(spec.range_min), q / spec.bin_width, n_cells, J)
+    out = _workspace(f"echo{n_slots}", (n_slots, J, spec.n_bins), np.float32)  # fresh pages fault: reuse
+    split_run(lambda j0, j1: kn.echo_rows(rec, starts, n_cells, H, V, full, q, spec.n_bins, j0, j1, out), J, threads)
+    return out
 
 
 def _echo_numba(spec: SonarSpec, rays: SonarRays, slot: np.ndarray, n_slots: int, threads: int,
@@ -602,12 +654,13 @@ def _form_with_shares_numba(spec: SonarSpec, rays: SonarRays, options: SonarOpti
         slot, n_slots, slot_of = np.zeros(rays.body.size, np.int8), 1, {}
     else:
         slot, n_slots, slot_of = _class_slots(bottom_types, rays)
+    if not (options.beam_model == "aperture" or options.azimuth_pattern):
+        return _finish_numba(spec, _echo_rows_numba(spec, rays, slot, n_slots, threads, options.range_oversample,
+                                                    sigma_bins), bottom_types, slot_of, threads)
+    # beam patterns across beams: each class image is mixed on its own (in the image layout)
     parts = _echo_numba(spec, rays, slot, n_slots, threads, options.range_oversample, sigma_bins)
-    if options.beam_model == "aperture" or options.azimuth_pattern:
-        for s in range(n_slots):  # into the fresh array: no second allocation (np.stack)
-            parts[s] = _mix_and_scale(spec, parts[s], options)
-    else:
-        parts *= np.float32(1.0 / spec.bin_width)
+    for s in range(n_slots):  # into the fresh array: no second allocation (np.stack)
+        parts[s] = _mix_and_scale(spec, parts[s], options)
     intensity = parts[0]  # parts is fresh; thresholding it in place only zeroes cells whose shares are 0
     peak = float(intensity.max()) if intensity.size else 0.0
     intensity[intensity < np.float32(1e-9 * peak)] = 0.0  # the cumulative sums' rounding residue
@@ -722,6 +775,16 @@ def _seabed_shares(bottom_types: dict, parts, largest, intensity) -> dict:
     return out
 
 
+class _done:
+    """A finished result with the ``Future.result()`` interface."""
+
+    def __init__(self, value):
+        self._value = value
+
+    def result(self):
+        return self._value
+
+
 _BACKGROUND = None
 
 
@@ -736,10 +799,11 @@ def _background():
 
 
 def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options: SonarOptions,
-          weights=None, pattern=None):
+          weights=None, pattern=None, after_cast=None):
     """Cast the beams' rays and compute each ray's echo energy and range footprint (sec. 2.6.1).
 
     ``weights`` (``(elevation_samples,)``) overrides the elevation pattern's weights.
+    ``after_cast`` (no arguments) is called once the primary rays are cast.
     With ``pattern`` (the aperture model's elevation pattern) returns ``(rays, image_rays)``:
     ``image_rays`` splits every ray whose footprint is long in range into sub-cells
     (:func:`_subdivide`), so that the echo's density follows the surface within it.
@@ -750,6 +814,8 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
         body, r, nd, ndd, cos_inc, slope = _scan_hits_numba(caster, spec, pose)
     else:
         body, r, nd, ndd, cos_inc, slope = _scan_hits_numpy(caster, spec, pose)
+    if after_cast is not None:
+        after_cast()
     hit = body >= 0
     # angular extent of each ray's elevation cell below (a) and above (b) the ray
     step = spec.elevation_step
@@ -972,6 +1038,9 @@ def _refine_edges(caster, spec, pose, body, r, slope, a, b) -> None:
     """
     K, J = spec.elevation_samples, spec.n_beams
     step = spec.elevation_step
+    if use_numba():
+        _refine_edges_numba(caster, spec, pose, body, r, slope, a, b)
+        return
     B = body.reshape(K, J)
     Rg = r.reshape(K, J)
     S_ = slope.reshape(K, J)
@@ -1008,7 +1077,32 @@ def _refine_edges(caster, spec, pose, body, r, slope, a, b) -> None:
     a[upper] = step * (1 - t)
 
 
-def _truth_maps(spec: SonarSpec, rays: SonarRays):
+def _refine_edges_numba(caster, spec, pose, body, r, slope, a, b) -> None:
+    """:func:`_refine_edges` with the discontinuities found and the sub-rays classified by kernels
+    (the sub-rays' directions as the numpy path computes them, so both cast the same rays)."""
+    K, J = spec.elevation_samples, spec.n_beams
+    step = spec.elevation_step
+    kn = kernels()
+    kk, jj = np.empty((K - 1) * J, np.int64), np.empty((K - 1) * J, np.int64)
+    m = kn.edge_pairs(body, r, slope, K, J, step, 0.5 * spec.bin_width, kk, jj)
+    if m == 0:
+        return
+    kk, jj = kk[:m], jj[:m]
+    S = _EDGE_SUBRAYS
+    frac = (np.arange(S) + 0.5) / S
+    phi = spec.elevations[kk][:, None] + step * frac[None, :]
+    th = spec.azimuths[jj][:, None]
+    cp = np.cos(phi)
+    d = pose.directions_to_world(np.stack(np.broadcast_arrays(cp * np.sin(th), cp * np.cos(th), np.sin(phi)), -1))
+    d32 = np.ascontiguousarray(d.reshape(-1, 3), np.float32)
+    o32 = np.empty_like(d32)
+    o32[...] = np.asarray(pose.t, np.float32)
+    dist32 = np.full(len(d32), min(np.float32(spec.range_max * 1.5), np.float32(1e30)), np.float32)
+    tfar, h_body, _, _, _, _ = caster.intersect_raw(o32, d32, dist32, normals=False)
+    kn.edge_split(kk, jj, h_body, tfar, body, r, slope, step, S, J, a, b)
+
+
+def _truth_maps(spec: SonarSpec, rays: SonarRays, threads: int = 1):
     """Per cell: the body of the strongest single contribution and the elevation span that echoes."""
     B, J = spec.n_bins, spec.n_beams
     if use_numba():
@@ -1016,9 +1110,11 @@ def _truth_maps(spec: SonarSpec, rays: SonarRays):
         el_min = np.empty((B, J), np.float32)
         el_max = np.empty((B, J), np.float32)
         flat = lambda a: np.ascontiguousarray(a).reshape(-1)  # noqa: E731
-        kernels().truth_maps(flat(rays.beam_index), flat(rays.footprint_lo), flat(rays.footprint_hi),
-                             flat(rays.energy), flat(rays.body), flat(rays.elevation_lo), flat(rays.elevation_hi),
-                             float(spec.range_min), 1.0 / spec.bin_width, B, J, body_map, el_min, el_max)
+        args = (flat(rays.beam_index), flat(rays.footprint_lo), flat(rays.footprint_hi), flat(rays.energy),
+                flat(rays.body), flat(rays.elevation_lo), flat(rays.elevation_hi), float(spec.range_min),
+                1.0 / spec.bin_width, B, J, body_map, el_min, el_max, _workspace("truth_best", (B, J), np.float32))
+        kn = kernels()
+        split_run(lambda j0, j1: kn.truth_maps(*args, j0, j1), J, threads)  # beam ranges: disjoint columns
         return body_map, el_min, el_max
     ok = rays.energy > 0
     inv = np.float32(1.0 / spec.bin_width)
@@ -1101,6 +1197,8 @@ def _shadow_mask(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.n
     the body it hit first, to the next surface facing the sonar. Cells that surface's
     footprint covers and that no direct ray lights are acoustic shadow.
     """
+    if use_numba():
+        return _shadow_mask_numba(scene, caster, spec, pose, rays, elevation_min)
     first_body = rays.body.reshape(-1)
     r0 = rays.range.reshape(-1)
     hit = first_body >= 0
@@ -1160,3 +1258,50 @@ def _shadow_mask(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.n
         hi = (r + half - spec.range_min) / spec.bin_width
         hidden = _box_integrate(beam, lo, hi, np.ones_like(r), spec.n_beams, spec.n_bins).T
     return (hidden > 1e-9) & np.isnan(elevation_min)
+
+
+def _shadow_mask_numba(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.ndarray) -> np.ndarray:
+    """:func:`_shadow_mask` with the continuation rays' bookkeeping in kernels: only the rays that
+    continue are touched (no per-grid-ray arrays of directions or normals)."""
+    kn = kernels()
+    first_body = np.ascontiguousarray(rays.body).reshape(-1)
+    # nothing lies below a floor plane: a ray going down through it hits nothing more
+    floors = _floor_planes(scene)
+    is_floor = np.zeros(int(first_body.max(initial=-1)) + 1, bool)
+    is_floor[[f for f in floors if f < is_floor.size]] = True
+    R = pose.R
+    a_dir = np.sin(spec.azimuths)[:, None] * R[:, 0] + np.cos(spec.azimuths)[:, None] * R[:, 1]  # (J, 3)
+    cp, sp, rz = np.cos(spec.elevations), np.sin(spec.elevations), np.ascontiguousarray(R[:, 2])
+    active, t = np.empty(first_body.size, np.int64), np.empty(first_body.size)
+    n = kn.shadow_active(first_body, is_floor, cp, sp, a_dir, rz, np.ascontiguousarray(rays.range, float).reshape(-1),
+                         active, t)
+    if n == 0:
+        return np.zeros((spec.n_bins, spec.n_beams), bool)
+    active, t = active[:n], t[:n]
+    d_act, dd_act = np.empty((n, 3)), np.empty((n, 3))
+    kn.grid_directions(active, cp, sp, a_dir, rz, d_act, dd_act)
+    body_act = first_body[active]
+    pos = np.arange(n, dtype=np.int64)
+    exited = np.zeros(n, bool)
+    hid_r = np.full(n, np.inf)
+    hid_n = np.zeros((n, 3))
+    eps = 1e-4 * max(spec.bin_width, 1e-3)
+    origin = np.asarray(pose.t, float)
+    far = min(np.float32(spec.range_max * 1.5), np.float32(1e30))
+    o32, d32 = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
+    for _ in range(6):  # a few crossings of the occluding body are enough for closed shapes
+        if n == 0:
+            break
+        kn.shadow_origins(pos, t, n, eps, origin, d_act, o32, d32)
+        tfar, geom, _, _, _, ng = caster.intersect_raw(o32[:n], d32[:n], np.full(n, far, np.float32), normals=True)
+        n = kn.shadow_step(pos, t, exited, n, eps, geom, tfar, ng, body_act, d_act, hid_r, hid_n)
+    lo, hi = np.empty(hid_r.size), np.empty(hid_r.size)
+    kn.shadow_boxes(hid_r, hid_n, d_act, dd_act, spec.elevation_step, 0.5 * spec.bin_width * 1e-3, lo, hi)
+    sel = np.isfinite(hid_r)
+    if not sel.any():
+        return np.zeros((spec.n_bins, spec.n_beams), bool)
+    beam = _index_grids(spec)[0][active[sel]]
+    out = np.zeros((spec.n_bins, spec.n_beams), bool)
+    kn.shadow_cells(beam, lo[sel], hi[sel], float(spec.range_min), 1.0 / spec.bin_width, spec.n_bins,
+                    np.ascontiguousarray(elevation_min), out)
+    return out

@@ -264,10 +264,16 @@ def _stack(arrays: list, shape: tuple) -> np.ndarray:
 
 
 def bottom_model_for(model: NoiseModel, bottom_type: str):
-    """The amplitude model a :class:`NoiseModel` applies to seabeds of ``bottom_type``."""
+    """The amplitude model a :class:`NoiseModel` applies to seabeds of ``bottom_type`` (cached: the
+    models are immutable and building one costs a fraction of a millisecond per frame)."""
+    return _bottom_model_cached(model.bottom_type or bottom_type, model.reverberation)
+
+
+@functools.lru_cache(maxsize=64)
+def _bottom_model_cached(bottom_type, reverberation):
     from .distributions import bottom_model
 
-    return bottom_model(model.bottom_type or bottom_type, model.reverberation)
+    return bottom_model(bottom_type, reverberation)
 
 
 def _mixture_table(model):
