@@ -696,8 +696,6 @@ def calibrate_score(seeds=range(5000, 5024), *, ridge: float = 1.0, method: str 
         ``weights`` (intercept first), ``mean``, ``std`` of the standardised features, and
         ``n`` (training matches), ``positive_rate``.
     """
-    from scipy.optimize import minimize
-
     from ..matching import MatchOptions
     from ..matching.match import arc_score_features, score_features
 
@@ -711,20 +709,11 @@ def calibrate_score(seeds=range(5000, 5024), *, ridge: float = 1.0, method: str 
             X.append(featurise(m.features))
             y.append(e["ok"].astype(float))
     X, y = np.concatenate(X), np.concatenate(y)
-    mu, sd_ = X.mean(0), X.std(0)
-    sd_ = np.where(sd_ > 0, sd_, 1.0)
-    Z = np.column_stack([np.ones(len(X)), (X - mu) / sd_])
-
-    def nll(w):
-        z = Z @ w
-        return np.sum(np.logaddexp(0, z) - y * z) + ridge * np.sum(w[1:] ** 2)
-
-    w = minimize(nll, np.zeros(Z.shape[1]), method="BFGS").x
-    return dict(weights=tuple(np.round(w, 3)), mean=tuple(np.round(mu, 4)), std=tuple(np.round(sd_, 4)), n=len(y),
-                positive_rate=float(y.mean()))
+    return _fit_logistic(X, y, ridge)
 
 
 def _fit_logistic(X, y, ridge):
+    """Ridge-penalised logistic regression of labels ``y`` on standardised features ``X`` (scipy BFGS)."""
     from scipy.optimize import minimize
 
     mu, sd_ = X.mean(0), X.std(0)

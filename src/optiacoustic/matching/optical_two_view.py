@@ -188,17 +188,10 @@ def sweep_arcs(rig, ranges, azimuths, low, high, flow, fb_error, motion, *, n_sa
     -------
     ArcSweep
     """
-    from ..geometry.projection import camera_from_sonar
-
-    r = np.asarray(ranges, float).reshape(-1)
-    th = np.asarray(azimuths, float).reshape(-1)
-    N = r.size
+    N, phis, P = _arc_points(rig, ranges, azimuths, n_samples)
     nan = np.full(N, np.nan)
     if N == 0:
         return ArcSweep(np.zeros((0, 2)), nan, np.zeros(0, bool), nan, nan, nan, nan)
-    half = rig.fov_elevation / 2
-    phis = np.linspace(-half, half, n_samples)
-    P = camera_from_sonar(rig, r[:, None], th[:, None], phis[None, :])
     cam = rig.camera
     uv = cam.project(P)
     a, sens = epipolar_residuals(cam, uv.reshape(-1, 2), P.reshape(-1, 3), flow, motion)
@@ -221,7 +214,9 @@ def sweep_arcs(rig, ranges, azimuths, low, high, flow, fb_error, motion, *, n_sa
     frac = np.where(found, frac, 0.0)
     step = phis[1] - phis[0]
     phi = phis[j] + frac * step
-    Pc = camera_from_sonar(rig, r, th, phi)
+    from ..geometry.projection import camera_from_sonar
+
+    Pc = camera_from_sonar(rig, np.asarray(ranges, float).reshape(-1), np.asarray(azimuths, float).reshape(-1), phi)
     px = cam.project(Pc)
     slope = np.abs(a1[rows, j] - a0[rows, j]) / np.rad2deg(step)
     return ArcSweep(np.where(found[:, None], px, np.nan), np.where(found, phi, np.nan), found,
@@ -322,18 +317,11 @@ def correlate_arcs(rig, ranges, azimuths, low, high, image_1, image_2, motion, *
     flow, so it follows baselines of a metre or more, where the image moves by hundreds of
     pixels; it needs texture.
     """
-    from ..geometry.projection import camera_from_sonar
-
     R, t = motion_arrays(motion)
-    r = np.asarray(ranges, float).reshape(-1)
-    th = np.asarray(azimuths, float).reshape(-1)
-    N = r.size
+    N, phis, P = _arc_points(rig, ranges, azimuths, n_samples)
     nan = np.full(N, np.nan)
     if N == 0:
         return ArcCorrelation(np.zeros((0, 2)), nan, np.zeros(0, bool), nan, nan, nan, nan)
-    half = rig.fov_elevation / 2
-    phis = np.linspace(-half, half, n_samples)
-    P = camera_from_sonar(rig, r[:, None], th[:, None], phis[None, :])
     cam = rig.camera
     u1 = cam.project(P)
     Q = P @ R.T + t
@@ -359,3 +347,18 @@ def correlate_arcs(rig, ranges, azimuths, low, high, image_1, image_2, motion, *
     return ArcCorrelation(np.where(found[:, None], u1[rows, j], np.nan), np.where(found, phis[j], np.nan), found,
                           np.where(found, peak, np.nan), np.where(found, peak - second, np.nan),
                           np.where(found, tex[rows, j], np.nan), np.where(found, sens, np.nan))
+
+
+def _arc_points(rig, ranges, azimuths, n_samples: int):
+    """Each sonar feature's arc sampled in elevation: ``(N, phis (n_samples,) rad, P (N, n_samples, 3))``.
+
+    ``P`` is in the camera frame (m); the samples span the sonar's elevation aperture.
+    """
+    from ..geometry.projection import camera_from_sonar
+
+    r = np.asarray(ranges, float).reshape(-1)
+    th = np.asarray(azimuths, float).reshape(-1)
+    half = rig.fov_elevation / 2
+    phis = np.linspace(-half, half, n_samples)
+    P = camera_from_sonar(rig, r[:, None], th[:, None], phis[None, :]) if r.size else np.zeros((0, n_samples, 3))
+    return r.size, phis, P

@@ -556,15 +556,7 @@ def _echo_numba(spec: SonarSpec, rays: SonarRays, slot: np.ndarray, n_slots: int
     ``s > 0`` the rays with ``slot == s``. ``sigma_bins=None``: no anti-aliasing
     (``cells_per_bin`` must be 1).
     """
-    kn = kernels()
-    q = cells_per_bin
-    H, V, full = _deposit_tables(spec.n_bins, q, sigma_bins)
-    J, n_cells = spec.n_beams, spec.n_bins * q
-    flat = lambda a: np.ascontiguousarray(a).reshape(-1)  # noqa: E731
-    rec, starts = _bucket(flat(rays.beam_index), flat(rays.footprint_lo), flat(rays.footprint_hi), flat(rays.energy),
-                          slot, float(spec.range_min), q / spec.bin_width, n_cells, J)
-    out = _workspace(f"echo{n_slots}", (n_slots, J, spec.n_bins), np.float32)  # fresh pages fault: reuse
-    split_run(lambda j0, j1: kn.echo_rows(rec, starts, n_cells, H, V, full, q, spec.n_bins, j0, j1, out), J, threads)
+    out = _echo_rows_numba(spec, rays, slot, n_slots, threads, cells_per_bin, sigma_bins)
     return np.ascontiguousarray(out.transpose(0, 2, 1))
 
 
