@@ -335,17 +335,20 @@ def _noise_one_bottom(I, shares, N, cumw, lams, U, E, r0, r1, out):
 
 @njit(cache=True, nogil=True)
 def truth_maps(beam, lo_m, hi_m, energy, body, el_lo, el_hi, range_min, inv_bin, n_bins, n_beams,
-               body_map, el_min, el_max, best, j0, j1):
+               body_map, el_min, el_max, rec, j0, j1):
     """Per cell the body of the strongest single contribution and the elevation span that echoes
     (``formation._truth_maps``): every lit ray visits the bins its footprint overlaps. Beams
     ``j0..j1`` only (their columns of the maps; the rays of other beams are skipped), so that
-    beam ranges can run on several threads; ``best`` (n_bins, n_beams) float32 is scratch."""
+    beam ranges can run on several threads. ``rec`` (n_bins, n_beams, 4) float32 is scratch that
+    holds a cell's strongest weight, its body (exact in float32), and the elevation span side by
+    side, so that a ray's update of a cell touches one cache line instead of four; the maps are
+    written once from it."""
     for bb in range(n_bins):
         for j in range(j0, j1):
-            best[bb, j] = 0.0
-            body_map[bb, j] = -1
-            el_min[bb, j] = np.inf
-            el_max[bb, j] = -np.inf
+            rec[bb, j, 0] = 0.0
+            rec[bb, j, 1] = -1.0
+            rec[bb, j, 2] = np.inf
+            rec[bb, j, 3] = -np.inf
     for i in range(beam.size):
         j = beam[i]
         if j < j0 or j >= j1:
@@ -362,18 +365,24 @@ def truth_maps(beam, lo_m, hi_m, energy, body, el_lo, el_hi, range_min, inv_bin,
         b1 = int(min(max(x1, 0.0), n_bins - 1))
         lo_e = np.float32(el_lo[i])
         hi_e = np.float32(el_hi[i])
+        g = np.float32(body[i])
         for bb in range(b0, b1 + 1):
             w = dens * max(min(x1, np.float32(bb + 1)) - max(x0, np.float32(bb)), np.float32(0.0))
-            if w > best[bb, j] or (w == best[bb, j] and body[i] > body_map[bb, j]):
-                best[bb, j] = w
-                body_map[bb, j] = body[i]
-            if lo_e < el_min[bb, j]:
-                el_min[bb, j] = lo_e
-            if hi_e > el_max[bb, j]:
-                el_max[bb, j] = hi_e
+            if w > rec[bb, j, 0] or (w == rec[bb, j, 0] and g > rec[bb, j, 1]):
+                rec[bb, j, 0] = w
+                rec[bb, j, 1] = g
+            if lo_e < rec[bb, j, 2]:
+                rec[bb, j, 2] = lo_e
+            if hi_e > rec[bb, j, 3]:
+                rec[bb, j, 3] = hi_e
     for bb in range(n_bins):
         for j in range(j0, j1):
-            if not np.isfinite(el_min[bb, j]):
+            body_map[bb, j] = np.int16(rec[bb, j, 1])
+            lo_e = rec[bb, j, 2]
+            if np.isfinite(lo_e):
+                el_min[bb, j] = lo_e
+                el_max[bb, j] = rec[bb, j, 3]
+            else:
                 el_min[bb, j] = np.nan
                 el_max[bb, j] = np.nan
 

@@ -1104,7 +1104,7 @@ def _truth_maps(spec: SonarSpec, rays: SonarRays, threads: int = 1):
         flat = lambda a: np.ascontiguousarray(a).reshape(-1)  # noqa: E731
         args = (flat(rays.beam_index), flat(rays.footprint_lo), flat(rays.footprint_hi), flat(rays.energy),
                 flat(rays.body), flat(rays.elevation_lo), flat(rays.elevation_hi), float(spec.range_min),
-                1.0 / spec.bin_width, B, J, body_map, el_min, el_max, _workspace("truth_best", (B, J), np.float32))
+                1.0 / spec.bin_width, B, J, body_map, el_min, el_max, _workspace("truth_cells", (B, J, 4), np.float32))
         kn = kernels()
         split_run(lambda j0, j1: kn.truth_maps(*args, j0, j1), J, threads)  # beam ranges: disjoint columns
         return body_map, el_min, el_max
