@@ -182,12 +182,12 @@ class RayCaster:
         return self._corner_normals_f32
 
     def _run_chunks(self, origins: np.ndarray, directions: np.ndarray, dists: np.ndarray, query: str, output: bool,
-                    copy: bool = True):
+                    copy: bool = True, split: bool = True):
         n = len(origins)
         # from 4096 rays on, split: the sonar's shadow continuation rays (~10 000 a round, starting on a
         # surface, two to four primary rays each) gain; its ~4 000 edge sub-rays run on one thread while
         # the noise is drawn on the other (measured faster than splitting them too)
-        n_chunks = 1 if n < 4096 or self.threads == 1 else 2 * self.threads
+        n_chunks = 1 if n < 4096 or self.threads == 1 or not split else 2 * self.threads
         bounds = np.linspace(0, n, n_chunks + 1).astype(int)
 
         def job(k):
@@ -304,10 +304,11 @@ class RayCaster:
         return tfar, geom, prim, nrm
 
     def intersect_raw(self, origins32: np.ndarray, directions32: np.ndarray, max_distance32: np.ndarray | None = None,
-                      *, normals: bool = True):
+                      *, normals: bool = True, split: bool = True):
         """Embree's closest-hit output as it comes, over the worker threads: the lowest-level query.
 
-        Parameters as :meth:`cast_raw`. Returns ``(distance, body, triangle, u, v, Ng)``:
+        Parameters as :meth:`cast_raw`; ``split=False`` casts every ray on the calling thread (for
+        callers that already run one batch per thread). Returns ``(distance, body, triangle, u, v, Ng)``:
         ``(N,)`` float32 distance (``>= max_distance`` on a miss), ``(N,)`` int32 body
         (``-1`` on a miss) and triangle, ``(N,)`` float32 barycentric ``u, v`` of the hit
         (corners 1 and 2), and the unnormalised geometric normal ``(N, 3)`` float32 (``None``
@@ -316,7 +317,7 @@ class RayCaster:
         """
         n = len(origins32)
         dists = np.full(n, _MISS_DIST, np.float32) if max_distance32 is None else max_distance32
-        outs = self._run_chunks(origins32, directions32, dists, "INTERSECT", True, copy=False)
+        outs = self._run_chunks(origins32, directions32, dists, "INTERSECT", True, copy=False, split=split)
         cat = (lambda k: outs[0][k]) if len(outs) == 1 else (lambda k: np.concatenate([r[k] for r in outs]))
         return cat("tfar"), cat("geomID"), cat("primID"), cat("u"), cat("v"), cat("Ng") if normals else None
 

@@ -843,16 +843,16 @@ def shadow_active(body, is_floor, cp, sp, a, rz, r, active, t):
     (``is_floor[body]``). Their flat indices into ``active`` and ranges into ``t``; returns the count."""
     J = a.shape[0]
     n = 0
-    for i in range(body.size):
-        g = body[i]
-        if g < 0:
-            continue
-        if is_floor[g]:
-            k = i // J
-            j = i - k * J
-            if cp[k] * a[j, 2] + sp[k] * rz[2] < 0:
+    for k in range(body.size // J):  # row by row: no division per ray
+        c, s = cp[k], sp[k] * rz[2]
+        for j in range(J):
+            i = k * J + j
+            g = body[i]
+            if g < 0:
                 continue
-        active[n] = i
-        t[n] = r[i]
-        n += 1
+            if is_floor[g] and c * a[j, 2] + s < 0:
+                continue
+            active[n] = i
+            t[n] = r[i]
+            n += 1
     return n

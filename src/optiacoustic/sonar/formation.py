@@ -1273,20 +1273,27 @@ def _shadow_mask_numba(scene, caster, spec, pose, rays: SonarRays, elevation_min
     d_act, dd_act = np.empty((n, 3)), np.empty((n, 3))
     kn.grid_directions(active, cp, sp, a_dir, rz, d_act, dd_act)
     body_act = first_body[active]
-    pos = np.arange(n, dtype=np.int64)
-    exited = np.zeros(n, bool)
     hid_r = np.full(n, np.inf)
     hid_n = np.zeros((n, 3))
     eps = 1e-4 * max(spec.bin_width, 1e-3)
     origin = np.asarray(pose.t, float)
     far = min(np.float32(spec.range_max * 1.5), np.float32(1e30))
-    o32, d32 = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
-    for _ in range(6):  # a few crossings of the occluding body are enough for closed shapes
-        if n == 0:
-            break
-        kn.shadow_origins(pos, t, n, eps, origin, d_act, o32, d32)
-        tfar, geom, _, _, _, ng = caster.intersect_raw(o32[:n], d32[:n], np.full(n, far, np.float32), normals=True)
-        n = kn.shadow_step(pos, t, exited, n, eps, geom, tfar, ng, body_act, d_act, hid_r, hid_n)
+
+    def follow(p0, p1):
+        # the rays p0..p1 through every round on this thread (each ray's rounds depend on it alone,
+        # so the threads need not meet between rounds); they write disjoint rows of hid_r, hid_n
+        m = p1 - p0
+        pos, tt, exited = np.arange(p0, p1, dtype=np.int64), t[p0:p1].copy(), np.zeros(m, bool)
+        o32, d32 = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)
+        for _ in range(6):  # a few crossings of the occluding body are enough for closed shapes
+            if m == 0:
+                break
+            kn.shadow_origins(pos, tt, m, eps, origin, d_act, o32, d32)
+            tfar, geom, _, _, _, ng = caster.intersect_raw(o32[:m], d32[:m], np.full(m, far, np.float32),
+                                                           normals=True, split=False)
+            m = kn.shadow_step(pos, tt, exited, m, eps, geom, tfar, ng, body_act, d_act, hid_r, hid_n)
+
+    split_run(follow, n, caster.threads)
     lo, hi = np.empty(hid_r.size), np.empty(hid_r.size)
     kn.shadow_boxes(hid_r, hid_n, d_act, dd_act, spec.elevation_step, 0.5 * spec.bin_width * 1e-3, lo, hi)
     sel = np.isfinite(hid_r)
