@@ -1271,7 +1271,6 @@ def _shadow_mask_numba(scene, caster, spec, pose, rays: SonarRays, elevation_min
         return np.zeros((spec.n_bins, spec.n_beams), bool)
     active, t = active[:n], t[:n]
     d_act, dd_act = np.empty((n, 3)), np.empty((n, 3))
-    kn.grid_directions(active, cp, sp, a_dir, rz, d_act, dd_act)
     body_act = first_body[active]
     hid_r = np.full(n, np.inf)
     hid_n = np.zeros((n, 3))
@@ -1279,9 +1278,14 @@ def _shadow_mask_numba(scene, caster, spec, pose, rays: SonarRays, elevation_min
     origin = np.asarray(pose.t, float)
     far = min(np.float32(spec.range_max * 1.5), np.float32(1e30))
 
+    lo, hi = np.empty(n), np.empty(n)
+    min_half = 0.5 * spec.bin_width * 1e-3
+
     def follow(p0, p1):
         # the rays p0..p1 through every round on this thread (each ray's rounds depend on it alone,
-        # so the threads need not meet between rounds); they write disjoint rows of hid_r, hid_n
+        # so the threads need not meet between rounds), then their hidden surfaces' footprints;
+        # they write disjoint rows of d_act, dd_act, hid_r, hid_n, lo, hi
+        kn.grid_directions(active[p0:p1], cp, sp, a_dir, rz, d_act[p0:p1], dd_act[p0:p1])
         m = p1 - p0
         pos, tt, exited = np.arange(p0, p1, dtype=np.int64), t[p0:p1].copy(), np.zeros(m, bool)
         o32, d32 = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)
@@ -1292,10 +1296,10 @@ def _shadow_mask_numba(scene, caster, spec, pose, rays: SonarRays, elevation_min
             tfar, geom, _, _, _, ng = caster.intersect_raw(o32[:m], d32[:m], np.full(m, far, np.float32),
                                                            normals=True, split=False)
             m = kn.shadow_step(pos, tt, exited, m, eps, geom, tfar, ng, body_act, d_act, hid_r, hid_n)
+        kn.shadow_boxes(hid_r[p0:p1], hid_n[p0:p1], d_act[p0:p1], dd_act[p0:p1], spec.elevation_step, min_half,
+                        lo[p0:p1], hi[p0:p1])
 
     split_run(follow, n, caster.threads)
-    lo, hi = np.empty(hid_r.size), np.empty(hid_r.size)
-    kn.shadow_boxes(hid_r, hid_n, d_act, dd_act, spec.elevation_step, 0.5 * spec.bin_width * 1e-3, lo, hi)
     sel = np.isfinite(hid_r)
     if not sel.any():
         return np.zeros((spec.n_bins, spec.n_beams), bool)
