@@ -1298,13 +1298,15 @@ def _shadow_mask_numba(scene, caster, spec, pose, rays: SonarRays, elevation_min
             m = kn.shadow_step(pos, tt, exited, m, eps, geom, tfar, ng, body_act, d_act, hid_r, hid_n)
         kn.shadow_boxes(hid_r[p0:p1], hid_n[p0:p1], d_act[p0:p1], dd_act[p0:p1], spec.elevation_step, min_half,
                         lo[p0:p1], hi[p0:p1])
+        sel = np.isfinite(hid_r[p0:p1])
+        out = np.zeros((spec.n_bins, spec.n_beams), bool)
+        if sel.any():
+            kn.shadow_cells(beam_of[active[p0:p1][sel]], lo[p0:p1][sel], hi[p0:p1][sel], float(spec.range_min),
+                            1.0 / spec.bin_width, spec.n_bins, elevation_min, out)
+        outs.append(out)  # a part's shadow cells; the union of the parts' is the mask
 
+    outs: list = []
+    beam_of = _index_grids(spec)[0]
+    elevation_min = np.ascontiguousarray(elevation_min)
     split_run(follow, n, caster.threads)
-    sel = np.isfinite(hid_r)
-    if not sel.any():
-        return np.zeros((spec.n_bins, spec.n_beams), bool)
-    beam = _index_grids(spec)[0][active[sel]]
-    out = np.zeros((spec.n_bins, spec.n_beams), bool)
-    kn.shadow_cells(beam, lo[sel], hi[sel], float(spec.range_min), 1.0 / spec.bin_width, spec.n_bins,
-                    np.ascontiguousarray(elevation_min), out)
-    return out
+    return functools.reduce(np.logical_or, outs)
