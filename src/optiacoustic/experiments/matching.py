@@ -97,19 +97,24 @@ def _builtin_scenes():
     return out
 
 
+def _sonar_noise(noise_floor_db):
+    """``simulate_rig``'s ``sonar_noise`` for a floor in dB: "default" the preset's, None no noise."""
+    from ..sonar import NoiseModel
+
+    if noise_floor_db == "default":
+        return None
+    if noise_floor_db is None:
+        return False
+    return NoiseModel(noise_floor_db=noise_floor_db)
+
+
 def simulate_pair(scene, water="thesis", noise_floor_db="default", seed=0):
     """One rig pair of ``scene`` from its view: (sonar frame, optical frame, rig)."""
     from ..optical import Water
     from ..simulation import simulate_rig
-    from ..sonar import NoiseModel
 
     rig, sp = _rig_for(scene.view.eye, scene.view.target)
-    if noise_floor_db == "default":
-        noise = None
-    elif noise_floor_db is None:
-        noise = False
-    else:
-        noise = NoiseModel(noise_floor_db=noise_floor_db)
+    noise = _sonar_noise(noise_floor_db)
     pair = simulate_rig(scene, rig, sp, water=Water.preset(water), seed=seed, sonar_noise=noise)
     return pair.sonar, pair.optical, rig
 
@@ -154,7 +159,6 @@ def moved_view(scene, motion: dict, seed=0, water="thesis", noise_floor_db="defa
     from ..frames import rot_z
     from ..optical import Water
     from ..simulation import simulate_rig
-    from ..sonar import NoiseModel
 
     eye = np.asarray(scene.view.eye, float)
     target = np.asarray(scene.view.target, float)
@@ -165,12 +169,7 @@ def moved_view(scene, motion: dict, seed=0, water="thesis", noise_floor_db="defa
     eye2 = eye + motion["surge"] * heading + motion["sway"] * right + np.array([0.0, 0.0, motion["heave"]])
     target2 = eye2 + rot_z(np.deg2rad(motion["yaw_deg"])) @ fwd
     _, sp2 = _rig_for(eye2, target2)
-    if noise_floor_db == "default":
-        noise = None
-    elif noise_floor_db is None:
-        noise = False
-    else:
-        noise = NoiseModel(noise_floor_db=noise_floor_db)
+    noise = _sonar_noise(noise_floor_db)
     pair = simulate_rig(scene, rig, sp2, water=Water.preset(water), seed=seed + 7919, sonar_noise=noise)
     c1, c2 = rig.camera_pose(sp1), rig.camera_pose(sp2)
     R_o = c2.R.T @ c1.R

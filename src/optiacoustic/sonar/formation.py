@@ -523,13 +523,7 @@ def _finish_numba(spec: SonarSpec, rows: np.ndarray, bottom_types: dict, slot_of
         return intensity, {names[0]: share}
     out = np.empty((len(names), spec.n_bins, spec.n_beams), np.float32)
     split_run(lambda r0, r1: kn.finish_echo(rows, scale, thr, table, r0, r1, intensity, out), spec.n_bins, threads)
-    shares = {}
-    for m, name in enumerate(names):
-        if name is not None:
-            sh = out[m]
-            sh.setflags(write=False)
-            shares[name] = sh
-    return intensity, shares
+    return intensity, _read_only_shares(out, names)
 
 
 def _echo_rows_numba(spec: SonarSpec, rays: SonarRays, slot: np.ndarray, n_slots: int, threads: int,
@@ -662,13 +656,7 @@ def _form_with_shares_numba(spec: SonarSpec, rays: SonarRays, options: SonarOpti
     out = np.empty((len(names), spec.n_bins, spec.n_beams), np.float32)
     kn, table = kernels(), np.array([slot_of[n] for n in names], np.int64)
     split_run(lambda r0, r1: kn.shares(parts, intensity, table, r0, r1, out), spec.n_bins, threads)
-    shares = {}
-    for m, name in enumerate(names):
-        if name is not None:
-            sh = out[m]
-            sh.setflags(write=False)
-            shares[name] = sh
-    return intensity, shares
+    return intensity, _read_only_shares(out, names)
 
 
 def cell_area(spec: SonarSpec, rays: SonarRays, bottom_types: dict) -> np.ndarray:
@@ -1310,3 +1298,14 @@ def _shadow_mask_numba(scene, caster, spec, pose, rays: SonarRays, elevation_min
     elevation_min = np.ascontiguousarray(elevation_min)
     split_run(follow, n, caster.threads)
     return functools.reduce(np.logical_or, outs)
+
+
+def _read_only_shares(out: np.ndarray, names: list) -> dict:
+    """``{name: out[m]}`` for each named slot (``None`` names skipped), each view made read-only."""
+    shares = {}
+    for m, name in enumerate(names):
+        if name is not None:
+            sh = out[m]
+            sh.setflags(write=False)
+            shares[name] = sh
+    return shares
