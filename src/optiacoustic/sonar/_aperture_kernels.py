@@ -68,7 +68,7 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     for j in range(j0, j1):
         dth = dtheta[j]
         for k in range(K):
-            i = j * K + k
+            i = k * J + j
             Sn = n_sub[i]
             if Sn == 0:
                 continue

@@ -1069,8 +1069,7 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
     area = np.empty((J, B), np.float32) if need_area else np.empty((0, 0), np.float32)
     x0, dx, y = cells.table
     dtheta = np.ascontiguousarray(np.diff(spec.beam_edges), float)
-    # beam-major copies ((J, K), flattened): the kernel walks each beam's rays contiguously
-    bm = lambda arr: np.ascontiguousarray(np.reshape(arr, (K, J)).T).reshape(-1)  # noqa: E731
+    bm = flat
     args = (bm(rays.range), bm(cells.nd), bm(cells.ndd), bm(cells.a), bm(cells.b), 0.5 * rays.elevation_step,
             bm(cells.refl), bm(rays.elevation), bm(n_sub), K, J, x0, dx, y, cells.alpha_db, cells.spreading, spec.bin_width, bm(slot),
             bm(seabed_of_ray), dtheta, float(spec.range_min), B * q, H, V, full, q, B, bool(need_area))
