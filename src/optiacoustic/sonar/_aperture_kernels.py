@@ -204,3 +204,4 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                 a_row[:] = 0.0
                 a_step[:] = 0.0
                 a_used = False
+

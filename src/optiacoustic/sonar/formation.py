@@ -1074,9 +1074,14 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
             bm(cells.refl), bm(rays.elevation), bm(n_sub), K, J, x0, dx, y, cells.alpha_db, cells.spreading, spec.bin_width, bm(slot),
             bm(seabed_of_ray), dtheta, float(spec.range_min), B * q, H, V, full, q, B, bool(need_area))
     split_run(lambda j0, j1: ak.aperture_echo_rows(*args, j0, j1, out, area), J, threads)
-    parts = np.ascontiguousarray(out.transpose(0, 2, 1))
-    intensity, shares = _mixed_with_shares(spec, parts, options, bottom_types, slot_of, threads)
-    return intensity, shares, (np.ascontiguousarray(area.T) if need_area else None)
+    # the azimuth pattern mixes whole rows (beams); scale, threshold, shares and the image layout in one pass
+    mixed = np.stack([_mix_beams(spec, out[s]) for s in range(n_slots)]) if n_slots > 1 else _mix_beams(spec, out[0])[None]
+    intensity, shares = _finish_numba(spec, mixed, bottom_types, slot_of, threads)
+    if not need_area:
+        return intensity, shares, None
+    import cv2
+
+    return intensity, shares, cv2.transpose(area)
 
 
 #: Sub-rays cast across each visibility discontinuity between two elevation samples.
