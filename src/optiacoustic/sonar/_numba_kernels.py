@@ -565,8 +565,11 @@ def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, 
     n_trig_i = trig.shape[0] - 1
     n_trig = np.float32(n_trig_i)
     half = np.float32(0.5)
+    p0 = np.empty(J)
     for i in range(r0, r1):
         bk = back[i]
+        for j in range(J):  # the row's exp(-mu) in a loop of its own: measured faster (same numbers)
+            p0[j] = np.exp(-(density * area[i, j]))
         for j in range(J):
             m = density * area[i, j]
             big[i, j] = False
@@ -576,7 +579,7 @@ def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, 
                     z[i, j, 0] = 0.0
                     z[i, j, 1] = 0.0
                     continue
-                p = np.exp(-m)
+                p = p0[j]
                 c = p
                 n = 0
                 uu = u_count[i, j]
