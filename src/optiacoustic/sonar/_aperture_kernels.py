@@ -65,8 +65,22 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
         trig[Sn, 4] = np.sin(d_)
         trig[Sn, 5] = np.cos(t0)
         trig[Sn, 6] = np.sin(t0)
+    # one beam's sub-cells, formed in a first pass and deposited in a third: the exp and cos
+    # between them run in a loop of their own (libm calls in the big loop spill its registers)
+    cap = K * max_s
+    c_r = np.empty(cap)
+    c_lo = np.empty(cap)
+    c_hi = np.empty(cap)
+    c_c = np.empty(cap)
+    c_el = np.empty(cap)
+    c_d = np.empty(cap)
+    c_e = np.empty(cap)
+    c_cos = np.empty(cap)
+    c_s = np.empty(cap, np.int64)
+    c_sea = np.empty(cap, np.bool_)
     for j in range(j0, j1):
         dth = dtheta[j]
+        nc = 0
         for k in range(K):
             i = k * J + j
             Sn = n_sub[i]
@@ -115,68 +129,91 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                     jj = int(pos)
                     f = pos - jj
                     w = table_y[jj] + f * (table_y[jj + 1] - table_y[jj])
-                e = refl[i] * c_mid * delta * w
-                if spreading:
-                    e *= np.exp(k_abs * (r_mid - 1.0)) / (r_mid * r_mid)
-                if e > 0:  # as bucket_by_beam: footprint in fine cells, density, clipped
-                    x0 = (f_lo - range_min) * scale
-                    x1 = (f_hi - range_min) * scale
-                    dens = e / (x1 - x0)
-                    x0 = min(max(x0, 0.0), n_cells)
-                    x1 = min(max(x1, 0.0), n_cells)
+                c_r[nc] = r_mid
+                c_lo[nc] = f_lo
+                c_hi[nc] = f_hi
+                c_c[nc] = c_mid
+                c_el[nc] = el
+                c_d[nc] = delta
+                c_e[nc] = refl[i] * c_mid * delta * w
+                c_s[nc] = s
+                c_sea[nc] = seabed
+                nc += 1
+        if spreading:
+            for ic in range(nc):
+                r_mid = c_r[ic]
+                c_e[ic] *= np.exp(k_abs * (r_mid - 1.0)) / (r_mid * r_mid)
+        if want_area:
+            for ic in range(nc):
+                c_cos[ic] = np.cos(c_el[ic])
+        for ic in range(nc):
+            r_mid = c_r[ic]
+            f_lo = c_lo[ic]
+            f_hi = c_hi[ic]
+            c_mid = c_c[ic]
+            el = c_el[ic]
+            delta = c_d[ic]
+            e = c_e[ic]
+            s = c_s[ic]
+            if e > 0:  # as bucket_by_beam: footprint in fine cells, density, clipped
+                x0 = (f_lo - range_min) * scale
+                x1 = (f_hi - range_min) * scale
+                dens = e / (x1 - x0)
+                x0 = min(max(x0, 0.0), n_cells)
+                x1 = min(max(x1, 0.0), n_cells)
+                p0 = int(x0)
+                f0 = x0 - p0
+                p1 = int(x1)
+                f1 = x1 - p1
+                ss = 0
+                while True:  # slot 0 (the whole echo), then the class's slot when it has one
+                    for c, v in ((p0, dens - dens * f0), (p0 + 1, dens * f0), (p1, dens * f1 - dens),
+                                 (p1 + 1, -dens * f1)):
+                        if c >= n_cells:  # only cells past the end, which are cut
+                            continue
+                        used[ss] = True
+                        end[ss] += v
+                        if q == 2:  # the default oversampling: no integer division
+                            bi = c >> 1
+                            ph = c & 1
+                        else:
+                            bi = c // q
+                            ph = c - bi * q
+                        if D <= bi < n_bins - D:
+                            for m in range(2 * D + 1):
+                                row[ss, bi - D + m] += v * H[ph, m]
+                        else:
+                            for m in range(-D, D + 1):
+                                bb = bi + m
+                                if 0 <= bb < n_bins:
+                                    row[ss, bb] += v * H[ph, m + D]
+                        sb = bi + D + 1
+                        if sb < n_bins:
+                            step[ss, sb] += v * full
+                    if ss != 0 or s <= 0:
+                        break
+                    ss = s
+            if c_sea[ic]:
+                el_lo = el - 0.5 * delta
+                el_hi = el + 0.5 * delta
+                ar = r_mid * r_mid * c_cos[ic] * dth * (el_hi - el_lo) / max(c_mid, 0.05)
+                if ar > 0:
+                    x0 = (f_lo - range_min) * a_scale
+                    x1 = (f_hi - range_min) * a_scale
+                    dens = ar / (x1 - x0)
+                    x0 = min(max(x0, 0.0), n_bins)
+                    x1 = min(max(x1, 0.0), n_bins)
                     p0 = int(x0)
                     f0 = x0 - p0
                     p1 = int(x1)
                     f1 = x1 - p1
-                    ss = 0
-                    while True:  # slot 0 (the whole echo), then the class's slot when it has one
-                        for c, v in ((p0, dens - dens * f0), (p0 + 1, dens * f0), (p1, dens * f1 - dens),
-                                     (p1 + 1, -dens * f1)):
-                            if c >= n_cells:  # only cells past the end, which are cut
-                                continue
-                            used[ss] = True
-                            end[ss] += v
-                            if q == 2:  # the default oversampling: no integer division
-                                bi = c >> 1
-                                ph = c & 1
-                            else:
-                                bi = c // q
-                                ph = c - bi * q
-                            if D <= bi < n_bins - D:
-                                for m in range(2 * D + 1):
-                                    row[ss, bi - D + m] += v * H[ph, m]
-                            else:
-                                for m in range(-D, D + 1):
-                                    bb = bi + m
-                                    if 0 <= bb < n_bins:
-                                        row[ss, bb] += v * H[ph, m + D]
-                            sb = bi + D + 1
-                            if sb < n_bins:
-                                step[ss, sb] += v * full
-                        if ss != 0 or s <= 0:
-                            break
-                        ss = s
-                if seabed:
-                    el_lo = el - 0.5 * delta
-                    el_hi = el + 0.5 * delta
-                    ar = r_mid * r_mid * np.cos(el) * dth * (el_hi - el_lo) / max(c_mid, 0.05)
-                    if ar > 0:
-                        x0 = (f_lo - range_min) * a_scale
-                        x1 = (f_hi - range_min) * a_scale
-                        dens = ar / (x1 - x0)
-                        x0 = min(max(x0, 0.0), n_bins)
-                        x1 = min(max(x1, 0.0), n_bins)
-                        p0 = int(x0)
-                        f0 = x0 - p0
-                        p1 = int(x1)
-                        f1 = x1 - p1
-                        a_used = True
-                        for c, v in ((p0, dens - dens * f0), (p0 + 1, dens * f0), (p1, dens * f1 - dens),
-                                     (p1 + 1, -dens * f1)):
-                            if c < n_bins:  # one cell per bin, no anti-aliasing: echo_rows with D = 0
-                                a_row[c] += v
-                                if c + 1 < n_bins:
-                                    a_step[c + 1] += v
+                    a_used = True
+                    for c, v in ((p0, dens - dens * f0), (p0 + 1, dens * f0), (p1, dens * f1 - dens),
+                                 (p1 + 1, -dens * f1)):
+                        if c < n_bins:  # one cell per bin, no anti-aliasing: echo_rows with D = 0
+                            a_row[c] += v
+                            if c + 1 < n_bins:
+                                a_step[c + 1] += v
         for ss in range(S):
             if not used[ss]:
                 out[ss, j, :] = 0.0
