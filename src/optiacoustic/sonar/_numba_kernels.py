@@ -566,10 +566,15 @@ def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, 
     n_trig = np.float32(n_trig_i)
     half = np.float32(0.5)
     p0 = np.empty(J)
+    rad = np.empty(J, np.float32)
     for i in range(r0, r1):
         bk = back[i]
-        for j in range(J):  # the row's exp(-mu) in a loop of its own: measured faster (same numbers)
+        # the row's exp(-mu) and Box-Muller radii in loops of their own: libm calls in the main
+        # loop spill its registers (the same numbers, measured faster)
+        for j in range(J):
             p0[j] = np.exp(-(density * area[i, j]))
+        for j in range(J):
+            rad[j] = np.sqrt(np.float32(-2.0) * np.log(np.float32(1.0 - u1[i, j])))
         for j in range(J):
             m = density * area[i, j]
             big[i, j] = False
@@ -590,7 +595,7 @@ def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, 
                 power = echo[i, j] * np.float32(n / m) + bk
             else:
                 power = echo[i, j] + bk
-            r = np.sqrt(np.float32(-2.0) * np.log(np.float32(1.0 - u1[i, j])))
+            r = rad[j]
             x = u2[i, j] * n_trig
             k = min(int(x), n_trig_i - 1)
             f = x - np.float32(k)
