@@ -585,9 +585,15 @@ def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, 
                     z[i, j, 1] = 0.0
                     continue
                 p = p0[j]
-                c = p
-                n = 0
                 uu = u_count[i, j]
+                # the first two steps of the inversion without branches (counts 0 and 1: most
+                # cells), then the loop from count 1 where the uniform lies above P(N <= 1)
+                p1 = p * m
+                c = p + p1
+                n = np.int64(uu > p) + np.int64(uu > c)
+                if n == 2:
+                    n = 1
+                    p = p1
                 while uu > c and n < 1000:
                     n += 1
                     p *= m / n
