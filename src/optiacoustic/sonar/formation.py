@@ -137,14 +137,21 @@ def azimuth_mixing(spec: SonarSpec) -> np.ndarray:
     return M
 
 
-def _mix_beams(spec: SonarSpec, echo: np.ndarray) -> np.ndarray:
-    """Apply the two-way azimuth pattern across beams to ``echo`` ``(n_beams, n_bins)``."""
+def _mix_beams(spec: SonarSpec, echo: np.ndarray, out=None) -> np.ndarray:
+    """Apply the two-way azimuth pattern across beams to ``echo`` ``(n_beams, n_bins)`` (into ``out``,
+    a C-contiguous float32 array of that shape, when given)."""
     if spec.beam_azimuths is not None:
-        return azimuth_mixing(spec) @ echo
+        return np.matmul(azimuth_mixing(spec), echo, out=out)
     import cv2
 
     k = np.ascontiguousarray(azimuth_kernel(spec)[::-1], np.float32).reshape(-1, 1)  # correlation kernel
-    return cv2.filter2D(np.ascontiguousarray(echo, np.float32), cv2.CV_32F, k, borderType=cv2.BORDER_CONSTANT)
+    src = np.ascontiguousarray(echo, np.float32)
+    if out is None:
+        return cv2.filter2D(src, cv2.CV_32F, k, borderType=cv2.BORDER_CONSTANT)
+    got = cv2.filter2D(src, cv2.CV_32F, k, dst=out, borderType=cv2.BORDER_CONSTANT)
+    if not np.shares_memory(got, out):  # cv2 allocated anew (it should not for a matching buffer)
+        out[...] = got
+    return out
 
 
 @functools.lru_cache(maxsize=16)
@@ -1075,7 +1082,9 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
             bm(seabed_of_ray), dtheta, float(spec.range_min), B * q, H, V, full, q, B, bool(need_area))
     split_run(lambda j0, j1: ak.aperture_echo_rows(*args, j0, j1, out, area), J, threads)
     # the azimuth pattern mixes whole rows (beams); scale, threshold, shares and the image layout in one pass
-    mixed = np.stack([_mix_beams(spec, out[s]) for s in range(n_slots)]) if n_slots > 1 else _mix_beams(spec, out[0])[None]
+    mixed = _workspace(f"mixed{n_slots}", (n_slots, J, B), np.float32)
+    for s in range(n_slots):
+        _mix_beams(spec, out[s], out=mixed[s])
     intensity, shares = _finish_numba(spec, mixed, bottom_types, slot_of, threads)
     if not need_area:
         return intensity, shares, None
