@@ -1083,8 +1083,16 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
     split_run(lambda j0, j1: ak.aperture_echo_rows(*args, j0, j1, out, area), J, threads)
     # the azimuth pattern mixes whole rows (beams); scale, threshold, shares and the image layout in one pass
     mixed = _workspace(f"mixed{n_slots}", (n_slots, J, B), np.float32)
-    for s in range(n_slots):
-        _mix_beams(spec, out[s], out=mixed[s])
+    if threads > 1 and n_slots > 1:  # the class images on the other threads meanwhile (cv2 releases the GIL)
+        from ._kernels import _pool
+
+        jobs = [_pool(threads - 1).submit(_mix_beams, spec, out[s], mixed[s]) for s in range(1, n_slots)]
+        _mix_beams(spec, out[0], out=mixed[0])
+        for job in jobs:
+            job.result()
+    else:
+        for s in range(n_slots):
+            _mix_beams(spec, out[s], out=mixed[s])
     intensity, shares = _finish_numba(spec, mixed, bottom_types, slot_of, threads)
     if not need_area:
         return intensity, shares, None

@@ -433,12 +433,16 @@ class ScattererNoise:
         mean = echo + back
         weights = look_weights(self.looks)
         if use_numba() and len(weights) == 1:  # one look: |f|^2 x mean / expected x TVG in one pass
+            from ._kernels import _pool
             from .formation import _workspace
 
-            expected = filter_real(mean, np.asarray(h_r, np.float32) ** 2, np.asarray(h_b, np.float32) ** 2,
-                                   out=_workspace("scatterer_expected", I.shape, np.float32))
+            # the twice-blurred mean on a second thread while this one filters the field (cv2 releases the GIL)
+            args = (mean, np.asarray(h_r, np.float32) ** 2, np.asarray(h_b, np.float32) ** 2)
+            ws = _workspace("scatterer_expected", I.shape, np.float32)
+            job = _pool(1).submit(filter_real, *args, out=ws) if threads > 1 else None
             zk = z if power is None else _complex_normals(u1, u2, np.sqrt(power * np.float32(0.5)))
             f = filter_complex(zk, h_r, h_b, out=_workspace("scatterer_f", I.shape + (2,), np.float32))
+            expected = job.result() if job is not None else filter_real(*args, out=ws)
             out = np.empty(I.shape, np.float32)
             tvg = np.ascontiguousarray(_tvg_column(g, spec)[:, 0])
             kn = kernels()
