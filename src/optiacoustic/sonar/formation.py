@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import threading
 import weakref
 from dataclasses import dataclass
 from typing import Literal
@@ -36,6 +35,7 @@ from ..frames import Pose
 from ..raycast import RayCaster, caster_for, widen_hits
 from ..scene import Scene
 from ._kernels import kernels, split_run, use_numba
+from ._kernels import workspace as _workspace
 from .frame import SonarFrame, SonarGroundTruth, SonarRays
 from .propagation import Seawater, two_way_gain
 from .spec import SonarSpec
@@ -227,20 +227,6 @@ def _decimation_weights(n_bins: int, q: int, sigma_bins: float) -> np.ndarray:
     x = deltas[None, :] + 0.5 - phase_pos[:, None]
     w = np.exp(-0.5 * (x / sigma_bins) ** 2)
     return (w / w.sum(1, keepdims=True)).astype(np.float32), D
-
-
-_WORKSPACE = threading.local()
-
-
-def _workspace(name: str, shape: tuple, dtype) -> np.ndarray:
-    """A per-thread scratch array reused across frames (large fresh arrays cost page faults)."""
-    cache = getattr(_WORKSPACE, "arrays", None)
-    if cache is None:
-        cache = _WORKSPACE.arrays = {}
-    arr = cache.get(name)
-    if arr is None or arr.shape != shape or arr.dtype != dtype:
-        arr = cache[name] = np.empty(shape, dtype)
-    return arr
 
 
 def _decimate(fine: np.ndarray, n_bins: int, q: int, sigma_bins: float) -> np.ndarray:

@@ -395,7 +395,7 @@ class ScattererNoise:
             power = echo + back
         elif (use_numba() and np.isfinite(self.density) and not np.isfinite(self.clusters_per_m2)
               and len(_look_weights(self.looks)) == 1):  # counts, power and complex normals in one pass
-            from .formation import _workspace
+            from ._kernels import workspace as _workspace
 
             z = _workspace("scatterer_z", I.shape + (2,), np.float32)  # reused: no page faults per frame
             big = _workspace("scatterer_big", I.shape, np.bool_)
@@ -434,7 +434,7 @@ class ScattererNoise:
         weights = look_weights(self.looks)
         if use_numba() and len(weights) == 1:  # one look: |f|^2 x mean / expected x TVG in one pass
             from ._kernels import _pool
-            from .formation import _workspace
+            from ._kernels import workspace as _workspace
 
             # the twice-blurred mean on a second thread while this one filters the field (cv2 releases the GIL)
             args = (mean, np.asarray(h_r, np.float32) ** 2, np.asarray(h_b, np.float32) ** 2)
