@@ -125,3 +125,26 @@ def test_direct_kernel_flags_non_finite_spans():
                                    np.empty((B, J), np.int16), np.empty((B, J), np.float32),
                                    np.empty((B, J), np.float32), np.empty((B, J), np.float32), 0, J)
         assert got == want
+
+
+@pytest.mark.parametrize("name", ["thesis_scene1", "cuboids"])
+def test_shadow_by_interleaved_rows_equals_the_numpy_path(name, monkeypatch):
+    """Each thread takes every threads-th grid row of continuation rays; the union of their masks is
+    the numpy path's mask whatever the number of threads."""
+    sc = scenes.get(name)
+    pose = Pose.look_at(sc.view.eye, sc.view.target)
+    spec = dataclasses.replace(SPEC, n_beams=128, n_bins=300, elevation_samples=64)
+    monkeypatch.setenv("OAS_KERNELS", "numpy")
+    f = simulate_sonar(sc, spec, pose, noise=False)
+    caster = F.caster_for(sc)
+    ref = F._shadow_mask(sc, caster, spec, pose, f.rays, f.ground_truth.elevation_min)
+    assert ref.sum() > 50
+    monkeypatch.setenv("OAS_KERNELS", "numba")
+    old = caster.threads
+    try:
+        for threads in (1, 2, 3):
+            caster.threads = threads
+            got = F._shadow_mask(sc, caster, spec, pose, f.rays, f.ground_truth.elevation_min)
+            assert got.dtype == bool and np.array_equal(got, ref), threads
+    finally:
+        caster.threads = old
