@@ -15,7 +15,8 @@ empty bins between lit ones, and the image converges as ``elevation_samples`` gr
 The fine range profile is then low-pass filtered and decimated to ``n_bins``.
 
 The inner loops run as compiled kernels (``_numba_kernels``: the scan's per-ray work, the
-echo with the seabed/target split and the decimation in one pass, the truth maps); with
+echo with the seabed/target split and the decimation in one pass; ``_truth_kernels``: the
+truth maps and the shadow's ray selection); with
 ``OAS_KERNELS=numpy`` the numpy reference implementation in this module runs
 instead, and the tests compare the two (``_kernels``).
 """
