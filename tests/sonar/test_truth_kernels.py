@@ -128,9 +128,9 @@ def test_direct_kernel_flags_non_finite_spans():
 
 
 @pytest.mark.parametrize("name", ["thesis_scene1", "cuboids"])
-def test_shadow_by_interleaved_rows_equals_the_numpy_path(name, monkeypatch):
-    """Each thread takes every threads-th grid row of continuation rays; the union of their masks is
-    the numpy path's mask whatever the number of threads."""
+def test_shadow_with_any_number_of_threads_equals_the_numpy_path(name, monkeypatch):
+    """Each thread follows its share of the continuation rays into its own mask; the union of the
+    masks is the numpy path's mask whatever the number of threads."""
     sc = scenes.get(name)
     pose = Pose.look_at(sc.view.eye, sc.view.target)
     spec = dataclasses.replace(SPEC, n_beams=128, n_bins=300, elevation_samples=64)

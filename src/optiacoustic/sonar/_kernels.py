@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from .. import _kernel_switch as _switch
 
-__all__ = ["use_numba", "kernels", "truth_kernels", "split_run", "run_parts"]
+__all__ = ["use_numba", "kernels", "truth_kernels", "split_run"]
 
 
 def use_numba() -> bool:
@@ -58,17 +58,5 @@ def split_run(fn, n: int, threads: int) -> None:
     pool = _pool(threads - 1)
     futs = [pool.submit(fn, bounds[k], bounds[k + 1]) for k in range(1, threads)]
     fn(bounds[0], bounds[1])
-    for f in futs:
-        f.result()
-
-
-def run_parts(fn, parts: int) -> None:
-    """Run ``fn(0)``, ..., ``fn(parts - 1)`` at once, one on this thread (GIL-releasing work)."""
-    if parts <= 1:
-        fn(0)
-        return
-    pool = _pool(parts - 1)
-    futs = [pool.submit(fn, k) for k in range(1, parts)]
-    fn(0)
     for f in futs:
         f.result()

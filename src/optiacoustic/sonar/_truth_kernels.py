@@ -72,27 +72,3 @@ def truth_maps_direct(beam, lo_m, hi_m, energy, body, el_lo, el_hi, range_min, i
             if hi_e > cur or cur != cur:
                 el_max[bb, j] = hi_e
     return odd
-
-
-@njit(cache=True, nogil=True)
-def shadow_active_rows(body, is_floor, cp, sp, a, rz, r, k0, k_step, active, t):
-    """The grid rays of rows ``k0, k0 + k_step, ...`` whose continuation the acoustic shadow needs
-    (``formation._shadow_mask``): every hit but those going down (``d_z < 0``, ``d = cos(phi) a +
-    sin(phi) R_z``) through a floor plane (``is_floor[body]``). Their flat indices into ``active``
-    and ranges into ``t``; returns the count. With ``k_step`` threads taking one ``k0`` each,
-    interleaved rows share out the continuing rays evenly (targets fill bands of rows)."""
-    J = a.shape[0]
-    n = 0
-    for k in range(k0, body.size // J, k_step):
-        c, s = cp[k], sp[k] * rz[2]
-        for j in range(J):
-            i = k * J + j
-            g = body[i]
-            if g < 0:
-                continue
-            if is_floor[g] and c * a[j, 2] + s < 0:
-                continue
-            active[n] = i
-            t[n] = r[i]
-            n += 1
-    return n

@@ -15,8 +15,8 @@ empty bins between lit ones, and the image converges as ``elevation_samples`` gr
 The fine range profile is then low-pass filtered and decimated to ``n_bins``.
 
 The inner loops run as compiled kernels (``_numba_kernels``: the scan's per-ray work, the
-echo with the seabed/target split and the decimation in one pass; ``_truth_kernels``: the
-truth maps and the shadow's ray selection); with
+echo with the seabed/target split and the decimation in one pass, the shadow; ``_truth_kernels``:
+the truth maps); with
 ``OAS_KERNELS=numpy`` the numpy reference implementation in this module runs
 instead, and the tests compare the two (``_kernels``).
 """
@@ -36,7 +36,7 @@ from .._validate import as_rng, check_memory
 from ..frames import Pose
 from ..raycast import RayCaster, caster_for, widen_hits
 from ..scene import Scene
-from ._kernels import kernels, run_parts, split_run, truth_kernels, use_numba
+from ._kernels import kernels, split_run, truth_kernels, use_numba
 from .frame import SonarFrame, SonarGroundTruth, SonarRays
 from .propagation import Seawater, two_way_gain
 from .spec import SonarSpec
@@ -1249,11 +1249,8 @@ def _shadow_mask(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.n
 
 def _shadow_mask_numba(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.ndarray) -> np.ndarray:
     """:func:`_shadow_mask` with the continuation rays' bookkeeping in kernels: only the rays that
-    continue are touched (no per-grid-ray arrays of directions or normals). Each thread takes every
-    ``threads``-th grid row and does all of it (selects its rows' continuing rays, follows them
-    through every round in one-thread Embree batches, marks their hidden surfaces' cells in its own
-    mask): nothing runs alone before or between, and the union of the threads' masks is the mask."""
-    kn, tk = kernels(), truth_kernels()
+    continue are touched (no per-grid-ray arrays of directions or normals)."""
+    kn = kernels()
     first_body = np.ascontiguousarray(rays.body).reshape(-1)
     # nothing lies below a floor plane: a ray going down through it hits nothing more
     floors = _floor_planes(scene)
@@ -1262,48 +1259,51 @@ def _shadow_mask_numba(scene, caster, spec, pose, rays: SonarRays, elevation_min
     R = pose.R
     a_dir = np.sin(spec.azimuths)[:, None] * R[:, 0] + np.cos(spec.azimuths)[:, None] * R[:, 1]  # (J, 3)
     cp, sp, rz = np.cos(spec.elevations), np.sin(spec.elevations), np.ascontiguousarray(R[:, 2])
-    r_grid = np.ascontiguousarray(rays.range, float).reshape(-1)
-    J = spec.n_beams
-    K = first_body.size // J
+    active, t = np.empty(first_body.size, np.int64), np.empty(first_body.size)
+    n = kn.shadow_active(first_body, is_floor, cp, sp, a_dir, rz, np.ascontiguousarray(rays.range, float).reshape(-1),
+                         active, t)
+    if n == 0:
+        return np.zeros((spec.n_bins, spec.n_beams), bool)
+    active, t = active[:n], t[:n]
+    d_act, dd_act = np.empty((n, 3)), np.empty((n, 3))
+    body_act = first_body[active]
+    hid_r = np.full(n, np.inf)
+    hid_n = np.zeros((n, 3))
     eps = 1e-4 * max(spec.bin_width, 1e-3)
     origin = np.asarray(pose.t, float)
     far = min(np.float32(spec.range_max * 1.5), np.float32(1e30))
-    min_half = 0.5 * spec.bin_width * 1e-3
-    beam_of = _index_grids(spec)[0].reshape(-1)
-    elevation_min = np.ascontiguousarray(elevation_min)
-    parts = max(1, min(int(caster.threads), K))
-    outs = [None] * parts
 
-    def follow(part):
-        # rows part, part + parts, ...; each ray's rounds depend on it alone, so the threads never meet
-        cap = len(range(part, K, parts)) * J
-        active, t = np.empty(cap, np.int64), np.empty(cap)
-        n = tk.shadow_active_rows(first_body, is_floor, cp, sp, a_dir, rz, r_grid, part, parts, active, t)
-        out = outs[part] = np.zeros((spec.n_bins, spec.n_beams), bool)
-        if n == 0:
-            return
-        active, t = active[:n], t[:n]
-        d_act, dd_act = np.empty((n, 3)), np.empty((n, 3))
-        kn.grid_directions(active, cp, sp, a_dir, rz, d_act, dd_act)
-        body_act = first_body[active]
-        hid_r, hid_n = np.full(n, np.inf), np.zeros((n, 3))
-        m, pos, exited = n, np.arange(n, dtype=np.int64), np.zeros(n, bool)
-        o32, d32 = np.empty((n, 3), np.float32), np.empty((n, 3), np.float32)
+    lo, hi = np.empty(n), np.empty(n)
+    min_half = 0.5 * spec.bin_width * 1e-3
+
+    def follow(p0, p1):
+        # the rays p0..p1 through every round on this thread (each ray's rounds depend on it alone,
+        # so the threads need not meet between rounds), then their hidden surfaces' footprints;
+        # they write disjoint rows of d_act, dd_act, hid_r, hid_n, lo, hi
+        kn.grid_directions(active[p0:p1], cp, sp, a_dir, rz, d_act[p0:p1], dd_act[p0:p1])
+        m = p1 - p0
+        pos, tt, exited = np.arange(p0, p1, dtype=np.int64), t[p0:p1].copy(), np.zeros(m, bool)
+        o32, d32 = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)
         for _ in range(6):  # a few crossings of the occluding body are enough for closed shapes
             if m == 0:
                 break
-            kn.shadow_origins(pos, t, m, eps, origin, d_act, o32, d32)
+            kn.shadow_origins(pos, tt, m, eps, origin, d_act, o32, d32)
             tfar, geom, _, _, _, ng = caster.intersect_raw(o32[:m], d32[:m], np.full(m, far, np.float32),
                                                            normals=True, split=False)
-            m = kn.shadow_step(pos, t, exited, m, eps, geom, tfar, ng, body_act, d_act, hid_r, hid_n)
-        lo, hi = np.empty(n), np.empty(n)
-        kn.shadow_boxes(hid_r, hid_n, d_act, dd_act, spec.elevation_step, min_half, lo, hi)
-        sel = np.isfinite(hid_r)
+            m = kn.shadow_step(pos, tt, exited, m, eps, geom, tfar, ng, body_act, d_act, hid_r, hid_n)
+        kn.shadow_boxes(hid_r[p0:p1], hid_n[p0:p1], d_act[p0:p1], dd_act[p0:p1], spec.elevation_step, min_half,
+                        lo[p0:p1], hi[p0:p1])
+        sel = np.isfinite(hid_r[p0:p1])
+        out = np.zeros((spec.n_bins, spec.n_beams), bool)
         if sel.any():
-            kn.shadow_cells(beam_of[active[sel]], lo[sel], hi[sel], float(spec.range_min), 1.0 / spec.bin_width,
-                            spec.n_bins, elevation_min, out)
+            kn.shadow_cells(beam_of[active[p0:p1][sel]], lo[p0:p1][sel], hi[p0:p1][sel], float(spec.range_min),
+                            1.0 / spec.bin_width, spec.n_bins, elevation_min, out)
+        outs.append(out)  # a part's shadow cells; the union of the parts' is the mask
 
-    run_parts(follow, parts)
+    outs: list = []
+    beam_of = _index_grids(spec)[0]
+    elevation_min = np.ascontiguousarray(elevation_min)
+    split_run(follow, n, caster.threads)
     return functools.reduce(np.logical_or, outs)
 
 
