@@ -2,7 +2,8 @@
 
 Kept apart from :mod:`._numba_kernels` (echo, noise, aperture sub-cells) so that work on the
 two does not collide. Each kernel computes exactly what its numpy reference in ``formation.py``
-computes (same float32/float64 operations per ray, so the same bits; the tests compare them).
+computes on a simulated frame's rays (same float32/float64 operations per ray, so the same
+bits; ``tests/sonar/test_truth_kernels.py`` compares them).
 They release the GIL and are cached on disk like the others.
 """
 
@@ -27,8 +28,9 @@ def truth_maps_direct(beam, lo_m, hi_m, energy, body, el_lo, el_hi, range_min, i
     This equals the reference (the ray-order ``_numba_kernels.truth_maps`` and the numpy path of
     ``formation._truth_maps``) bit for bit whenever every lit ray's elevation span is finite (a
     cell's result does not depend on the order of its rays: the strongest weight wins, ties go to
-    the larger body id; the span is a min and a max); it returns the number of lit rays with a
-    non-finite span (or a body id beyond int16), and the caller falls back to the reference when that is not 0.
+    the larger body id; the span is a min and a max). It returns the number of lit rays with a
+    non-finite span or a body id beyond int16; the caller falls back to the reference when that
+    is not 0.
     """
     wf, bf, e0f, e1f = weight.reshape(-1), body_map.reshape(-1), el_min.reshape(-1), el_max.reshape(-1)
     nan = np.float32(np.nan)
