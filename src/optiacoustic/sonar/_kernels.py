@@ -15,7 +15,7 @@ import numpy as np
 
 from .. import _kernel_switch as _switch
 
-__all__ = ["use_numba", "kernels", "split_run", "workspace"]
+__all__ = ["use_numba", "kernels", "truth_kernels", "split_run", "workspace"]
 
 
 def use_numba() -> bool:
@@ -28,6 +28,13 @@ def kernels():
     from . import _numba_kernels
 
     return _numba_kernels
+
+
+def truth_kernels():
+    """The compiled ground-truth kernels module (imports numba)."""
+    from . import _truth_kernels
+
+    return _truth_kernels
 
 
 _POOL = None
