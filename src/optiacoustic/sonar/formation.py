@@ -645,14 +645,6 @@ def _form_with_shares_numba(spec: SonarSpec, rays: SonarRays, options: SonarOpti
                                                     sigma_bins), bottom_types, slot_of, threads)
     # beam patterns across beams: each class image is mixed on its own (in the image layout)
     parts = _echo_numba(spec, rays, slot, n_slots, threads, options.range_oversample, sigma_bins)
-    return _mixed_with_shares(spec, parts, options, bottom_types, slot_of, threads)
-
-
-def _mixed_with_shares(spec: SonarSpec, parts: np.ndarray, options: SonarOptions, bottom_types: dict, slot_of: dict,
-                       threads: int):
-    """Intensity and seabed shares from fresh class images ``parts`` ``(n_slots, n_bins, n_beams)``
-    (slot 0 the whole echo) that the beam patterns still have to mix across beams."""
-    n_slots = parts.shape[0]
     for s in range(n_slots):  # into the fresh array: no second allocation (np.stack)
         parts[s] = _mix_and_scale(spec, parts[s], options)
     intensity = parts[0]  # parts is fresh; thresholding it in place only zeroes cells whose shares are 0
