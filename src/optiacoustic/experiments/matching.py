@@ -711,6 +711,32 @@ def calibrate_score(seeds=range(5000, 5024), *, ridge: float = 1.0, method: str 
     return _fit_logistic(X, y, ridge)
 
 
+def calibrate_contact_score(seeds=range(5000, 5024), *, ridge: float = 1.0) -> dict:
+    """Refit ``matching.match.CONTACT_SCORE_MODEL``: the arc score restacked with the seabed-contact evidence.
+
+    Runs the matcher on random scenes seeded ``seeds`` (thesis water, default sonar noise),
+    labels each arc-search match by the depth-map truth and fits a logistic regression of
+    correctness on :func:`matching.match.contact_score_features` (the arc score's logit and the
+    contact search's agreement). Refit it after ``ARC_SCORE_MODEL``. Use seeds disjoint from the
+    evaluation's.
+
+    Returns
+    -------
+    dict
+        ``weights`` (intercept first), ``mean``, ``std``, ``n``, ``positive_rate``.
+    """
+    from ..matching.match import contact_score_features
+
+    X, y = [], []
+    for sd in seeds:
+        e = evaluate_pair(*simulate_pair(random_scene(int(sd)), "thesis", "default", int(sd)))
+        m = e["matches"]
+        if m:
+            X.append(contact_score_features(m.features))
+            y.append(e["ok"].astype(float))
+    return _fit_logistic(np.concatenate(X), np.concatenate(y), ridge)
+
+
 def _fit_logistic(X, y, ridge):
     """Ridge-penalised logistic regression of labels ``y`` on standardised features ``X`` (scipy BFGS)."""
     from scipy.optimize import minimize
