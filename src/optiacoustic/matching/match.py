@@ -293,9 +293,9 @@ def _assign(cost, rows, cols, n_rows, null_cost):
 #: (``experiments.matching.vehicle_motion``), disjoint from the evaluation's scenes (1023 arc
 #: matches, 41% correct).
 TWO_VIEW_SCORE_MODEL = dict(
-    weights=(-0.522, 0.715, -0.373, -0.128, 0.203, 0.246, 0.322),
-    mean=(-0.5592, 1.1959, 0.5622, 1.4745, 0.0391, 0.566),
-    std=(1.532, 1.0404, 0.7155, 0.939, 0.1938, 0.4956),
+    weights=(-0.534, 0.84, -0.396, -0.11, 0.198, 0.241, 0.309),
+    mean=(-0.4297, 1.1959, 0.5622, 1.4745, 0.0391, 0.566),
+    std=(1.5203, 1.0404, 0.7155, 0.939, 0.1938, 0.4956),
 )
 
 
@@ -394,8 +394,7 @@ def two_view_candidates(out: Matches, sf, intervals, image_1, second, motion, ri
     back = flow_field(image_2, image_1) if flow is not None else None
     arc = dict(out.features) if n else {}
     arc.update(two_view=consistent(out.points, m2.points, motion) if (n and m2) else np.zeros(n, bool),
-               single_view_score=np.asarray(out.features.get("arc_score", out.score)) if n else out.score,
-               n_second=len(m2))
+               single_view_score=out.score, n_second=len(m2))
     if flow is None:
         arc["flow_residual_px"] = arc["flow_px_per_m"] = np.full(n, np.nan)
         nan = np.full(len(sf), np.nan)
