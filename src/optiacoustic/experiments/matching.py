@@ -711,30 +711,44 @@ def calibrate_score(seeds=range(5000, 5024), *, ridge: float = 1.0, method: str 
     return _fit_logistic(X, y, ridge)
 
 
-def calibrate_contact_score(seeds=range(5000, 5024), *, ridge: float = 1.0) -> dict:
-    """Refit ``matching.match.CONTACT_SCORE_MODEL``: the arc score restacked with the seabed-contact evidence.
+def calibrate_face_score(seeds=range(5000, 5024), *, ridge: float = 1.0) -> dict:
+    """Refit ``matching.match.FACE_SCORE_MODEL`` and ``CREASE_SCORE_MODEL`` (the vertical-face evidence).
 
-    Runs the matcher on random scenes seeded ``seeds`` (thesis water, default sonar noise),
-    labels each arc-search match by the depth-map truth and fits a logistic regression of
-    correctness on :func:`matching.match.contact_score_features` (the arc score's logit and the
-    contact search's agreement). Refit it after ``ARC_SCORE_MODEL``. Use seeds disjoint from the
-    evaluation's.
+    Runs the matcher on random scenes seeded ``seeds`` (thesis water, default sonar noise) and
+    labels, by the depth-map truth, the arc search's pixel of every match and the point below
+    the crease where there is one; fits a logistic regression of each on
+    :func:`matching.match.face_score_features` and :func:`matching.match.crease_score_features`.
+    Refit after ``ARC_SCORE_MODEL``. Use seeds disjoint from the evaluation's.
 
     Returns
     -------
     dict
-        ``weights`` (intercept first), ``mean``, ``std``, ``n``, ``positive_rate``.
+        ``face`` and ``crease``: each ``weights`` (intercept first), ``mean``, ``std``, ``n``,
+        ``positive_rate``.
     """
-    from ..matching.match import contact_score_features
+    from ..matching import match, truth
+    from ..matching.match import crease_score_features, face_score_features
 
-    X, y = [], []
+    XF, yF, XC, yC = [], [], [], []
     for sd in seeds:
-        e = evaluate_pair(*simulate_pair(random_scene(int(sd)), "thesis", "default", int(sd)))
-        m = e["matches"]
-        if m:
-            X.append(contact_score_features(m.features))
-            y.append(e["ok"].astype(float))
-    return _fit_logistic(np.concatenate(X), np.concatenate(y), ridge)
+        s, o, rig = simulate_pair(random_scene(int(sd)), "thesis", "default", int(sd))
+        m = match(s, o.image, rig, min_score=0.0)
+        if not m:
+            continue
+        bw, aw = float(np.median(np.diff(s.ranges))), float(np.median(np.diff(s.azimuths)))
+        f = m.features
+        ok_arc = truth.correct(rig, o.depth, np.column_stack([f["arc_u"], f["arc_v"]]), m.ranges, m.azimuths,
+                               bin_width=bw, beam_width=aw)
+        XF.append(face_score_features(f))
+        yF.append(ok_arc.astype(float))
+        c = np.asarray(f["crease_found"], bool)
+        if c.any():
+            ok_c = truth.correct(rig, o.depth, np.column_stack([f["crease_u"], f["crease_v"]])[c], m.ranges[c],
+                                 m.azimuths[c], bin_width=bw, beam_width=aw)
+            XC.append(crease_score_features(f)[c])
+            yC.append(ok_c.astype(float))
+    return dict(face=_fit_logistic(np.concatenate(XF), np.concatenate(yF), ridge),
+                crease=_fit_logistic(np.concatenate(XC), np.concatenate(yC), ridge))
 
 
 def _fit_logistic(X, y, ridge):

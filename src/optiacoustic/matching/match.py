@@ -291,11 +291,11 @@ def _assign(cost, rows, cols, n_rows, null_cost):
 #: ``experiments.matching.calibrate_two_view_score()`` on random scenes seeded 5000-5023, plain
 #: and textured, each with the random vehicle motion of its seed
 #: (``experiments.matching.vehicle_motion``), disjoint from the evaluation's scenes (1023 arc
-#: matches, 41% correct).
+#: matches, 42% correct).
 TWO_VIEW_SCORE_MODEL = dict(
-    weights=(-0.534, 0.84, -0.396, -0.11, 0.198, 0.241, 0.309),
-    mean=(-0.4297, 1.1959, 0.5622, 1.4745, 0.0391, 0.566),
-    std=(1.5203, 1.0404, 0.7155, 0.939, 0.1938, 0.4956),
+    weights=(-0.445, 0.803, -0.253, -0.194, 0.211, 0.217, 0.263),
+    mean=(-0.3837, 1.202, 0.567, 1.4736, 0.0391, 0.5406),
+    std=(1.4965, 1.0523, 0.7187, 0.9407, 0.1938, 0.4984),
 )
 
 
@@ -319,9 +319,9 @@ def two_view_score_features(feats: dict) -> np.ndarray:
 #: onset or peak). Fitted by ``experiments.matching.calibrate_two_view_score()`` (see
 #: :data:`TWO_VIEW_SCORE_MODEL`; 624 sweep choices, 51% correct).
 SWEEP_SCORE_MODEL = dict(
-    weights=(-0.012, -0.39, 0.065, -0.519, 0.517, -0.237, -0.512, -0.043, 0.017),
-    mean=(0.4967, 0.916, 1.0869, 1.5753, 3.2255, 0.0096, 2.8849, 0.476),
-    std=(0.6205, 0.7511, 0.6572, 0.8567, 0.9989, 0.0976, 0.5826, 0.4994),
+    weights=(-0.012, -0.388, 0.069, -0.526, 0.519, -0.256, -0.517, -0.044, 0.019),
+    mean=(0.4967, 0.916, 1.0869, 1.5753, 3.2126, 0.0096, 2.8849, 0.476),
+    std=(0.6205, 0.7511, 0.6572, 0.8567, 1.0067, 0.0976, 0.5826, 0.4994),
 )
 
 
@@ -343,9 +343,9 @@ def sweep_score_features(feats: dict) -> np.ndarray:
 #: ``experiments.matching.calibrate_two_view_score()`` (see :data:`TWO_VIEW_SCORE_MODEL`; 1034
 #: correlation peaks, 27% correct).
 CORRELATION_SCORE_MODEL = dict(
-    weights=(-1.199, 0.421, -0.57, 0.202, 0.01, -0.396, -0.561, 0.01, -0.023),
-    mean=(0.9086, 0.3396, 2.7121, 1.468, 2.8751, 0.0629, 2.8556, 0.4913),
-    std=(0.2385, 0.6642, 0.8621, 0.93, 1.3055, 0.2427, 0.6057, 0.4999),
+    weights=(-1.201, 0.429, -0.588, 0.202, 0.014, -0.434, -0.571, 0.014, -0.023),
+    mean=(0.9086, 0.3396, 2.7121, 1.468, 2.8624, 0.0629, 2.8556, 0.4913),
+    std=(0.2385, 0.6642, 0.8621, 0.93, 1.303, 0.2427, 0.6057, 0.4999),
 )
 
 
@@ -565,7 +565,7 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
         return _empty("no sonar features: CFAR found no echo standing out of its background")
     if opt.method == "arc":
         intervals = _elevation_intervals(sf, img_s, r_bins, th_beams, rig, opt)
-        out = _match_arcs(sf, cam_img, rig, noise, opt, intervals)
+        out = _match_arcs(sf, cam_img, rig, noise, opt, intervals, sonar=(img_s, r_bins))
         return _finish(out, cam_img, second, motion, rig, noise, opt, min_score, sf=sf, intervals=intervals)
     cf = detect_camera_features(cam_img, opt.keypoints)
     if len(cf) == 0:
@@ -714,27 +714,53 @@ def arc_score_features(feats: dict) -> np.ndarray:
                             feats["shadowed"].astype(float), feats["kind"], np.log1p(feats["crowding"])])
 
 
-#: Second-stage logistic model of P(correct) of an arc-search match: intercept and weights of the
-#: standardised :func:`contact_score_features` (logit of :data:`ARC_SCORE_MODEL`'s score, whether
-#: the seabed-contact search of :mod:`.contact` found a vertical face's foot on the arc, log of
-#: 1 + its elevation's distance from the arc search's in units of 0.25 deg, and whether they agree
-#: within 0.5 deg). Fitted by ``experiments.matching.calibrate_contact_score()`` on random scenes
-#: seeded 5000-5023 (510 matches, 51% correct); on held-out scenes 6000-6011 it raised the AUC
-#: from 0.70 to 0.72 and precision at recall 0.5 from 0.62 to 0.64.
-CONTACT_SCORE_MODEL = dict(
-    weights=(-0.019, 1.211, 0.8, -0.928, 0.195),
-    mean=(-0.159, 0.4471, 0.704, 0.1216),
-    std=(1.2995, 0.4972, 0.9188, 0.3268),
+#: Second-stage logistic model of P(correct) of the arc search's pixel: intercept and weights of
+#: the standardised :func:`face_score_features` (logit of :data:`ARC_SCORE_MODEL`'s score; for the
+#: seabed-contact search of :mod:`.contact` and for the point below the crease: whether it found
+#: one, log of 1 + its elevation's distance from the arc search's in units of 0.25 deg, and whether
+#: they agree within 0.5 deg). Fitted by ``experiments.matching.calibrate_face_score()`` on random
+#: scenes seeded 5000-5023 (510 matches, 51% correct).
+FACE_SCORE_MODEL = dict(
+    weights=(-0.018, 1.115, 0.761, -0.889, 0.208, 0.407, -0.312, -0.124),
+    mean=(-0.159, 0.4471, 0.704, 0.1216, 0.749, 0.8153, 0.4137),
+    std=(1.2995, 0.4972, 0.9188, 0.3268, 0.4336, 0.6963, 0.4925),
+)
+
+#: Logistic model of P(correct) of the point below the crease (:func:`.contact.crease_points`):
+#: intercept and weights of the standardised :func:`crease_score_features` (logit of the arc
+#: search's own score, log of 1 + the crease point's elevation distance from the arc search's in
+#: units of 0.25 deg, onset or peak, the foot search found a face). Fitted by
+#: ``experiments.matching.calibrate_face_score()`` on random scenes seeded 5000-5023 (382
+#: crease points, 57% correct).
+CREASE_SCORE_MODEL = dict(
+    weights=(0.284, 0.341, -0.134, 0.213, 0.19),
+    mean=(0.3052, 1.0885, 0.5105, 0.5759),
+    std=(0.8076, 0.5915, 0.4999, 0.4942),
 )
 
 
-def contact_score_features(feats: dict) -> np.ndarray:
-    """The contact score model's inputs ``(N, 4)`` from a :attr:`Matches.features` mapping."""
-    p = np.clip(np.asarray(feats["arc_score"], float), 1e-6, 1 - 1e-6)
-    f = np.asarray(feats["contact_found"], bool)
-    dp = np.where(f, np.nan_to_num(np.asarray(feats["contact_dphi_deg"], float)), 0.0)
-    return np.column_stack([np.log(p / (1 - p)), f.astype(float), np.where(f, np.log1p(dp / 0.25), 0.0),
-                            (f & (dp < 0.5)).astype(float)])
+def _agreement(found, dphi_deg):
+    f = np.asarray(found, bool)
+    dp = np.where(f, np.nan_to_num(np.asarray(dphi_deg, float)), 0.0)
+    return [f.astype(float), np.where(f, np.log1p(dp / 0.25), 0.0), (f & (dp < 0.5)).astype(float)]
+
+
+def _logit(p):
+    p = np.clip(np.asarray(p, float), 1e-6, 1 - 1e-6)
+    return np.log(p / (1 - p))
+
+
+def face_score_features(feats: dict) -> np.ndarray:
+    """The face score model's inputs ``(N, 7)`` from a :attr:`Matches.features` mapping."""
+    return np.column_stack([_logit(feats["arc_score"]), *_agreement(feats["contact_found"], feats["contact_dphi_deg"]),
+                            *_agreement(feats["crease_found"], feats["crease_dphi_deg"])])
+
+
+def crease_score_features(feats: dict) -> np.ndarray:
+    """The crease score model's inputs ``(N, 4)`` (NaN-free; meaningful where ``crease_found``)."""
+    d = np.nan_to_num(np.asarray(feats["crease_dphi_deg"], float))
+    return np.column_stack([_logit(feats["arc_score"]), np.log1p(d / 0.25), feats["kind"],
+                            np.asarray(feats["contact_found"], float)])
 
 
 def _logistic(X, model):
@@ -762,12 +788,16 @@ def _elevation_intervals(sf, img_s, r_bins, th_beams, rig, opt):
     return lo, hi, shadowed, seabed
 
 
-def _match_arcs(sf, cam_img, rig, noise, opt, intervals) -> Matches:
-    """Every sonar feature takes the middle of the longest edge-free run of its arc (:mod:`.arc_search`)."""
+def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Matches:
+    """Every sonar feature takes a pixel of the longest edge-free run of its arc (:mod:`.arc_search`).
+
+    The run's middle (or 70% up for onsets), or the point below the face's crease
+    (:func:`.contact.crease_points`) where its calibrated probability is the higher.
+    """
     from ..geometry.projection import camera_from_sonar
     from .arc_search import gradient_image, search_arcs, stretched
     from .camera_features import to_gray8
-    from .contact import search_contacts
+    from .contact import crease_points, echo_start_ranges, search_contacts
 
     if np.ptp(to_gray8(cam_img)) == 0:
         return _empty("no camera features: the image is blank (or too turbid to show anything)", sf)
@@ -783,36 +813,54 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals) -> Matches:
         return _empty(f"no candidates: no sonar feature's arc (of {len(sf)}) crosses an edge-free stretch of the "
                       f"image inside its elevation interval", sf, None, seabed)
     rows = np.nonzero(ch.found)[0]
-    px = ch.pixels[rows]
+    px_arc = ch.pixels[rows]
+    # Several sonar features choosing (nearly) the same pixel cannot all be right: on the
+    # training scenes a match with two or more such neighbours is right 1 time in 20.
+    from scipy.spatial import cKDTree
+
+    crowding = np.array([len(n) - 1 for n in cKDTree(px_arc).query_ball_point(px_arc, r=6.0)], float)
+    feats = dict(snr=sf.snr[rows], kind=sf.kind[rows], elevation_span=(hi - lo)[rows], shadowed=shadowed[rows],
+                 visible_px=ch.visible_px[rows], run_px=ch.run_px[rows], position=ch.position[rows],
+                 elevation=ch.elevations[rows], crowding=crowding,
+                 seabed_contrast=np.nan_to_num(ch.contrast[rows], nan=1.0))
+    feats["arc_score"] = _logistic(arc_score_features(feats), ARC_SCORE_MODEL)
+    # Vertical faces standing on the seabed (a prior, :mod:`.contact`): the foot search's
+    # agreement with the arc search, and the point below the face's crease.
+    c = search_contacts(rig, seabed, sf.ranges[rows], sf.azimuths[rows], lo[rows], hi[rows], grad)
+    feats["contact_found"] = c.found
+    feats["contact_dphi_deg"] = np.where(c.found, np.rad2deg(np.abs(np.nan_to_num(c.elevations)
+                                                                    - ch.elevations[rows])), np.nan)
+    if sonar is not None:  # (polar image, bin ranges)
+        r_on = echo_start_ranges(sonar[0], sonar[1], sf.bins[rows], sf.beams[rows])
+    else:
+        r_on = sf.ranges[rows]
+    cr = crease_points(rig, seabed, sf.ranges[rows], sf.azimuths[rows], r_on, ch.top_pixels[rows],
+                       ch.run_low[rows], ch.run_high[rows])
+    feats["crease_found"] = cr.found
+    feats["crease_dphi_deg"] = np.where(cr.found, np.rad2deg(np.abs(np.nan_to_num(cr.elevations)
+                                                                    - ch.elevations[rows])), np.nan)
+    feats["arc_u"], feats["arc_v"] = px_arc[:, 0], px_arc[:, 1]
+    feats["crease_u"], feats["crease_v"] = cr.pixels[:, 0], cr.pixels[:, 1]
+    p_arc = _logistic(face_score_features(feats), FACE_SCORE_MODEL)
+    p_crease = np.where(cr.found, _logistic(crease_score_features(feats), CREASE_SCORE_MODEL), 0.0)
+    use = cr.found & (p_crease > p_arc)
+    feats["face_source"] = use.astype(int)  # 0: the arc search's pixel, 1: the point below the crease
+    feats["elevation"] = np.where(use, cr.elevations, ch.elevations[rows])
+    px = np.where(use[:, None], cr.pixels, px_arc)
+    score = np.where(use, p_crease, p_arc)
     s_px = noise.sigma_pixel or 0.5
     s_r = np.full(rows.size, noise.sigma_range) if noise.sigma_range else sf.sigma_range[rows]
     s_a = np.full(rows.size, noise.sigma_azimuth) if noise.sigma_azimuth else sf.sigma_azimuth[rows]
     ref = rc.refine(rig, px, sf.ranges[rows], sf.azimuths[rows], sigma_pixel=float(s_px),
                     sigma_range=float(np.median(s_r)), sigma_azimuth=float(np.median(s_a)), max_iter=10)
     P = np.where(ref.valid[:, None], ref.points,
-                 camera_from_sonar(rig, sf.ranges[rows], sf.azimuths[rows], ch.elevations[rows]))
+                 camera_from_sonar(rig, sf.ranges[rows], sf.azimuths[rows], feats["elevation"]))
+    feats["epipolar_chi2"] = np.nan_to_num(ref.cost, nan=0.0)
     cf = CameraFeatures(px, np.full(rows.size, float(s_px)), ch.run_px[rows])
-    # Several sonar features choosing (nearly) the same pixel cannot all be right: on the
-    # training scenes a match with two or more such neighbours is right 1 time in 20.
-    from scipy.spatial import cKDTree
-
-    crowding = np.array([len(n) - 1 for n in cKDTree(px).query_ball_point(px, r=6.0)], float)
-    feats = dict(snr=sf.snr[rows], kind=sf.kind[rows], elevation_span=(hi - lo)[rows], shadowed=shadowed[rows],
-                 visible_px=ch.visible_px[rows], run_px=ch.run_px[rows], position=ch.position[rows],
-                 elevation=ch.elevations[rows], crowding=crowding,
-                 seabed_contrast=np.nan_to_num(ch.contrast[rows], nan=1.0),
-                 epipolar_chi2=np.nan_to_num(ref.cost, nan=0.0))
-    arc_score = _logistic(arc_score_features(feats), ARC_SCORE_MODEL)
-    # Seabed-contact evidence (a prior: vertical faces standing on the seabed, :mod:`.contact`).
-    feats["arc_score"] = arc_score
-    c = search_contacts(rig, seabed, sf.ranges[rows], sf.azimuths[rows], lo[rows], hi[rows], grad)
-    feats["contact_found"] = c.found
-    feats["contact_dphi_deg"] = np.where(c.found, np.rad2deg(np.abs(np.nan_to_num(c.elevations)
-                                                                    - ch.elevations[rows])), np.nan)
-    score = _logistic(contact_score_features(feats), CONTACT_SCORE_MODEL)
     order = np.argsort(-score, kind="stable")
     feats = {k: np.asarray(v)[order] for k, v in feats.items()}
     cam_idx = np.arange(rows.size)[order]
     return Matches(px[order], sf.ranges[rows[order]], sf.azimuths[rows[order]], P[order], score[order],
                    -np.log(np.maximum(score[order], 1e-12)), rows[order], cam_idx, sf, cf, seabed,
                    f"{rows.size} matches of {len(sf)} sonar features (arc search)", feats)
+
