@@ -711,7 +711,7 @@ def calibrate_score(seeds=range(5000, 5024), *, ridge: float = 1.0, method: str 
     return _fit_logistic(X, y, ridge)
 
 
-def calibrate_face_score(seeds=range(5000, 5024), *, ridge: float = 1.0) -> dict:
+def calibrate_face_score(seeds=range(5000, 5048), *, ridge: float = 1.0) -> dict:
     """Refit ``matching.match.FACE_SCORE_MODEL`` and ``CREASE_SCORE_MODEL`` (the vertical-face evidence).
 
     Runs the matcher on random scenes seeded ``seeds`` (thesis water, default sonar noise) and
