@@ -206,7 +206,8 @@ def echo_start_ranges(image, ranges, bins, beams, *, factor: float = 3.0) -> np.
 
     A cell is part of an echo when its 3 x 3 mean exceeds ``factor`` times its CFAR background
     (:func:`.sonar_features.cfar_map`); the start is the first cell of the unbroken run of such
-    cells that ends at or beyond the feature, walking back toward the sonar. Shape (N,).
+    cells that ends at or beyond the feature, walking back toward the sonar (the cell's own range
+    when it is not part of an echo). Shape (N,).
     """
     from .sonar_features import cfar_map
 
@@ -217,7 +218,7 @@ def echo_start_ranges(image, ranges, bins, beams, *, factor: float = 3.0) -> np.
     idx = np.arange(img.shape[0])[:, None]
     last_quiet = np.maximum.accumulate(np.where(~echo, idx, -1), axis=0)
     b = np.asarray(bins, int)
-    start = np.clip(last_quiet[b, np.asarray(beams, int)] + 1, 0, img.shape[0] - 1)
+    start = np.minimum(last_quiet[b, np.asarray(beams, int)] + 1, b)  # a quiet cell starts where it is
     return r[start]
 
 
