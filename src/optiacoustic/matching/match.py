@@ -293,9 +293,9 @@ def _assign(cost, rows, cols, n_rows, null_cost):
 #: (``experiments.matching.vehicle_motion``), disjoint from the evaluation's scenes (1023 arc
 #: matches, 42% correct).
 TWO_VIEW_SCORE_MODEL = dict(
-    weights=(-0.439, 0.814, -0.259, -0.162, 0.194, 0.214, 0.262),
-    mean=(-0.4514, 1.2027, 0.5667, 1.4742, 0.0391, 0.5357),
-    std=(1.5104, 1.051, 0.7181, 0.9396, 0.1938, 0.4987),
+    weights=(-0.486, 0.867, -0.327, -0.151, 0.205, 0.181, 0.212),
+    mean=(-0.4211, 1.2007, 0.566, 1.4729, 0.0391, 0.5367),
+    std=(1.5763, 1.0476, 0.7161, 0.9396, 0.1938, 0.4987),
 )
 
 
@@ -319,9 +319,9 @@ def two_view_score_features(feats: dict) -> np.ndarray:
 #: onset or peak). Fitted by ``experiments.matching.calibrate_two_view_score()`` (see
 #: :data:`TWO_VIEW_SCORE_MODEL`; 624 sweep choices, 51% correct).
 SWEEP_SCORE_MODEL = dict(
-    weights=(-0.012, -0.387, 0.067, -0.527, 0.515, -0.253, -0.516, -0.045, 0.019),
-    mean=(0.4967, 0.916, 1.0869, 1.5753, 3.2177, 0.0096, 2.8849, 0.476),
-    std=(0.6205, 0.7511, 0.6572, 0.8567, 1.0068, 0.0976, 0.5826, 0.4994),
+    weights=(-0.011, -0.387, 0.07, -0.529, 0.519, -0.281, -0.524, -0.049, 0.023),
+    mean=(0.4967, 0.916, 1.0869, 1.5753, 3.2149, 0.0096, 2.8849, 0.476),
+    std=(0.6205, 0.7511, 0.6572, 0.8567, 1.0035, 0.0976, 0.5826, 0.4994),
 )
 
 
@@ -343,9 +343,9 @@ def sweep_score_features(feats: dict) -> np.ndarray:
 #: ``experiments.matching.calibrate_two_view_score()`` (see :data:`TWO_VIEW_SCORE_MODEL`; 1034
 #: correlation peaks, 27% correct).
 CORRELATION_SCORE_MODEL = dict(
-    weights=(-1.202, 0.432, -0.596, 0.202, 0.013, -0.448, -0.575, 0.014, -0.022),
-    mean=(0.9086, 0.3396, 2.7121, 1.468, 2.8614, 0.0629, 2.8556, 0.4913),
-    std=(0.2385, 0.6642, 0.8621, 0.93, 1.3032, 0.2427, 0.6057, 0.4999),
+    weights=(-1.201, 0.43, -0.591, 0.204, 0.011, -0.44, -0.573, 0.014, -0.024),
+    mean=(0.9086, 0.3396, 2.7121, 1.468, 2.8552, 0.0629, 2.8556, 0.4913),
+    std=(0.2385, 0.6642, 0.8621, 0.93, 1.3018, 0.2427, 0.6057, 0.4999),
 )
 
 
@@ -729,13 +729,15 @@ FACE_SCORE_MODEL = dict(
 #: Logistic model of P(correct) of the point below the crease (:func:`.contact.crease_points`):
 #: intercept and weights of the standardised :func:`crease_score_features` (logit of the arc
 #: search's own score, log of 1 + the crease point's elevation distance from the arc search's in
-#: units of 0.25 deg, onset or peak, the foot search found a face). Fitted by
+#: units of 0.25 deg, onset or peak, the foot search found a face, where the point sits in the
+#: run (0 its low end, 1 its top), log of 1 + how many bins the feature lies behind its echo's
+#: start (deeper: more likely another object's onset), log run length in px). Fitted by
 #: ``experiments.matching.calibrate_face_score()`` on random scenes seeded 5000-5047 (805
 #: crease points, 57% correct).
 CREASE_SCORE_MODEL = dict(
-    weights=(0.294, 0.343, -0.131, 0.18, 0.329),
-    mean=(0.3215, 1.1397, 0.4994, 0.5938),
-    std=(0.7868, 0.6224, 0.5, 0.4911),
+    weights=(0.325, 0.469, -0.122, -0.149, 0.468, -0.163, -1.018, 0.41),
+    mean=(0.3215, 1.1397, 0.4994, 0.5938, 0.5476, 0.9839, 4.0749),
+    std=(0.7868, 0.6224, 0.5, 0.4911, 0.2192, 0.3205, 0.534),
 )
 
 
@@ -757,10 +759,11 @@ def face_score_features(feats: dict) -> np.ndarray:
 
 
 def crease_score_features(feats: dict) -> np.ndarray:
-    """The crease score model's inputs ``(N, 4)`` (NaN-free; meaningful where ``crease_found``)."""
+    """The crease score model's inputs ``(N, 7)`` (NaN-free; meaningful where ``crease_found``)."""
     d = np.nan_to_num(np.asarray(feats["crease_dphi_deg"], float))
     return np.column_stack([_logit(feats["arc_score"]), np.log1p(d / 0.25), feats["kind"],
-                            np.asarray(feats["contact_found"], float)])
+                            np.asarray(feats["contact_found"], float), np.nan_to_num(feats["crease_position"]),
+                            np.log1p(feats["echo_depth_bins"]), np.log(np.maximum(feats["run_px"], 1.0))])
 
 
 def _logistic(X, model):
@@ -839,6 +842,11 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     feats["crease_found"] = cr.found
     feats["crease_dphi_deg"] = np.where(cr.found, np.rad2deg(np.abs(np.nan_to_num(cr.elevations)
                                                                     - ch.elevations[rows])), np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        feats["crease_position"] = np.where(cr.found, (cr.elevations - ch.run_low[rows])
+                                            / np.maximum(ch.run_high[rows] - ch.run_low[rows], 1e-9), np.nan)
+    bin_m = float(np.median(np.diff(sonar[1]))) if sonar is not None else 1.0
+    feats["echo_depth_bins"] = (sf.ranges[rows] - np.minimum(r_on, sf.ranges[rows])) / bin_m
     feats["arc_u"], feats["arc_v"] = px_arc[:, 0], px_arc[:, 1]
     feats["crease_u"], feats["crease_v"] = cr.pixels[:, 0], cr.pixels[:, 1]
     p_arc = _logistic(face_score_features(feats), FACE_SCORE_MODEL)
