@@ -711,11 +711,16 @@ def calibrate_score(seeds=range(5000, 5024), *, ridge: float = 1.0, method: str 
     return _fit_logistic(X, y, ridge)
 
 
-def calibrate_face_score(seeds=range(5000, 5048), *, ridge: float = 1.0) -> dict:
+#: Training scenes of the vertical-face score models: (seeds, water). Turbid water is included
+#: because it changes what the crease candidate is worth (its edge washes out).
+FACE_TRAINING = ((range(5000, 5048), "thesis"), (range(5000, 5024), "jerlov-1C"))
+
+
+def calibrate_face_score(scenes=FACE_TRAINING, *, ridge: float = 1.0) -> dict:
     """Refit ``matching.match.FACE_SCORE_MODEL`` and ``CREASE_SCORE_MODEL`` (the vertical-face evidence).
 
-    Runs the matcher on random scenes seeded ``seeds`` (thesis water, default sonar noise) and
-    labels, by the depth-map truth, the arc search's pixel of every match and the point below
+    Runs the matcher on the random scenes ``scenes`` (pairs of seeds and water, default sonar
+    noise; :data:`FACE_TRAINING`) and labels, by the depth-map truth, the arc search's pixel of every match and the point below
     the crease where there is one; fits a logistic regression of each on
     :func:`matching.match.face_score_features` and :func:`matching.match.crease_score_features`.
     Refit after ``ARC_SCORE_MODEL``. Use seeds disjoint from the evaluation's.
@@ -730,8 +735,8 @@ def calibrate_face_score(seeds=range(5000, 5048), *, ridge: float = 1.0) -> dict
     from ..matching.match import crease_score_features, face_score_features
 
     XF, yF, XC, yC = [], [], [], []
-    for sd in seeds:
-        s, o, rig = simulate_pair(random_scene(int(sd)), "thesis", "default", int(sd))
+    for sd, water in ((sd, water) for seeds, water in scenes for sd in seeds):
+        s, o, rig = simulate_pair(random_scene(int(sd)), water, "default", int(sd))
         m = match(s, o.image, rig, min_score=0.0)
         if not m:
             continue

@@ -54,6 +54,9 @@ class ArcChoice:
         Elevations (rad) of the run's two ends (NaN where nothing was found).
     top_pixels : ndarray, shape (N, 2)
         Pixel of the run's upper end (its highest elevation; NaN where nothing was found).
+    top_edge : ndarray, shape (N,)
+        Largest gradient (gray levels per px) of the 5 arc samples just above the run: how
+        sharp the edge that ends it is (0 where the run reaches the interval's top).
     """
 
     pixels: np.ndarray
@@ -66,6 +69,7 @@ class ArcChoice:
     run_low: np.ndarray = None
     run_high: np.ndarray = None
     top_pixels: np.ndarray = None
+    top_edge: np.ndarray = None
 
 
 def gradient_image(camera_image, sigma: float = 1.0) -> np.ndarray:
@@ -145,7 +149,7 @@ def search_arcs(rig, ranges, azimuths, low, high, gradient, *, fraction=0.5,
     N = r.size
     nan = np.full(N, np.nan)
     if N == 0:
-        return ArcChoice(np.zeros((0, 2)), nan, nan, nan, nan, np.zeros(0, bool), nan, nan, nan, np.zeros((0, 2)))
+        return ArcChoice(np.zeros((0, 2)), nan, nan, nan, nan, np.zeros(0, bool), nan, nan, nan, np.zeros((0, 2)), nan)
     half = rig.fov_elevation / 2
     phis = np.linspace(-half, half, n_samples)
     P = camera_from_sonar(rig, r[:, None], th[:, None], phis[None, :])  # (N, n, 3)
@@ -192,4 +196,7 @@ def search_arcs(rig, ranges, azimuths, low, high, gradient, *, fraction=0.5,
     top = np.where(found[:, None], uv[rows, end], np.nan)
     run_low = np.where(found, phis[np.clip(start, 0, n_samples - 1)], np.nan)
     run_high = np.where(found, phis[end], np.nan)
-    return ArcChoice(px, phi, run_px, pos, visible_px, found, contrast, run_low, run_high, top)
+    above = np.clip(end[:, None] + np.arange(1, 6)[None, :], 0, n_samples - 1)
+    g_above = np.where(inside[rows[:, None], above], gradient[vi[rows[:, None], above], ui[rows[:, None], above]], 0.0)
+    top_edge = np.where(found, g_above.max(axis=1), np.nan)
+    return ArcChoice(px, phi, run_px, pos, visible_px, found, contrast, run_low, run_high, top, top_edge)

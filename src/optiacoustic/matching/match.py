@@ -293,9 +293,9 @@ def _assign(cost, rows, cols, n_rows, null_cost):
 #: (``experiments.matching.vehicle_motion``), disjoint from the evaluation's scenes (1023 arc
 #: matches, 42% correct).
 TWO_VIEW_SCORE_MODEL = dict(
-    weights=(-0.486, 0.867, -0.327, -0.151, 0.205, 0.181, 0.212),
-    mean=(-0.4211, 1.2007, 0.566, 1.4729, 0.0391, 0.5367),
-    std=(1.5763, 1.0476, 0.7161, 0.9396, 0.1938, 0.4987),
+    weights=(-0.449, 0.886, -0.315, -0.128, 0.196, 0.207, 0.243),
+    mean=(-0.4646, 1.1955, 0.5636, 1.4723, 0.0391, 0.5406),
+    std=(1.5463, 1.0472, 0.7164, 0.9408, 0.1938, 0.4984),
 )
 
 
@@ -319,9 +319,9 @@ def two_view_score_features(feats: dict) -> np.ndarray:
 #: onset or peak). Fitted by ``experiments.matching.calibrate_two_view_score()`` (see
 #: :data:`TWO_VIEW_SCORE_MODEL`; 624 sweep choices, 51% correct).
 SWEEP_SCORE_MODEL = dict(
-    weights=(-0.011, -0.387, 0.07, -0.529, 0.519, -0.281, -0.524, -0.049, 0.023),
-    mean=(0.4967, 0.916, 1.0869, 1.5753, 3.2149, 0.0096, 2.8849, 0.476),
-    std=(0.6205, 0.7511, 0.6572, 0.8567, 1.0035, 0.0976, 0.5826, 0.4994),
+    weights=(-0.011, -0.388, 0.071, -0.525, 0.521, -0.28, -0.524, -0.046, 0.019),
+    mean=(0.4967, 0.916, 1.0869, 1.5753, 3.2119, 0.0096, 2.8849, 0.476),
+    std=(0.6205, 0.7511, 0.6572, 0.8567, 1.0051, 0.0976, 0.5826, 0.4994),
 )
 
 
@@ -343,9 +343,9 @@ def sweep_score_features(feats: dict) -> np.ndarray:
 #: ``experiments.matching.calibrate_two_view_score()`` (see :data:`TWO_VIEW_SCORE_MODEL`; 1034
 #: correlation peaks, 27% correct).
 CORRELATION_SCORE_MODEL = dict(
-    weights=(-1.201, 0.43, -0.591, 0.204, 0.011, -0.44, -0.573, 0.014, -0.024),
-    mean=(0.9086, 0.3396, 2.7121, 1.468, 2.8552, 0.0629, 2.8556, 0.4913),
-    std=(0.2385, 0.6642, 0.8621, 0.93, 1.3018, 0.2427, 0.6057, 0.4999),
+    weights=(-1.202, 0.431, -0.593, 0.202, 0.012, -0.442, -0.573, 0.012, -0.024),
+    mean=(0.9086, 0.3396, 2.7121, 1.468, 2.859, 0.0629, 2.8556, 0.4913),
+    std=(0.2385, 0.6642, 0.8621, 0.93, 1.3002, 0.2427, 0.6057, 0.4999),
 )
 
 
@@ -719,11 +719,12 @@ def arc_score_features(feats: dict) -> np.ndarray:
 #: seabed-contact search of :mod:`.contact` and for the point below the crease: whether it found
 #: one, log of 1 + its elevation's distance from the arc search's in units of 0.25 deg, and whether
 #: they agree within 0.5 deg). Fitted by ``experiments.matching.calibrate_face_score()`` on random
-#: scenes seeded 5000-5047 (1079 matches, 49% correct).
+#: scenes seeded 5000-5047 in thesis water and 5000-5023 in Jerlov 1C water
+#: (``experiments.matching.FACE_TRAINING``; 1627 matches, 51% correct).
 FACE_SCORE_MODEL = dict(
-    weights=(-0.114, 1.16, 1.113, -0.989, -0.062, 0.459, -0.622, -0.094),
-    mean=(-0.116, 0.4597, 0.7354, 0.1084, 0.7461, 0.8503, 0.3763),
-    std=(1.3063, 0.4984, 0.9248, 0.3109, 0.4353, 0.7315, 0.4845),
+    weights=(-0.029, 1.109, 0.946, -1.018, -0.076, 0.187, -0.012, 0.043),
+    mean=(-0.0952, 0.3049, 0.4877, 0.0719, 0.7591, 0.9647, 0.3196),
+    std=(1.2825, 0.4603, 0.8294, 0.2583, 0.4277, 0.8, 0.4663),
 )
 
 #: Logistic model of P(correct) of the point below the crease (:func:`.contact.crease_points`):
@@ -731,13 +732,16 @@ FACE_SCORE_MODEL = dict(
 #: search's own score, log of 1 + the crease point's elevation distance from the arc search's in
 #: units of 0.25 deg, onset or peak, the foot search found a face, where the point sits in the
 #: run (0 its low end, 1 its top), log of 1 + how many bins the feature lies behind its echo's
-#: start (deeper: more likely another object's onset), log run length in px). Fitted by
-#: ``experiments.matching.calibrate_face_score()`` on random scenes seeded 5000-5047 (805
-#: crease points, 57% correct).
+#: start (deeper: more likely another object's onset), log run length in px, log of 1 + the
+#: gradient just above the run (the crease's edge), log of the image's contrast (turbid water
+#: washes out the crease between a box's front and top faces, and the run then ends at the top
+#: face's far edge)). Fitted by
+#: ``experiments.matching.calibrate_face_score()`` on the same scenes (1235 crease points, 51%
+#: correct).
 CREASE_SCORE_MODEL = dict(
-    weights=(0.325, 0.469, -0.122, -0.149, 0.468, -0.163, -1.018, 0.41),
-    mean=(0.3215, 1.1397, 0.4994, 0.5938, 0.5476, 0.9839, 4.0749),
-    std=(0.7868, 0.6224, 0.5, 0.4911, 0.2192, 0.3205, 0.534),
+    weights=(0.02, 0.476, -0.231, -0.224, 0.303, 0.054, -0.592, 0.168, 0.43, -0.053),
+    mean=(0.3629, 1.2709, 0.498, 0.387, 0.5984, 0.9843, 4.2502, 1.6077, -0.3572),
+    std=(0.7471, 0.6737, 0.5, 0.4871, 0.2154, 0.3206, 0.5533, 1.4434, 0.2055),
 )
 
 
@@ -759,11 +763,13 @@ def face_score_features(feats: dict) -> np.ndarray:
 
 
 def crease_score_features(feats: dict) -> np.ndarray:
-    """The crease score model's inputs ``(N, 7)`` (NaN-free; meaningful where ``crease_found``)."""
+    """The crease score model's inputs ``(N, 9)`` (NaN-free; meaningful where ``crease_found``)."""
     d = np.nan_to_num(np.asarray(feats["crease_dphi_deg"], float))
     return np.column_stack([_logit(feats["arc_score"]), np.log1p(d / 0.25), feats["kind"],
                             np.asarray(feats["contact_found"], float), np.nan_to_num(feats["crease_position"]),
-                            np.log1p(feats["echo_depth_bins"]), np.log(np.maximum(feats["run_px"], 1.0))])
+                            np.log1p(feats["echo_depth_bins"]), np.log(np.maximum(feats["run_px"], 1.0)),
+                            np.log1p(np.nan_to_num(feats["top_edge"])),
+                            np.log(np.maximum(feats["image_contrast"], 1e-6))])
 
 
 def _logistic(X, model):
@@ -847,6 +853,9 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
                                             / np.maximum(ch.run_high[rows] - ch.run_low[rows], 1e-9), np.nan)
     bin_m = float(np.median(np.diff(sonar[1]))) if sonar is not None else 1.0
     feats["echo_depth_bins"] = (sf.ranges[rows] - np.minimum(r_on, sf.ranges[rows])) / bin_m
+    feats["top_edge"] = ch.top_edge[rows]
+    lo_i, hi_i = np.percentile(np.asarray(cam_img, float)[..., :3].mean(axis=-1), [0.5, 99.5])
+    feats["image_contrast"] = np.full(rows.size, (hi_i - lo_i) / max(hi_i + lo_i, 1e-12))
     feats["arc_u"], feats["arc_v"] = px_arc[:, 0], px_arc[:, 1]
     feats["crease_u"], feats["crease_v"] = cr.pixels[:, 0], cr.pixels[:, 1]
     p_arc = _logistic(face_score_features(feats), FACE_SCORE_MODEL)
