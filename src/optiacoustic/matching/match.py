@@ -99,7 +99,8 @@ class MatchOptions:
     method : {"arc", "corners"}
         ``"arc"`` (default): each sonar feature searches its own epipolar arc, inside the
         elevation interval of the seabed and shadow evidence, for the middle of the longest
-        edge-free run of pixels (:mod:`.arc_search`); ``"corners"``: OpenCV corners gated by
+        edge-free run of pixels (:mod:`.arc_search`), or takes the point below that face's
+        crease (:mod:`.contact`) where that is the more probable; ``"corners"``: OpenCV corners gated by
         the epipolar distance and assigned globally (the first design, kept for comparison).
     arc_threshold : float
         Gradient (gray levels per px) below which an arc pixel is edge-free.
