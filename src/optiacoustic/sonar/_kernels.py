@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from .. import _kernel_switch as _switch
 
-__all__ = ["use_numba", "kernels", "split_run"]
+__all__ = ["use_numba", "kernels", "truth_kernels", "split_run"]
 
 
 def use_numba() -> bool:
@@ -24,6 +24,13 @@ def kernels():
     from . import _numba_kernels
 
     return _numba_kernels
+
+
+def truth_kernels():
+    """The compiled ground-truth kernels module (imports numba)."""
+    from . import _truth_kernels
+
+    return _truth_kernels
 
 
 _POOL = None

@@ -15,7 +15,8 @@ empty bins between lit ones, and the image converges as ``elevation_samples`` gr
 The fine range profile is then low-pass filtered and decimated to ``n_bins``.
 
 The inner loops run as compiled kernels (``_numba_kernels``: the scan's per-ray work, the
-echo with the seabed/target split and the decimation in one pass, the truth maps); with
+echo with the seabed/target split and the decimation in one pass, the shadow; ``_truth_kernels``:
+the truth maps); with
 ``OAS_KERNELS=numpy`` the numpy reference implementation in this module runs
 instead, and the tests compare the two (``_kernels``).
 """
@@ -35,7 +36,7 @@ from .._validate import as_rng, check_memory
 from ..frames import Pose
 from ..raycast import RayCaster, caster_for, widen_hits
 from ..scene import Scene
-from ._kernels import kernels, split_run, use_numba
+from ._kernels import kernels, split_run, truth_kernels, use_numba
 from .frame import SonarFrame, SonarGroundTruth, SonarRays
 from .propagation import Seawater, two_way_gain
 from .spec import SonarSpec
@@ -1092,9 +1093,15 @@ def _truth_maps(spec: SonarSpec, rays: SonarRays, threads: int = 1):
         flat = lambda a: np.ascontiguousarray(a).reshape(-1)  # noqa: E731
         args = (flat(rays.beam_index), flat(rays.footprint_lo), flat(rays.footprint_hi), flat(rays.energy),
                 flat(rays.body), flat(rays.elevation_lo), flat(rays.elevation_hi), float(spec.range_min),
-                1.0 / spec.bin_width, B, J, body_map, el_min, el_max, _workspace("truth_cells", (B, J, 4), np.float32))
-        kn = kernels()
-        split_run(lambda j0, j1: kn.truth_maps(*args, j0, j1), J, threads)  # beam ranges: disjoint columns
+                1.0 / spec.bin_width, B, J, body_map, el_min, el_max)
+        # written straight into the maps (no scratch pass); beam ranges: disjoint columns
+        tk, odd = truth_kernels(), []
+        weight = _workspace("truth_weight", (B, J), np.float32)
+        split_run(lambda j0, j1: odd.append(tk.truth_maps_direct(*args, weight, j0, j1)), J, threads)
+        if any(odd):  # a lit ray with a non-finite elevation span: the ray-order kernel's rules for those
+            kn = kernels()
+            rec = _workspace("truth_cells", (B, J, 4), np.float32)
+            split_run(lambda j0, j1: kn.truth_maps(*args, rec, j0, j1), J, threads)
         return body_map, el_min, el_max
     ok = rays.energy > 0
     inv = np.float32(1.0 / spec.bin_width)
