@@ -9,7 +9,10 @@
   elevation beam width, the echo scale, the range exponent left after the device's TVG,
   the receiver noise and the volume reverberation, by least squares of the analytic
   flat-seabed echo (:mod:`.seabed_echo`), blurred by the pulse and averaged over beams
-  like the data, on the range profiles of beam groups (in dB);
+  like the data, on the range profiles of beam groups (in dB); then, on frames simulated
+  with the whole profile and measured like the data, the elevation width set by the seabed
+  onset's width (:func:`_refine_onset`) and the height scaled so that the onset and the
+  plateau's end sit where the data have them (:func:`_refine_position`);
 * the **speckle**: range resolution and azimuth beam width from the autocorrelation
   lengths; the scatterers' clustering (texture shape per cell) and the device's looks
   from the one-point law (contrast and the gamma maximum-likelihood statistic, matched by
@@ -609,8 +612,9 @@ def fit_profile(frames, *, region=None, encoding: str | None = None, device: str
     device : str, optional
         Name written into the profile (default the spec's name).
     refine_density : bool
-        Refine the scatterer clustering (the texture) by simulating frames with the whole
-        profile (a few simulations; off for a quick fit).
+        Refine, by simulating frames with the whole profile, the elevation width (onset
+        width), the height and echo gain (onset and plateau-end positions) and the scatterer
+        clustering (the texture); about 30 simulations, off for a quick fit.
     """
     if not isinstance(frames, (list, tuple)):
         frames = [frames]
