@@ -110,14 +110,14 @@ def test_onset_refinement_is_consistent_with_the_truth(simulated):
 @pytest.fixture(scope="module")
 def refined(fits):
     """The fits of ``fits`` taken through the simulation refinements of the geometry that
-    ``fit_profile(refine_density=True)`` runs: the onset width, then the position (height)."""
+    ``fit_profile(refine_density=True)`` runs (height, onset width, height again)."""
     from optiacoustic.sonar import profile as P
     from optiacoustic.sonar.realism import frame_statistics
 
     out = []
     for frame, prof in fits:
         stats = frame_statistics(frame.image, frame.ranges, frame.azimuths)
-        out.append((frame, P._refine_position(P._refine_onset(prof, stats, frame), stats, frame)))
+        out.append((frame, P._refine_geometry(prof, stats, frame)))
     return out
 
 
