@@ -9,7 +9,7 @@ TITLE = "Automatic opti-acoustic matching"
 DESCRIPTION = ("`matching.match` on one simulated pair of `thesis_scene1` (BlueView P900-90 750 x 512 polar "
                "image, 600 x 400 camera, thesis water, default sonar noise), target <= 1 s per pair; against "
                "simulating that pair (`simulate_rig`: both sensors) and against its stages (CFAR sonar features, "
-               "the arc search; for the first design, corners and the epipolar gate); and the two-view "
+               "the arc search, the seabed-contact search; for the first design, corners and the epipolar gate); and the two-view "
                "matching with a second pair after a known motion.")
 
 
@@ -49,6 +49,11 @@ def run() -> list[dict]:
         s.image, s.ranges, s.azimuths, rig.fov_elevation), rig.fov_elevation, cells=cells), repeat=7, warmup=1)
     t_arc = median_ms(lambda: search_arcs(rig, sf.ranges, sf.azimuths, lo[sf.bins, sf.beams], hi[sf.bins, sf.beams],
                                           gradient_image(o.image)), repeat=7, warmup=1)
+    from optiacoustic.matching.contact import search_contacts
+
+    grad = gradient_image(o.image)
+    t_contact = median_ms(lambda: search_contacts(rig, plane, sf.ranges, sf.azimuths, lo[sf.bins, sf.beams],
+                                                  hi[sf.bins, sf.beams], grad), repeat=7, warmup=1)
     m = match(s, o.image, rig, min_score=0.0)
     note = f"{len(sf)} sonar features, {len(m)} matches (arc search)"
     from optiacoustic.experiments.matching import moved_view
@@ -71,6 +76,8 @@ def run() -> list[dict]:
              ratio=t_acou / t_match, note="at the sonar features' cells"),
         dict(name="arc search (gradient image + all arcs)", value=t_arc, unit="ms", reference="match",
              ratio=t_arc / t_match, note="400 elevation samples per arc"),
+        dict(name="seabed-contact (foot) search, all arcs", value=t_contact, unit="ms", reference="match",
+             ratio=t_contact / t_match, note="400 elevations x 16 segment samples per arc"),
         dict(name="match / simulate the pair", value=t_match, unit="ms", reference="simulate_rig (both sensors)",
              ratio=t_match / t_sim, note=f"simulate_rig {t_sim:.0f} ms"),
         dict(name="camera corners (OpenCV)", value=t_cam, unit="ms", reference="match (arc search)",

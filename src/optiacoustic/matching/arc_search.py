@@ -50,6 +50,13 @@ class ArcChoice:
     contrast : ndarray, shape (N,)
         RGB distance (of the [0, 1] stretched image) between the chosen pixel and the seabed
         just in front (NaN without ``colours`` or where that seabed point is not in the image).
+    run_low, run_high : ndarray, shape (N,)
+        Elevations (rad) of the run's two ends (NaN where nothing was found).
+    top_pixels : ndarray, shape (N, 2)
+        Pixel of the run's upper end (its highest elevation; NaN where nothing was found).
+    top_edge : ndarray, shape (N,)
+        Largest gradient (gray levels per px) of the 5 arc samples just above the run: how
+        sharp the edge that ends it is (0 where the run reaches the interval's top).
     """
 
     pixels: np.ndarray
@@ -59,6 +66,10 @@ class ArcChoice:
     visible_px: np.ndarray
     found: np.ndarray
     contrast: np.ndarray = None
+    run_low: np.ndarray = None
+    run_high: np.ndarray = None
+    top_pixels: np.ndarray = None
+    top_edge: np.ndarray = None
 
 
 def gradient_image(camera_image, sigma: float = 1.0) -> np.ndarray:
@@ -138,7 +149,7 @@ def search_arcs(rig, ranges, azimuths, low, high, gradient, *, fraction=0.5,
     N = r.size
     nan = np.full(N, np.nan)
     if N == 0:
-        return ArcChoice(np.zeros((0, 2)), nan, nan, nan, nan, np.zeros(0, bool), nan)
+        return ArcChoice(np.zeros((0, 2)), nan, nan, nan, nan, np.zeros(0, bool), nan, nan, nan, np.zeros((0, 2)), nan)
     half = rig.fov_elevation / 2
     phis = np.linspace(-half, half, n_samples)
     P = camera_from_sonar(rig, r[:, None], th[:, None], phis[None, :])  # (N, n, 3)
@@ -182,4 +193,10 @@ def search_arcs(rig, ranges, azimuths, low, high, gradient, *, fraction=0.5,
     px = np.where(found[:, None], uv[rows, mid], np.nan)
     if colours is not None:
         contrast = np.where(ok_ref & found, dist[rows, mid], np.nan)
-    return ArcChoice(px, phi, run_px, pos, visible_px, found, contrast)
+    top = np.where(found[:, None], uv[rows, end], np.nan)
+    run_low = np.where(found, phis[np.clip(start, 0, n_samples - 1)], np.nan)
+    run_high = np.where(found, phis[end], np.nan)
+    above = np.clip(end[:, None] + np.arange(1, 6)[None, :], 0, n_samples - 1)
+    g_above = np.where(inside[rows[:, None], above], gradient[vi[rows[:, None], above], ui[rows[:, None], above]], 0.0)
+    top_edge = np.where(found, g_above.max(axis=1), np.nan)
+    return ArcChoice(px, phi, run_px, pos, visible_px, found, contrast, run_low, run_high, top, top_edge)

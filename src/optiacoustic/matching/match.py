@@ -99,7 +99,8 @@ class MatchOptions:
     method : {"arc", "corners"}
         ``"arc"`` (default): each sonar feature searches its own epipolar arc, inside the
         elevation interval of the seabed and shadow evidence, for the middle of the longest
-        edge-free run of pixels (:mod:`.arc_search`); ``"corners"``: OpenCV corners gated by
+        edge-free run of pixels (:mod:`.arc_search`), or takes the point below that face's
+        crease (:mod:`.contact`) where that is the more probable; ``"corners"``: OpenCV corners gated by
         the epipolar distance and assigned globally (the first design, kept for comparison).
     arc_threshold : float
         Gradient (gray levels per px) below which an arc pixel is edge-free.
@@ -291,11 +292,11 @@ def _assign(cost, rows, cols, n_rows, null_cost):
 #: ``experiments.matching.calibrate_two_view_score()`` on random scenes seeded 5000-5023, plain
 #: and textured, each with the random vehicle motion of its seed
 #: (``experiments.matching.vehicle_motion``), disjoint from the evaluation's scenes (1023 arc
-#: matches, 41% correct).
+#: matches, 42% correct).
 TWO_VIEW_SCORE_MODEL = dict(
-    weights=(-0.522, 0.715, -0.373, -0.128, 0.203, 0.246, 0.322),
-    mean=(-0.5592, 1.1959, 0.5622, 1.4745, 0.0391, 0.566),
-    std=(1.532, 1.0404, 0.7155, 0.939, 0.1938, 0.4956),
+    weights=(-0.449, 0.886, -0.315, -0.128, 0.196, 0.207, 0.243),
+    mean=(-0.4646, 1.1955, 0.5636, 1.4723, 0.0391, 0.5406),
+    std=(1.5463, 1.0472, 0.7164, 0.9408, 0.1938, 0.4984),
 )
 
 
@@ -319,9 +320,9 @@ def two_view_score_features(feats: dict) -> np.ndarray:
 #: onset or peak). Fitted by ``experiments.matching.calibrate_two_view_score()`` (see
 #: :data:`TWO_VIEW_SCORE_MODEL`; 624 sweep choices, 51% correct).
 SWEEP_SCORE_MODEL = dict(
-    weights=(-0.012, -0.39, 0.065, -0.519, 0.517, -0.237, -0.512, -0.043, 0.017),
-    mean=(0.4967, 0.916, 1.0869, 1.5753, 3.2255, 0.0096, 2.8849, 0.476),
-    std=(0.6205, 0.7511, 0.6572, 0.8567, 0.9989, 0.0976, 0.5826, 0.4994),
+    weights=(-0.011, -0.388, 0.071, -0.525, 0.521, -0.28, -0.524, -0.046, 0.019),
+    mean=(0.4967, 0.916, 1.0869, 1.5753, 3.2119, 0.0096, 2.8849, 0.476),
+    std=(0.6205, 0.7511, 0.6572, 0.8567, 1.0051, 0.0976, 0.5826, 0.4994),
 )
 
 
@@ -343,9 +344,9 @@ def sweep_score_features(feats: dict) -> np.ndarray:
 #: ``experiments.matching.calibrate_two_view_score()`` (see :data:`TWO_VIEW_SCORE_MODEL`; 1034
 #: correlation peaks, 27% correct).
 CORRELATION_SCORE_MODEL = dict(
-    weights=(-1.199, 0.421, -0.57, 0.202, 0.01, -0.396, -0.561, 0.01, -0.023),
-    mean=(0.9086, 0.3396, 2.7121, 1.468, 2.8751, 0.0629, 2.8556, 0.4913),
-    std=(0.2385, 0.6642, 0.8621, 0.93, 1.3055, 0.2427, 0.6057, 0.4999),
+    weights=(-1.202, 0.431, -0.593, 0.202, 0.012, -0.442, -0.573, 0.012, -0.024),
+    mean=(0.9086, 0.3396, 2.7121, 1.468, 2.859, 0.0629, 2.8556, 0.4913),
+    std=(0.2385, 0.6642, 0.8621, 0.93, 1.3002, 0.2427, 0.6057, 0.4999),
 )
 
 
@@ -565,7 +566,7 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
         return _empty("no sonar features: CFAR found no echo standing out of its background")
     if opt.method == "arc":
         intervals = _elevation_intervals(sf, img_s, r_bins, th_beams, rig, opt)
-        out = _match_arcs(sf, cam_img, rig, noise, opt, intervals)
+        out = _match_arcs(sf, cam_img, rig, noise, opt, intervals, sonar=(img_s, r_bins))
         return _finish(out, cam_img, second, motion, rig, noise, opt, min_score, sf=sf, intervals=intervals)
     cf = detect_camera_features(cam_img, opt.keypoints)
     if len(cf) == 0:
@@ -714,6 +715,64 @@ def arc_score_features(feats: dict) -> np.ndarray:
                             feats["shadowed"].astype(float), feats["kind"], np.log1p(feats["crowding"])])
 
 
+#: Second-stage logistic model of P(correct) of the arc search's pixel: intercept and weights of
+#: the standardised :func:`face_score_features` (logit of :data:`ARC_SCORE_MODEL`'s score; for the
+#: seabed-contact search of :mod:`.contact` and for the point below the crease: whether it found
+#: one, log of 1 + its elevation's distance from the arc search's in units of 0.25 deg, and whether
+#: they agree within 0.5 deg). Fitted by ``experiments.matching.calibrate_face_score()`` on random
+#: scenes seeded 5000-5047 in thesis water and 5000-5023 in Jerlov 1C water
+#: (``experiments.matching.FACE_TRAINING``; 1627 matches, 51% correct).
+FACE_SCORE_MODEL = dict(
+    weights=(-0.029, 1.109, 0.946, -1.018, -0.076, 0.187, -0.012, 0.043),
+    mean=(-0.0952, 0.3049, 0.4877, 0.0719, 0.7591, 0.9647, 0.3196),
+    std=(1.2825, 0.4603, 0.8294, 0.2583, 0.4277, 0.8, 0.4663),
+)
+
+#: Logistic model of P(correct) of the point below the crease (:func:`.contact.crease_points`):
+#: intercept and weights of the standardised :func:`crease_score_features` (logit of the arc
+#: search's own score, log of 1 + the crease point's elevation distance from the arc search's in
+#: units of 0.25 deg, onset or peak, the foot search found a face, where the point sits in the
+#: run (0 its low end, 1 its top), log of 1 + how many bins the feature lies behind its echo's
+#: start (deeper: more likely another object's onset), log run length in px, log of 1 + the
+#: gradient just above the run (the crease's edge), log of the image's contrast (turbid water
+#: washes out the crease between a box's front and top faces, and the run then ends at the top
+#: face's far edge)). Fitted by
+#: ``experiments.matching.calibrate_face_score()`` on the same scenes (1235 crease points, 51%
+#: correct).
+CREASE_SCORE_MODEL = dict(
+    weights=(0.02, 0.476, -0.231, -0.224, 0.303, 0.054, -0.592, 0.168, 0.43, -0.053),
+    mean=(0.3629, 1.2709, 0.498, 0.387, 0.5984, 0.9843, 4.2502, 1.6077, -0.3572),
+    std=(0.7471, 0.6737, 0.5, 0.4871, 0.2154, 0.3206, 0.5533, 1.4434, 0.2055),
+)
+
+
+def _agreement(found, dphi_deg):
+    f = np.asarray(found, bool)
+    dp = np.where(f, np.nan_to_num(np.asarray(dphi_deg, float)), 0.0)
+    return [f.astype(float), np.where(f, np.log1p(dp / 0.25), 0.0), (f & (dp < 0.5)).astype(float)]
+
+
+def _logit(p):
+    p = np.clip(np.asarray(p, float), 1e-6, 1 - 1e-6)
+    return np.log(p / (1 - p))
+
+
+def face_score_features(feats: dict) -> np.ndarray:
+    """The face score model's inputs ``(N, 7)`` from a :attr:`Matches.features` mapping."""
+    return np.column_stack([_logit(feats["arc_score"]), *_agreement(feats["contact_found"], feats["contact_dphi_deg"]),
+                            *_agreement(feats["crease_found"], feats["crease_dphi_deg"])])
+
+
+def crease_score_features(feats: dict) -> np.ndarray:
+    """The crease score model's inputs ``(N, 9)`` (NaN-free; meaningful where ``crease_found``)."""
+    d = np.nan_to_num(np.asarray(feats["crease_dphi_deg"], float))
+    return np.column_stack([_logit(feats["arc_score"]), np.log1p(d / 0.25), feats["kind"],
+                            np.asarray(feats["contact_found"], float), np.nan_to_num(feats["crease_position"]),
+                            np.log1p(feats["echo_depth_bins"]), np.log(np.maximum(feats["run_px"], 1.0)),
+                            np.log1p(np.nan_to_num(feats["top_edge"])),
+                            np.log(np.maximum(feats["image_contrast"], 1e-6))])
+
+
 def _logistic(X, model):
     w = np.asarray(model["weights"], float)
     z = w[0] + ((X - np.asarray(model["mean"])) / np.asarray(model["std"])) @ w[1:]
@@ -739,11 +798,16 @@ def _elevation_intervals(sf, img_s, r_bins, th_beams, rig, opt):
     return lo, hi, shadowed, seabed
 
 
-def _match_arcs(sf, cam_img, rig, noise, opt, intervals) -> Matches:
-    """Every sonar feature takes the middle of the longest edge-free run of its arc (:mod:`.arc_search`)."""
+def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Matches:
+    """Every sonar feature takes a pixel of the longest edge-free run of its arc (:mod:`.arc_search`).
+
+    The run's middle (or 70% up for onsets), or the point below the face's crease
+    (:func:`.contact.crease_points`) where its calibrated probability is the higher.
+    """
     from ..geometry.projection import camera_from_sonar
     from .arc_search import gradient_image, search_arcs, stretched
     from .camera_features import to_gray8
+    from .contact import crease_points, echo_start_ranges, search_contacts
 
     if np.ptp(to_gray8(cam_img)) == 0:
         return _empty("no camera features: the image is blank (or too turbid to show anything)", sf)
@@ -759,29 +823,62 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals) -> Matches:
         return _empty(f"no candidates: no sonar feature's arc (of {len(sf)}) crosses an edge-free stretch of the "
                       f"image inside its elevation interval", sf, None, seabed)
     rows = np.nonzero(ch.found)[0]
-    px = ch.pixels[rows]
+    px_arc = ch.pixels[rows]
+    # Several sonar features choosing (nearly) the same pixel cannot all be right: on the
+    # training scenes a match with two or more such neighbours is right 1 time in 20.
+    from scipy.spatial import cKDTree
+
+    crowding = np.array([len(n) - 1 for n in cKDTree(px_arc).query_ball_point(px_arc, r=6.0)], float)
+    feats = dict(snr=sf.snr[rows], kind=sf.kind[rows], elevation_span=(hi - lo)[rows], shadowed=shadowed[rows],
+                 visible_px=ch.visible_px[rows], run_px=ch.run_px[rows], position=ch.position[rows],
+                 elevation=ch.elevations[rows], crowding=crowding,
+                 seabed_contrast=np.nan_to_num(ch.contrast[rows], nan=1.0))
+    feats["arc_score"] = _logistic(arc_score_features(feats), ARC_SCORE_MODEL)
+    # Vertical faces standing on the seabed (a prior, :mod:`.contact`): the foot search's
+    # agreement with the arc search, and the point below the face's crease.
+    c = search_contacts(rig, seabed, sf.ranges[rows], sf.azimuths[rows], lo[rows], hi[rows], grad)
+    feats["contact_found"] = c.found
+    feats["contact_dphi_deg"] = np.where(c.found, np.rad2deg(np.abs(np.nan_to_num(c.elevations)
+                                                                    - ch.elevations[rows])), np.nan)
+    if sonar is not None:  # (polar image, bin ranges)
+        r_on = echo_start_ranges(sonar[0], sonar[1], sf.bins[rows], sf.beams[rows])
+    else:
+        r_on = sf.ranges[rows]
+    cr = crease_points(rig, seabed, sf.ranges[rows], sf.azimuths[rows], r_on, ch.top_pixels[rows],
+                       ch.run_low[rows], ch.run_high[rows])
+    feats["crease_found"] = cr.found
+    feats["crease_dphi_deg"] = np.where(cr.found, np.rad2deg(np.abs(np.nan_to_num(cr.elevations)
+                                                                    - ch.elevations[rows])), np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        feats["crease_position"] = np.where(cr.found, (cr.elevations - ch.run_low[rows])
+                                            / np.maximum(ch.run_high[rows] - ch.run_low[rows], 1e-9), np.nan)
+    bin_m = float(np.median(np.diff(sonar[1]))) if sonar is not None else 1.0
+    feats["echo_depth_bins"] = (sf.ranges[rows] - np.minimum(r_on, sf.ranges[rows])) / bin_m
+    feats["top_edge"] = ch.top_edge[rows]
+    lo_i, hi_i = np.percentile(np.asarray(cam_img, float)[..., :3].mean(axis=-1), [0.5, 99.5])
+    feats["image_contrast"] = np.full(rows.size, (hi_i - lo_i) / max(hi_i + lo_i, 1e-12))
+    feats["arc_u"], feats["arc_v"] = px_arc[:, 0], px_arc[:, 1]
+    feats["crease_u"], feats["crease_v"] = cr.pixels[:, 0], cr.pixels[:, 1]
+    p_arc = _logistic(face_score_features(feats), FACE_SCORE_MODEL)
+    p_crease = np.where(cr.found, _logistic(crease_score_features(feats), CREASE_SCORE_MODEL), 0.0)
+    use = cr.found & (p_crease > p_arc)
+    feats["face_source"] = use.astype(int)  # 0: the arc search's pixel, 1: the point below the crease
+    feats["elevation"] = np.where(use, cr.elevations, ch.elevations[rows])
+    px = np.where(use[:, None], cr.pixels, px_arc)
+    score = np.where(use, p_crease, p_arc)
     s_px = noise.sigma_pixel or 0.5
     s_r = np.full(rows.size, noise.sigma_range) if noise.sigma_range else sf.sigma_range[rows]
     s_a = np.full(rows.size, noise.sigma_azimuth) if noise.sigma_azimuth else sf.sigma_azimuth[rows]
     ref = rc.refine(rig, px, sf.ranges[rows], sf.azimuths[rows], sigma_pixel=float(s_px),
                     sigma_range=float(np.median(s_r)), sigma_azimuth=float(np.median(s_a)), max_iter=10)
     P = np.where(ref.valid[:, None], ref.points,
-                 camera_from_sonar(rig, sf.ranges[rows], sf.azimuths[rows], ch.elevations[rows]))
+                 camera_from_sonar(rig, sf.ranges[rows], sf.azimuths[rows], feats["elevation"]))
+    feats["epipolar_chi2"] = np.nan_to_num(ref.cost, nan=0.0)
     cf = CameraFeatures(px, np.full(rows.size, float(s_px)), ch.run_px[rows])
-    # Several sonar features choosing (nearly) the same pixel cannot all be right: on the
-    # training scenes a match with two or more such neighbours is right 1 time in 20.
-    from scipy.spatial import cKDTree
-
-    crowding = np.array([len(n) - 1 for n in cKDTree(px).query_ball_point(px, r=6.0)], float)
-    feats = dict(snr=sf.snr[rows], kind=sf.kind[rows], elevation_span=(hi - lo)[rows], shadowed=shadowed[rows],
-                 visible_px=ch.visible_px[rows], run_px=ch.run_px[rows], position=ch.position[rows],
-                 elevation=ch.elevations[rows], crowding=crowding,
-                 seabed_contrast=np.nan_to_num(ch.contrast[rows], nan=1.0),
-                 epipolar_chi2=np.nan_to_num(ref.cost, nan=0.0))
-    score = _logistic(arc_score_features(feats), ARC_SCORE_MODEL)
     order = np.argsort(-score, kind="stable")
     feats = {k: np.asarray(v)[order] for k, v in feats.items()}
     cam_idx = np.arange(rows.size)[order]
     return Matches(px[order], sf.ranges[rows[order]], sf.azimuths[rows[order]], P[order], score[order],
                    -np.log(np.maximum(score[order], 1e-12)), rows[order], cam_idx, sf, cf, seabed,
                    f"{rows.size} matches of {len(sf)} sonar features (arc search)", feats)
+

@@ -1,0 +1,83 @@
+"""Vertical-face geometry of the matcher (:mod:`optiacoustic.matching.contact`): analytic cases."""
+
+import numpy as np
+
+from optiacoustic.frames import Pose, sonar_from_spherical, spherical_from_sonar
+from optiacoustic.matching.acoustic import SeabedPlane
+from optiacoustic.matching.contact import crease_points, echo_start_ranges, search_contacts
+
+
+def _rig():
+    from optiacoustic.experiments.matching import _rig_for
+
+    rig, sonar_pose = _rig_for((0.0, -6.0, 2.0), (0.0, 0.0, 0.0))
+    return rig, sonar_pose
+
+
+def _seabed(sonar_pose):
+    """The world's z = 0 plane in the sonar frame (normal up), from the pose alone."""
+    R, t = sonar_pose.R, sonar_pose.t  # P_world = R P_sonar + t
+    n = R.T @ np.array([0.0, 0.0, 1.0])
+    return SeabedPlane(normal=n, offset=float(-t[2]), rms=0.0, n_beams=100)
+
+
+def test_crease_points_recover_a_point_below_a_known_crease():
+    rig, sp = _rig()
+    bed = _seabed(sp)
+    # A vertical face at y = 0.3 m (world) whose top edge is 0.8 m above the seabed.
+    rng = np.random.default_rng(3)
+    x = rng.uniform(-1.0, 1.0, 20)
+    crease_w = np.column_stack([x, np.full(20, 0.3), np.full(20, 0.8)])
+    drop = rng.uniform(0.0, 0.6, 20)  # the feature's point lies this far below the crease
+    X_w = crease_w - drop[:, None] * [0.0, 0.0, 1.0]
+    to_sonar = lambda P: (P - sp.t) @ sp.R  # noqa: E731  (world -> sonar frame)
+    C_s, X_s = to_sonar(crease_w), to_sonar(X_w)
+    r_on = np.linalg.norm(C_s, axis=1)
+    r, th, ph = spherical_from_sonar(X_s)
+    top = rig.camera.project(rig.camera_from_sonar(C_s))
+    c = crease_points(rig, bed, r, th, r_on, top, ph - 0.01, ph + 0.01)
+    assert c.found.all()
+    expected = rig.camera.project(rig.camera_from_sonar(X_s))
+    np.testing.assert_allclose(c.pixels, expected, atol=0.02)
+    np.testing.assert_allclose(c.drop, drop, atol=1e-3)
+    np.testing.assert_allclose(c.elevations, ph, atol=1e-5)
+    # Outside the run it is refused; without a seabed nothing is found.
+    assert not crease_points(rig, bed, r, th, r_on, top, ph + 0.01, ph + 0.02).found.any()
+    assert not crease_points(rig, SeabedPlane(np.full(3, np.nan), np.nan, np.nan, 0), r, th, r_on, top,
+                             ph - 0.01, ph + 0.01).found.any()
+
+
+def test_echo_start_ranges_find_the_leading_edge_of_a_block_echo():
+    rng = np.random.default_rng(0)
+    n_bins, n_beams = 300, 60
+    ranges = 1.0 + 0.0254 * np.arange(n_bins)
+    img = rng.exponential(1.0, (n_bins, n_beams))
+    img[120:128, 20:40] += 200.0  # an object's echo from bin 120 to 127 in beams 20-39
+    start = echo_start_ranges(img, ranges, np.array([121, 124, 127]), np.array([25, 30, 35]))
+    # The echo's first bin (the 3 x 3 mean one bin before it, a third of the echo, stays under 3x
+    # its background, which the echo itself raises).
+    np.testing.assert_allclose(start, ranges[120], atol=1e-9)
+    # A cell outside any echo starts where it is.
+    np.testing.assert_allclose(echo_start_ranges(img, ranges, np.array([200]), np.array([5])), ranges[200])
+
+
+def test_search_contacts_needs_an_edge_at_the_foot():
+    rig, sp = _rig()
+    bed = _seabed(sp)
+    r = np.array([6.0, 6.3])
+    th = np.array([0.0, 0.05])
+    half = rig.fov_elevation / 2
+    flat = np.zeros((rig.camera.height, rig.camera.width), np.float32)
+    c = search_contacts(rig, bed, r, th, np.full(2, -half), np.full(2, half), flat)
+    assert not c.found.any()  # no edge anywhere: no foot
+    # A step edge along the image of the foot line under the arc point at 5 deg, all the rest flat.
+    phi = np.deg2rad(5.0)
+    X = sonar_from_spherical(r[0], th[0], phi)
+    F = X - bed.height(X) * bed.normal
+    q = rig.camera.project(rig.camera_from_sonar(F))
+    g = flat.copy()
+    g[int(round(q[1])) - 1:int(round(q[1])) + 2, :] = 20.0
+    c = search_contacts(rig, bed, r[:1], th[:1], np.full(1, -half), np.full(1, half), g)
+    assert c.found[0]
+    assert abs(np.rad2deg(c.elevations[0]) - 5.0) < 1.0
+    assert c.heights[0] > 0.05
