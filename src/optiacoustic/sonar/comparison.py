@@ -71,6 +71,15 @@ class Comparison:
         out["ks_distance"] = {"real": None, "sim": None, "error": _n(self.ks), "met": bool(self.ks <= TARGETS["ks_distance"][1])}
         return out
 
+    def positions(self) -> dict:
+        """Where the seabed's echo sits (m): onset 10 % / 90 % and plateau end, real, simulated and
+        the offset simulated - real (reported; the targets of issue 10 are the shapes)."""
+        out = {}
+        for name in ("onset_r10", "onset_r90", "plateau_end"):
+            a, b = getattr(self.real, name), getattr(self.sim, name)
+            out[name] = {"real": _n(a), "sim": _n(b), "offset": _n(b - a)}
+        return out
+
 
 def _n(x):
     return None if x is None or not np.isfinite(x) else float(x)
@@ -126,15 +135,13 @@ def write_report(folder, comparisons: list[Comparison], profile, real_frames, *,
         a = ax[0, 2]
         a.plot(c.real.ranges, _db(c.real.profile), lw=0.8, label="real")
         a.plot(c.sim.ranges, _db(c.sim.profile), lw=0.8, label="simulated")
-        for r_, ls in ((c.real.onset_r10, ":"), (c.real.onset_r90, ":")):
-            if np.isfinite(r_):
-                a.axvline(r_, color="C0", ls=ls, lw=0.8)
-        for r_ in (c.sim.onset_r10, c.sim.onset_r90):
-            if np.isfinite(r_):
-                a.axvline(r_, color="C1", ls=":", lw=0.8)
+        for st, col in ((c.real, "C0"), (c.sim, "C1")):
+            for r_, ls in ((st.onset_r10, ":"), (st.onset_r90, ":"), (st.plateau_end, "--")):
+                if np.isfinite(r_):
+                    a.axvline(r_, color=col, ls=ls, lw=0.8)
         a.set_xlabel("range (m)")
         a.set_ylabel("mean intensity (dB)")
-        a.set_title("range profile (mean over beams); onsets dotted")
+        a.set_title("range profile (mean over beams)\nonset 10/90 % dotted, plateau end dashed", fontsize=10)
         a.legend()
         a = ax[1, 0]
         hi = np.percentile(np.concatenate([c.real.normalised, c.sim.normalised]), 99.9)
@@ -157,8 +164,8 @@ def write_report(folder, comparisons: list[Comparison], profile, real_frames, *,
         fig.tight_layout()
         paths.append(savefig(fig, folder / f"frame_{c.index:03d}.png", dpi=80))
         plt.close(fig)
-    table = [{"frame": c.index, "fitted_on": c.index in fitted_on, **{k: v for k, v in c.scores().items()}}
-             for c in comparisons]
+    table = [{"frame": c.index, "fitted_on": c.index in fitted_on, **{k: v for k, v in c.scores().items()},
+              "positions_m": c.positions()} for c in comparisons]
     paths.append(write_json(folder / "comparison.json", {"device": profile.device, "fitted_on": list(fitted_on),
                                                          "frames": table}))
     lines = [f"# {profile.device}: real vs simulated", "",
@@ -169,6 +176,11 @@ def write_report(folder, comparisons: list[Comparison], profile, real_frames, *,
             s = row[k]
             lines.append(f"| {row['frame']}{' (fit)' if row['fitted_on'] else ''} | {k} | {_fmt(s['real'])} | "
                          f"{_fmt(s['sim'])} | {_fmt(s['error'])} | {s['met']} |")
+    lines += ["", "Where the seabed's echo sits (m; offset = simulated - real):", "",
+              "| frame | position | real | simulated | offset |", "|---|---|---|---|---|"]
+    for row in table:
+        for k, v in row["positions_m"].items():
+            lines.append(f"| {row['frame']} | {k} | {_fmt(v['real'])} | {_fmt(v['sim'])} | {_fmt(v['offset'])} |")
     paths.append(write_text(folder / "comparison.md", "\n".join(lines) + "\n"))
     return paths
 

@@ -7,6 +7,8 @@ One procedure, applied the same way to measured and simulated frames:
 * **seabed onset**: from the background before the seabed to the plateau (the profile's
   peak), the ranges where the profile crosses 10 % and 90 % of the rise; its width
   ``r90 - r10`` (median over beam groups);
+* **plateau end**: beyond the peak, the range where the profile last falls through 50 % of
+  the rise (the far edge of the seabed's echo; median over beam groups);
 * **background flatness**: the smoothed background profile (ranges before the onset) in
   dB, its largest deviation from its median;
 * **speckle**: intensity normalised by its local mean (a box of ``smooth_bins`` x
@@ -37,6 +39,7 @@ class FrameStatistics:
     onset_r10: float
     onset_r90: float
     onset_width: float
+    plateau_end: float
     background_level: float
     background_flatness_db: float
     background_profile_db: np.ndarray
@@ -55,6 +58,7 @@ class FrameStatistics:
             "onset_width_m": _f(self.onset_width),
             "onset_r10_m": _f(self.onset_r10),
             "onset_r90_m": _f(self.onset_r90),
+            "plateau_end_m": _f(self.plateau_end),
             "background_flatness_db": _f(self.background_flatness_db),
             "speckle_contrast": _f(self.contrast),
             "k_shape": _f(self.k_shape),
@@ -81,26 +85,37 @@ def _smooth1(x: np.ndarray, w: int, axis: int = 0) -> np.ndarray:
 
 
 def _onset(profile: np.ndarray, ranges: np.ndarray):
-    """``(r10, r90, background)`` of one smoothed profile; NaNs without a rise from a background."""
+    """``(r10, r90, background, plateau_end)`` of one smoothed profile; NaNs without a rise
+    from a background (``plateau_end`` NaN when the profile does not fall back through 50 %
+    of the rise before the window's end)."""
     i_peak = int(np.argmax(profile))
     if i_peak < 5:
-        return np.nan, np.nan, np.nan
+        return np.nan, np.nan, np.nan, np.nan
     before = profile[:i_peak]
     bg = float(np.percentile(before, 10))
     peak = float(profile[i_peak])
     if peak < 4 * bg:  # less than 6 dB of rise: no onset
-        return np.nan, np.nan, bg
+        return np.nan, np.nan, bg, np.nan
+    half = bg + 0.5 * (peak - bg)
+    above = np.flatnonzero(profile[i_peak:] >= half)  # the last one: dips inside the plateau do not end it
+    j = i_peak + int(above[-1]) + 1
+    if j < profile.size:
+        p0, p1 = profile[j - 1], profile[j]
+        t = (p0 - half) / (p0 - p1) if p0 != p1 else 0.0
+        end = float(ranges[j - 1] + t * (ranges[j] - ranges[j - 1]))
+    else:
+        end = np.nan
     out = []
     for frac in (0.1, 0.9):
         level = bg + frac * (peak - bg)
         below = np.flatnonzero(before < level)
         if below.size == 0:
-            return np.nan, np.nan, bg
+            return np.nan, np.nan, bg, np.nan
         i = int(below[-1])
         p0, p1 = profile[i], profile[i + 1]
         t = (level - p0) / (p1 - p0) if p1 != p0 else 0.0
         out.append(ranges[i] + t * (ranges[i + 1] - ranges[i]))
-    return out[0], out[1], bg
+    return out[0], out[1], bg, end
 
 
 def frame_statistics(images, ranges, azimuths, *, region=None, smooth_bins: int | None = None,
@@ -128,6 +143,7 @@ def frame_statistics(images, ranges, azimuths, *, region=None, smooth_bins: int 
     r90 = float(np.nanmedian(ons[:, 1])) if np.isfinite(ons[:, 1]).any() else np.nan
     width = float(np.nanmedian(ons[:, 1] - ons[:, 0])) if np.isfinite(ons[:, 0]).any() else np.nan
     bg = float(np.nanmedian(ons[:, 2])) if np.isfinite(ons[:, 2]).any() else np.nan
+    p_end = float(np.nanmedian(ons[:, 3])) if np.isfinite(ons[:, 3]).any() else np.nan
     # background: ranges before the earliest onset of any group, minus a margin
     first = np.nanmin(ons[:, 0]) if np.isfinite(ons[:, 0]).any() else np.nan
     if np.isfinite(first):
@@ -175,7 +191,7 @@ def frame_statistics(images, ranges, azimuths, *, region=None, smooth_bins: int 
             cb = np.nanmean(ab, axis=0)
     return FrameStatistics(
         ranges=r, group_azimuths=np.array([az[g].mean() for g in groups]), group_profiles=prof,
-        profile=prof.mean(1), onset_r10=r10, onset_r90=r90, onset_width=width, background_level=bg,
+        profile=prof.mean(1), onset_r10=r10, onset_r90=r90, onset_width=width, plateau_end=p_end, background_level=bg,
         background_flatness_db=flat, background_profile_db=bprof, background_ranges=r[sel],
         contrast=contrast, k_shape=float(nu), corr_range=cr, corr_beam=cb,
         corr_length_range=correlation_length(cr), corr_length_beam=correlation_length(cb),
