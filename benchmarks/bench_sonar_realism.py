@@ -13,9 +13,11 @@ DESCRIPTION = (
     "beam_model='aperture' (rays to the elevation pattern's second null weighted by F^4, sub-cells along "
     "long footprints, F^4 across beams), spreading and absorption, ScattererNoise (Poisson counts per cell "
     "from cell areas, pulse- and beam-filtered complex fields, receiver noise before the device TVG). "
-    "Issue 10's target: ratio <= 1.5. The noise's inner loops (counts, complex normals with a cos/sin table, "
-    "the |f|^2 x mean / expected x TVG tail, sub-cell areas) run in numba kernels, its separable filters in "
-    "cv2.sepFilter2D (float32), the sub-cells are split over the caster's threads."
+    "Issue 10's target: ratio <= 1.5. One numba pass per beam forms the aperture model's sub-cells (never "
+    "stored), their echo with the seabed split and the seabed area per cell; the beams are mixed in that "
+    "pass's rows layout and finished by the thesis path's kernel. The noise's inner loops (counts, complex "
+    "normals with a cos/sin table, the |f|^2 x mean / expected x TVG tail) run in numba kernels, its separable "
+    "filters in cv2.sepFilter2D (float32)."
 )
 
 

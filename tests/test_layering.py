@@ -88,4 +88,5 @@ def test_embree_is_behind_the_ray_caster():
 def test_numba_is_behind_the_kernel_modules():
     """numba is imported only by kernel modules, loaded on a frame's first kernel call (never by ``import optiacoustic``)."""
     users = sorted(n for n, p in _modules() if any(m == "numba" or m.startswith("numba.") for m in _imports(n, p)))
-    assert users and all(n.rsplit(".", 1)[-1] in ("_kernels", "_numba_kernels", "_truth_kernels") for n in users), users
+    assert users and all(n.rsplit(".", 1)[-1] in ("_kernels", "_numba_kernels", "_truth_kernels", "_aperture_kernels")
+               for n in users), users

@@ -9,9 +9,13 @@ Both paths compute the same images (tests/sonar/test_kernels.py compares them).
 
 from __future__ import annotations
 
+import threading
+
+import numpy as np
+
 from .. import _kernel_switch as _switch
 
-__all__ = ["use_numba", "kernels", "truth_kernels", "split_run"]
+__all__ = ["use_numba", "kernels", "truth_kernels", "split_run", "workspace"]
 
 
 def use_numba() -> bool:
@@ -60,3 +64,17 @@ def split_run(fn, n: int, threads: int) -> None:
     fn(bounds[0], bounds[1])
     for f in futs:
         f.result()
+
+
+_WORKSPACE = threading.local()
+
+
+def workspace(name: str, shape: tuple, dtype) -> np.ndarray:
+    """A per-thread scratch array reused across frames (large fresh arrays cost page faults)."""
+    cache = getattr(_WORKSPACE, "arrays", None)
+    if cache is None:
+        cache = _WORKSPACE.arrays = {}
+    arr = cache.get(name)
+    if arr is None or arr.shape != shape or arr.dtype != dtype:
+        arr = cache[name] = np.empty(shape, dtype)
+    return arr

@@ -565,8 +565,16 @@ def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, 
     n_trig_i = trig.shape[0] - 1
     n_trig = np.float32(n_trig_i)
     half = np.float32(0.5)
+    p0 = np.empty(J)
+    rad = np.empty(J, np.float32)
     for i in range(r0, r1):
         bk = back[i]
+        # the row's exp(-mu) and Box-Muller radii in loops of their own: libm calls in the main
+        # loop spill its registers (the same numbers, measured faster)
+        for j in range(J):
+            p0[j] = np.exp(-(density * area[i, j]))
+        for j in range(J):
+            rad[j] = np.sqrt(np.float32(-2.0) * np.log(np.float32(1.0 - u1[i, j])))
         for j in range(J):
             m = density * area[i, j]
             big[i, j] = False
@@ -576,10 +584,16 @@ def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, 
                     z[i, j, 0] = 0.0
                     z[i, j, 1] = 0.0
                     continue
-                p = np.exp(-m)
-                c = p
-                n = 0
+                p = p0[j]
                 uu = u_count[i, j]
+                # the first two steps of the inversion without branches (counts 0 and 1: most
+                # cells), then the loop from count 1 where the uniform lies above P(N <= 1)
+                p1 = p * m
+                c = p + p1
+                n = np.int64(uu > p) + np.int64(uu > c)
+                if n == 2:
+                    n = 1
+                    p = p1
                 while uu > c and n < 1000:
                     n += 1
                     p *= m / n
@@ -587,7 +601,7 @@ def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, 
                 power = echo[i, j] * np.float32(n / m) + bk
             else:
                 power = echo[i, j] + bk
-            r = np.sqrt(np.float32(-2.0) * np.log(np.float32(1.0 - u1[i, j])))
+            r = rad[j]
             x = u2[i, j] * n_trig
             k = min(int(x), n_trig_i - 1)
             f = x - np.float32(k)

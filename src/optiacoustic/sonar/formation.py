@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import threading
 import weakref
 from dataclasses import dataclass
 from typing import Literal
@@ -37,6 +36,7 @@ from ..frames import Pose
 from ..raycast import RayCaster, caster_for, widen_hits
 from ..scene import Scene
 from ._kernels import kernels, split_run, truth_kernels, use_numba
+from ._kernels import workspace as _workspace
 from .frame import SonarFrame, SonarGroundTruth, SonarRays
 from .propagation import Seawater, two_way_gain
 from .spec import SonarSpec
@@ -138,14 +138,21 @@ def azimuth_mixing(spec: SonarSpec) -> np.ndarray:
     return M
 
 
-def _mix_beams(spec: SonarSpec, echo: np.ndarray) -> np.ndarray:
-    """Apply the two-way azimuth pattern across beams to ``echo`` ``(n_beams, n_bins)``."""
+def _mix_beams(spec: SonarSpec, echo: np.ndarray, out=None) -> np.ndarray:
+    """Apply the two-way azimuth pattern across beams to ``echo`` ``(n_beams, n_bins)`` (into ``out``,
+    a C-contiguous float32 array of that shape, when given)."""
     if spec.beam_azimuths is not None:
-        return azimuth_mixing(spec) @ echo
+        return np.matmul(azimuth_mixing(spec), echo, out=out)
     import cv2
 
     k = np.ascontiguousarray(azimuth_kernel(spec)[::-1], np.float32).reshape(-1, 1)  # correlation kernel
-    return cv2.filter2D(np.ascontiguousarray(echo, np.float32), cv2.CV_32F, k, borderType=cv2.BORDER_CONSTANT)
+    src = np.ascontiguousarray(echo, np.float32)
+    if out is None:
+        return cv2.filter2D(src, cv2.CV_32F, k, borderType=cv2.BORDER_CONSTANT)
+    got = cv2.filter2D(src, cv2.CV_32F, k, dst=out, borderType=cv2.BORDER_CONSTANT)
+    if not np.shares_memory(got, out):  # cv2 allocated anew (it should not for a matching buffer)
+        out[...] = got
+    return out
 
 
 @functools.lru_cache(maxsize=16)
@@ -221,20 +228,6 @@ def _decimation_weights(n_bins: int, q: int, sigma_bins: float) -> np.ndarray:
     x = deltas[None, :] + 0.5 - phase_pos[:, None]
     w = np.exp(-0.5 * (x / sigma_bins) ** 2)
     return (w / w.sum(1, keepdims=True)).astype(np.float32), D
-
-
-_WORKSPACE = threading.local()
-
-
-def _workspace(name: str, shape: tuple, dtype) -> np.ndarray:
-    """A per-thread scratch array reused across frames (large fresh arrays cost page faults)."""
-    cache = getattr(_WORKSPACE, "arrays", None)
-    if cache is None:
-        cache = _WORKSPACE.arrays = {}
-    arr = cache.get(name)
-    if arr is None or arr.shape != shape or arr.dtype != dtype:
-        arr = cache[name] = np.empty(shape, dtype)
-    return arr
 
 
 def _decimate(fine: np.ndarray, n_bins: int, q: int, sigma_bins: float) -> np.ndarray:
@@ -407,13 +400,18 @@ def simulate_sonar(
     sspec = scan_spec(spec, options.beam_model)
     if options.beam_model == "aperture":
         rays, img_rays = _scan(scene, caster, sspec, pose, options, _aperture_elevation_weights(spec),
-                               spec.elevation_pattern(), after_cast=start_draws)
+                               spec.elevation_pattern(), after_cast=start_draws, materialise=False)
     else:
         rays = img_rays = _scan(scene, caster, sspec, pose, options, after_cast=start_draws)
     if draws is None and draw_args is not None:  # one thread: drawn here, in line
         draws = _done(draw_args[0](*draw_args[1:]))
     area = None
-    if use_numba():
+    if isinstance(img_rays, _ApertureCells):
+        # the aperture model: one pass forms the sub-cells, their echo, the split and the cell areas
+        intensity, shares, cell_areas = _form_aperture_numba(spec, img_rays, options, bottom_types, caster.threads,
+                                                             getattr(noise, "needs_cell_area", False))
+        area = None if cell_areas is None else _done(cell_areas)
+    elif use_numba():
         # one pass forms the echo and the seabed/target split together
         if getattr(noise, "needs_cell_area", False):
             area = (_background().submit(cell_area, spec, img_rays, bottom_types) if caster.threads > 1
@@ -603,10 +601,11 @@ def _box_image_numba(spec: SonarSpec, beam, lo_m, hi_m, energy) -> np.ndarray:
     return np.ascontiguousarray(out[0].T)
 
 
-def _class_slots(bottom_types: dict, rays: SonarRays):
+def _class_slots(bottom_types: dict, rays: SonarRays, weight=None):
     """Output slot of every ray's class for :func:`_echo_numba`: the class with most lit rays
     (a bottom type or ``None``, the targets) has slot 0, the whole echo; the others 1, 2, ...
 
+    ``weight`` (N,): how many times each ray counts (the aperture model's sub-cells per ray).
     Returns ``(slot per ray (N,) int8, n_slots, {class: slot})``.
     """
     body = rays.body.reshape(-1)
@@ -618,7 +617,7 @@ def _class_slots(bottom_types: dict, rays: SonarRays):
         cls[bottom_types[name]] = c
     lit = rays.energy.reshape(-1) > 0
     ray_cls = cls[body]  # body -1 reads the last entry: unlit anyway
-    counts = np.bincount(ray_cls[lit], minlength=len(names))
+    counts = np.bincount(ray_cls[lit], weights=None if weight is None else weight[lit], minlength=len(names))
     largest = int(np.argmax(counts))
     slot_of = {}
     k = 1
@@ -780,7 +779,7 @@ def _background():
 
 
 def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options: SonarOptions,
-          weights=None, pattern=None, after_cast=None):
+          weights=None, pattern=None, after_cast=None, materialise: bool = True):
     """Cast the beams' rays and compute each ray's echo energy and range footprint (sec. 2.6.1).
 
     ``weights`` (``(elevation_samples,)``) overrides the elevation pattern's weights.
@@ -788,6 +787,8 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     With ``pattern`` (the aperture model's elevation pattern) returns ``(rays, image_rays)``:
     ``image_rays`` splits every ray whose footprint is long in range into sub-cells
     (:func:`_subdivide`), so that the echo's density follows the surface within it.
+    ``materialise=False`` (compiled kernels only): ``image_rays`` is an :class:`_ApertureCells`,
+    what the fused kernel of :func:`_form_aperture_numba` needs to form the sub-cells itself.
     """
     fast = use_numba()
     K, J = spec.elevation_samples, spec.n_beams
@@ -848,6 +849,8 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     )
     if pattern is None:
         return rays
+    if fast and not materialise:
+        return rays, _aperture_cells(spec, rays, nd, ndd, a, b, refl[body], pattern, options)
     if fast:
         return rays, _subdivide_numba(spec, rays, nd, ndd, a, b, refl[body], pattern, options, caster.threads)
     return rays, _subdivide(spec, rays, nd, ndd, a, b, refl[body], pattern, options)
@@ -987,6 +990,94 @@ def _subdivide_numba(spec: SonarSpec, rays: SonarRays, nd, ndd, a, b, refl, patt
     return SonarRays(range=r, energy=energy, body=body, cos_incidence=c, footprint_lo=lo, footprint_hi=hi,
                      beam_index=beam, elevation=el, elevation_lo=el_lo, elevation_hi=el_hi,
                      elevation_step=rays.elevation_step)
+
+
+@dataclass(frozen=True, eq=False)
+class _ApertureCells:
+    """What the aperture model's fused kernel needs to form the sub-cells of :func:`_subdivide`
+    itself (``_aperture_kernels.aperture_echo_rows``): the primary rays, per ray (flat,
+    ``(K * J,)``) ``n . d``, ``n . d'``, the cell's extents below/above the ray ``a``, ``b`` and
+    the body's reflectivity, and the two-way pattern's table over the scan's elevations."""
+
+    rays: SonarRays
+    nd: np.ndarray
+    ndd: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+    refl: np.ndarray
+    table: tuple  # (x0, dx, y) of _two_way_table over the scan's elevation span
+    alpha_db: float
+    spreading: bool
+
+
+def _aperture_cells(spec: SonarSpec, rays: SonarRays, nd, ndd, a, b, refl, pattern, options) -> _ApertureCells:
+    """The arguments of :func:`_subdivide_numba`, kept for the fused kernel instead of sub-cells."""
+    from .propagation import absorption_db_per_m
+
+    x, y = _two_way_table(pattern, spec.fov_elevation)
+    spreading = options.propagation == "spreading"
+    alpha = float(absorption_db_per_m(spec.frequency, options.water)) if spreading else 0.0
+    c = np.ascontiguousarray
+    return _ApertureCells(rays, c(nd, float), c(ndd, float), c(a, float), c(b, float), c(refl, float),
+                          (float(x[0]), float(x[1] - x[0]), y), alpha, spreading)
+
+
+def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarOptions, bottom_types: dict,
+                         threads: int, need_area: bool):
+    """The aperture model's intensity, seabed shares and (``need_area``) seabed area per cell from
+    one kernel pass per beam (``_aperture_kernels``): the same numbers as :func:`_subdivide_numba`,
+    :func:`_form_with_shares_numba` and :func:`cell_area` on the sub-cells, without storing them.
+
+    Returns ``(intensity, shares, area or None)``, each ``(n_bins, n_beams)`` float32.
+    """
+    from . import _aperture_kernels as ak
+
+    rays = cells.rays
+    flat = lambda arr: np.ascontiguousarray(arr).reshape(-1)  # noqa: E731
+    body, lo, hi = flat(rays.body), flat(rays.footprint_lo), flat(rays.footprint_hi)
+    n_sub = np.empty(body.size, np.int64)
+    kernels().subcell_counts(body, lo, hi, spec.bin_width, _MAX_SUBCELLS, _SUBCELL_BINS, n_sub)
+    if not bottom_types:
+        slot, n_slots, slot_of = np.zeros(body.size, np.int8), 1, {}
+    else:  # the class with most lit sub-cells takes slot 0, as _class_slots on the sub-cells
+        slot, n_slots, slot_of = _class_slots(bottom_types, rays, weight=n_sub)
+    ids = [i for v in bottom_types.values() for i in v]
+    n_bodies = max([int(np.max(body, initial=-1))] + ids) + 1
+    is_seabed = np.zeros(n_bodies + 1, np.bool_)
+    is_seabed[ids if ids else slice(0, n_bodies)] = True
+    seabed_of_ray = is_seabed[body]  # body -1 reads the last entry (False): no sub-cells anyway
+    q = options.range_oversample
+    sigma_bins = max(spec.pulse_width / spec.bin_width / 2.3548, 0.5)
+    H, V, full = _deposit_tables(spec.n_bins, q, sigma_bins)
+    J, B = spec.n_beams, spec.n_bins
+    K = body.size // J
+    out = _workspace(f"echo{n_slots}", (n_slots, J, B), np.float32)
+    area = np.empty((J, B), np.float32) if need_area else np.empty((0, 0), np.float32)
+    x0, dx, y = cells.table
+    dtheta = np.ascontiguousarray(np.diff(spec.beam_edges), float)
+    bm = flat
+    args = (bm(rays.range), bm(cells.nd), bm(cells.ndd), bm(cells.a), bm(cells.b), 0.5 * rays.elevation_step,
+            bm(cells.refl), bm(rays.elevation), bm(n_sub), K, J, x0, dx, y, cells.alpha_db, cells.spreading, spec.bin_width, bm(slot),
+            bm(seabed_of_ray), dtheta, float(spec.range_min), B * q, H, V, full, q, B, bool(need_area))
+    split_run(lambda j0, j1: ak.aperture_echo_rows(*args, j0, j1, out, area), J, threads)
+    # the azimuth pattern mixes whole rows (beams); scale, threshold, shares and the image layout in one pass
+    mixed = _workspace(f"mixed{n_slots}", (n_slots, J, B), np.float32)
+    if threads > 1 and n_slots > 1:  # the class images on the other threads meanwhile (cv2 releases the GIL)
+        from ._kernels import _pool
+
+        jobs = [_pool(threads - 1).submit(_mix_beams, spec, out[s], mixed[s]) for s in range(1, n_slots)]
+        _mix_beams(spec, out[0], out=mixed[0])
+        for job in jobs:
+            job.result()
+    else:
+        for s in range(n_slots):
+            _mix_beams(spec, out[s], out=mixed[s])
+    intensity, shares = _finish_numba(spec, mixed, bottom_types, slot_of, threads)
+    if not need_area:
+        return intensity, shares, None
+    import cv2
+
+    return intensity, shares, cv2.transpose(area)
 
 
 #: Sub-rays cast across each visibility discontinuity between two elevation samples.

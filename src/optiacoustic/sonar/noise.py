@@ -395,8 +395,10 @@ class ScattererNoise:
             power = echo + back
         elif (use_numba() and np.isfinite(self.density) and not np.isfinite(self.clusters_per_m2)
               and len(_look_weights(self.looks)) == 1):  # counts, power and complex normals in one pass
-            z = np.empty(I.shape + (2,), np.float32)
-            big = np.empty(I.shape, np.bool_)
+            from ._kernels import workspace as _workspace
+
+            z = _workspace("scatterer_z", I.shape + (2,), np.float32)  # reused: no page faults per frame
+            big = _workspace("scatterer_big", I.shape, np.bool_)
             area = np.ascontiguousarray(cell_area, np.float32)
             kn = kernels()
             trig = _trig_table()
@@ -429,16 +431,24 @@ class ScattererNoise:
         from .speckle import filter_real, look_weights
 
         mean = echo + back
-        expected = filter_real(mean, np.asarray(h_r, np.float32) ** 2, np.asarray(h_b, np.float32) ** 2)
         weights = look_weights(self.looks)
         if use_numba() and len(weights) == 1:  # one look: |f|^2 x mean / expected x TVG in one pass
+            from ._kernels import _pool
+            from ._kernels import workspace as _workspace
+
+            # the twice-blurred mean on a second thread while this one filters the field (cv2 releases the GIL)
+            args = (mean, np.asarray(h_r, np.float32) ** 2, np.asarray(h_b, np.float32) ** 2)
+            ws = _workspace("scatterer_expected", I.shape, np.float32)
+            job = _pool(1).submit(filter_real, *args, out=ws) if threads > 1 else None
             zk = z if power is None else _complex_normals(u1, u2, np.sqrt(power * np.float32(0.5)))
-            f = filter_complex(zk, h_r, h_b)
+            f = filter_complex(zk, h_r, h_b, out=_workspace("scatterer_f", I.shape + (2,), np.float32))
+            expected = job.result() if job is not None else filter_real(*args, out=ws)
             out = np.empty(I.shape, np.float32)
             tvg = np.ascontiguousarray(_tvg_column(g, spec)[:, 0])
             kn = kernels()
             split_run(lambda r0, r1: kn.speckle_tail(f, mean, expected, tvg, r0, r1, out), I.shape[0], threads)
             return out
+        expected = filter_real(mean, np.asarray(h_r, np.float32) ** 2, np.asarray(h_b, np.float32) ** 2)
         # per-cell factor: the image's own mean over the twice-blurred mean, times the device's TVG
         scale = np.zeros(I.shape, np.float32)
         np.divide(mean, expected, out=scale, where=expected > 0)
