@@ -108,6 +108,19 @@ def footprints(body, r, cos_inc, slope, a, b, refl, weight_k, gain, J, pad_width
 
 
 @njit(cache=True, nogil=True)
+def spreading_gain(body, r, k_abs, gain):
+    """``propagation.two_way_gain`` of every ray (reference range 1 m): ``exp(k_abs (r - 1)) / r^2``
+    with ``k_abs = -0.2 ln(10) alpha`` (alpha in dB/m) where ``body >= 0``, 0 on a miss (the same
+    factor as the aperture kernel's sub-cells; float64 rounding apart, ``10^(-2 alpha (r - 1) / 10) / r^2``)."""
+    for i in range(body.size):
+        if body[i] < 0:
+            gain[i] = 0.0
+        else:
+            ri = r[i]
+            gain[i] = np.exp(k_abs * (ri - 1.0)) / (ri * ri)
+
+
+@njit(cache=True, nogil=True)
 def bucket_by_beam(beam, lo_m, hi_m, energy, slot, range_min, scale, n_cells, n_beams, rec, starts):
     """The lit rays (``energy > 0``) as records grouped by beam (a counting sort), in their
     original order within a beam: ``rec[k] = (x0, x1, density, slot)`` with the footprint

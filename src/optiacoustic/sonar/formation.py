@@ -811,7 +811,14 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
         weights = _elevation_weights(spec, options.elevation_pattern)
     gain = None
     if options.propagation == "spreading":
-        gain = np.where(hit, two_way_gain(np.where(hit, r, 1.0), spec.frequency, options.water), 0.0)
+        if fast:  # one kernel pass (no float64 power and where-copies over the grid)
+            from .propagation import absorption_db_per_m
+
+            gain = np.empty(K * J)
+            k_abs = -0.2 * np.log(10.0) * float(absorption_db_per_m(spec.frequency, options.water))
+            kernels().spreading_gain(body, r, k_abs, gain)
+        else:
+            gain = np.where(hit, two_way_gain(np.where(hit, r, 1.0), spec.frequency, options.water), 0.0)
     if fast:
         energy, lo, hi = np.empty(K * J), np.empty(K * J), np.empty(K * J)
         kernels().footprints(body, r, cos_inc, slope, a, b, refl,
@@ -1052,7 +1059,8 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
     J, B = spec.n_beams, spec.n_bins
     K = body.size // J
     out = _workspace(f"echo{n_slots}", (n_slots, J, B), np.float32)
-    area = np.empty((J, B), np.float32) if need_area else np.empty((0, 0), np.float32)
+    # a reused scratch (fresh pages fault on every frame): cv2.transpose below copies it out
+    area = _workspace("aperture_area", (J, B), np.float32) if need_area else np.empty((0, 0), np.float32)
     x0, dx, y = cells.table
     dtheta = np.ascontiguousarray(np.diff(spec.beam_edges), float)
     bm = flat
