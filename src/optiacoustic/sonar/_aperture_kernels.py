@@ -242,3 +242,23 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                 a_step[:] = 0.0
                 a_used = False
 
+
+
+@njit(cache=True, nogil=True)
+def class_counts(body, energy, weight, cls, counts, ray_cls):
+    """``formation._class_slots``'s first pass: ``ray_cls[i] = cls[body[i]]`` (body -1 reads the last
+    entry) and ``counts[c]`` += ``weight[i]`` over the lit rays (``energy > 0``) of class ``c``."""
+    n_cls = cls.size
+    for i in range(body.size):
+        b = body[i]
+        c = cls[b if b >= 0 else n_cls + b]
+        ray_cls[i] = c
+        if energy[i] > 0:
+            counts[c] += weight[i]
+
+
+@njit(cache=True, nogil=True)
+def class_slots(ray_cls, table, slot):
+    """``slot[i] = table[ray_cls[i]]`` (``formation._class_slots``'s second pass)."""
+    for i in range(ray_cls.size):
+        slot[i] = table[ray_cls[i]]

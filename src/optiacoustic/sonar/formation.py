@@ -631,6 +631,36 @@ def _class_slots(bottom_types: dict, rays: SonarRays, weight=None):
     return table[ray_cls], k, slot_of
 
 
+def _class_slots_numba(bottom_types: dict, rays: SonarRays, weight: np.ndarray):
+    """:func:`_class_slots` with ``weight`` by two kernel passes (the aperture model's path; the same
+    slots: integer counts, the first largest class takes slot 0)."""
+    from . import _aperture_kernels as ak
+
+    body = np.ascontiguousarray(rays.body).reshape(-1)
+    n_bodies = int(body.max()) + 1 if body.size else 0
+    names = list(bottom_types) + [None]
+    cls = np.full(max(n_bodies, max((i for v in bottom_types.values() for i in v), default=-1) + 1) + 1,
+                  len(names) - 1, np.int64)
+    for c, name in enumerate(bottom_types):
+        cls[bottom_types[name]] = c
+    counts = np.zeros(len(names), np.int64)
+    ray_cls = np.empty(body.size, np.int64)
+    ak.class_counts(body, np.ascontiguousarray(rays.energy).reshape(-1), np.asarray(weight, np.int64), cls, counts,
+                    ray_cls)
+    largest = int(np.argmax(counts))
+    slot_of = {}
+    k = 1
+    for c, name in enumerate(names):
+        if c == largest:
+            slot_of[name] = 0
+        else:
+            slot_of[name] = k
+            k += 1
+    slot = np.empty(body.size, np.int8)
+    ak.class_slots(ray_cls, np.array([slot_of[n] for n in names], np.int8), slot)
+    return slot, k, slot_of
+
+
 def _form_with_shares_numba(spec: SonarSpec, rays: SonarRays, options: SonarOptions, bottom_types: dict,
                             threads: int):
     """Echo image and seabed shares in one pass of the kernels (``_form_image`` + ``_class_parts``
@@ -1047,7 +1077,7 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
     if not bottom_types:
         slot, n_slots, slot_of = np.zeros(body.size, np.int8), 1, {}
     else:  # the class with most lit sub-cells takes slot 0, as _class_slots on the sub-cells
-        slot, n_slots, slot_of = _class_slots(bottom_types, rays, weight=n_sub)
+        slot, n_slots, slot_of = _class_slots_numba(bottom_types, rays, n_sub)
     ids = [i for v in bottom_types.values() for i in v]
     n_bodies = max([int(np.max(body, initial=-1))] + ids) + 1
     is_seabed = np.zeros(n_bodies + 1, np.bool_)

@@ -384,7 +384,13 @@ class ScattererNoise:
         g = self.gain
         alpha = absorption_db_per_m(spec.frequency, options.water) if options.propagation == "spreading" else 0.0
         back = g.background_raw(spec.ranges, alpha).astype(np.float32)[:, None]
-        echo = I * np.float32(10.0 ** (g.gain_db / 10.0))
+        from ._kernels import workspace as _workspace
+
+        # the compiled path reuses per-thread scratch for the echo and the mean (fresh pages fault on
+        # every frame): neither outlives this call
+        fast = use_numba()
+        echo = np.multiply(I, np.float32(10.0 ** (g.gain_db / 10.0)),
+                           out=_workspace("scatterer_echo", I.shape, np.float32) if fast else None)
         if self.bottom_type is not None:
             from .distributions import bottom_model
 
@@ -395,8 +401,6 @@ class ScattererNoise:
             power = echo + back
         elif (use_numba() and np.isfinite(self.density) and not np.isfinite(self.clusters_per_m2)
               and len(_look_weights(self.looks)) == 1):  # counts, power and complex normals in one pass
-            from ._kernels import workspace as _workspace
-
             z = _workspace("scatterer_z", I.shape + (2,), np.float32)  # reused: no page faults per frame
             big = _workspace("scatterer_big", I.shape, np.bool_)
             area = np.ascontiguousarray(cell_area, np.float32)
@@ -430,7 +434,7 @@ class ScattererNoise:
         # (all float32; the filters are separable, cv2.sepFilter2D with zero borders)
         from .speckle import filter_real, look_weights
 
-        mean = echo + back
+        mean = np.add(echo, back, out=_workspace("scatterer_mean", I.shape, np.float32) if fast else None)
         weights = look_weights(self.looks)
         if use_numba() and len(weights) == 1:  # one look: |f|^2 x mean / expected x TVG in one pass
             from ._kernels import _pool
