@@ -580,11 +580,23 @@ def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, 
     half = np.float32(0.5)
     p0 = np.empty(J)
     rad = np.empty(J, np.float32)
+    need = np.empty(J, np.int64)
     for i in range(r0, r1):
         bk = back[i]
         # the row's exp(-mu) and Box-Muller radii in loops of their own: libm calls in the main
-        # loop spill its registers (the same numbers, measured faster)
+        # loop spill its registers (the same numbers, measured faster). exp(-mu) only where the
+        # count's inversion reads it: not where mu <= 0, nor where the uniform lies below a lower
+        # bound of exp(-mu) (1 - mu + mu^2/2 - mu^3/6, less a margin far above its rounding, for
+        # mu < 1): the count is 0 there whatever the exact value, so p0 = 1 gives the same count
+        n_need = 0
         for j in range(J):
+            m = density * area[i, j]
+            lb = 1.0 - m * (1.0 - m * (0.5 - m * (1.0 / 6.0))) - 1e-12
+            p0[j] = 1.0
+            need[n_need] = j
+            n_need += (m > 0) & ((m >= 1.0) | (u_count[i, j] > lb))
+        for t in range(n_need):
+            j = need[t]
             p0[j] = np.exp(-(density * area[i, j]))
         for j in range(J):
             rad[j] = np.sqrt(np.float32(-2.0) * np.log(np.float32(1.0 - u1[i, j])))
