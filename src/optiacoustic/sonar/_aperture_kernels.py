@@ -78,6 +78,12 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     c_cos = np.empty(cap)
     c_s = np.empty(cap, np.int64)
     c_sea = np.empty(cap, np.bool_)
+    c_key = np.empty(cap, np.int64)
+    # cos(elevation) of the sub-cells, remembered per (elevation sample, sub-cell): the grid's cells
+    # (most) give the same elevation, bit for bit, in every beam, so libm is called once per value
+    # (a hit only where the stored elevation is the same number: the same cos)
+    memo_el = np.full(K * max_s, np.nan)
+    memo_cos = np.empty(K * max_s)
     for j in range(j0, j1):
         dth = dtheta[j]
         nc = 0
@@ -138,6 +144,7 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                 c_e[nc] = refl[i] * c_mid * delta * w
                 c_s[nc] = s
                 c_sea[nc] = seabed
+                c_key[nc] = k * max_s + kk
                 nc += 1
         if spreading:
             for ic in range(nc):
@@ -145,7 +152,15 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                 c_e[ic] *= np.exp(k_abs * (r_mid - 1.0)) / (r_mid * r_mid)
         if want_area:
             for ic in range(nc):
-                c_cos[ic] = np.cos(c_el[ic])
+                key = c_key[ic]
+                el = c_el[ic]
+                if memo_el[key] == el:
+                    c_cos[ic] = memo_cos[key]
+                else:
+                    cv = np.cos(el)
+                    memo_el[key] = el
+                    memo_cos[key] = cv
+                    c_cos[ic] = cv
         for ic in range(nc):
             r_mid = c_r[ic]
             f_lo = c_lo[ic]
