@@ -53,6 +53,18 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     max_s = 1
     for i in range(n_sub.size):
         max_s = max(max_s, n_sub[i])
+    # deposits at fine cells c (phase ph) and c + 1 of the default q = 2 in one pass over bins
+    # bi - D .. bi + D + 1 (bi = c // 2): HA the first's taps, HB the second's (same bin at phase 0,
+    # the next bin at phase 1); the sums differ from two passes by float64 rounding only
+    pair = q == 2
+    HA = np.zeros((2, 2 * D + 2))
+    HB = np.zeros((2, 2 * D + 2))
+    if pair:
+        for m in range(2 * D + 1):
+            HA[0, m] = H[0, m]
+            HB[0, m] = H[1, m]
+            HA[1, m] = H[1, m]
+            HB[1, m + 1] = H[0, m]
     a_g = b_g = half_step  # formation._scan's cells before edge refinement
     trig = np.empty((max_s + 1, 7))
     for Sn in range(1, max_s + 1):
@@ -182,29 +194,45 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                 f1 = x1 - p1
                 ss = 0
                 while True:  # slot 0 (the whole echo), then the class's slot when it has one
-                    for c, v in ((p0, dens - dens * f0), (p0 + 1, dens * f0), (p1, dens * f1 - dens),
-                                 (p1 + 1, -dens * f1)):
-                        if c >= n_cells:  # only cells past the end, which are cut
-                            continue
-                        used[ss] = True
-                        end[ss] += v
-                        if q == 2:  # the default oversampling: no integer division
+                    for c, va, vb in ((p0, dens - dens * f0, dens * f0), (p1, dens * f1 - dens, -dens * f1)):
+                        # the deposits at fine cells c and c + 1 together: one pass over the bins both
+                        # reach (2 D + 2 at most) when both are inside the row (the default q = 2)
+                        if pair and c + 1 < n_cells:
                             bi = c >> 1
                             ph = c & 1
-                        else:
-                            bi = c // q
-                            ph = c - bi * q
-                        if D <= bi < n_bins - D:
-                            for m in range(2 * D + 1):
-                                row[ss, bi - D + m] += v * H[ph, m]
-                        else:
-                            for m in range(-D, D + 1):
-                                bb = bi + m
-                                if 0 <= bb < n_bins:
-                                    row[ss, bb] += v * H[ph, m + D]
-                        sb = bi + D + 1
-                        if sb < n_bins:
-                            step[ss, sb] += v * full
+                            if D <= bi and bi + 1 < n_bins - D:
+                                used[ss] = True
+                                end[ss] += va
+                                end[ss] += vb
+                                for m in range(2 * D + 2):
+                                    row[ss, bi - D + m] += va * HA[ph, m] + vb * HB[ph, m]
+                                step[ss, bi + D + 1] += va * full  # bi + D + 1 < n_bins: bi + 1 < n_bins - D
+                                sb = bi + ph + D + 1
+                                if sb < n_bins:
+                                    step[ss, sb] += vb * full
+                                continue
+                        for c1, v in ((c, va), (c + 1, vb)):
+                            if c1 >= n_cells:  # only cells past the end, which are cut
+                                continue
+                            used[ss] = True
+                            end[ss] += v
+                            if q == 2:  # the default oversampling: no integer division
+                                bi = c1 >> 1
+                                ph = c1 & 1
+                            else:
+                                bi = c1 // q
+                                ph = c1 - bi * q
+                            if D <= bi < n_bins - D:
+                                for m in range(2 * D + 1):
+                                    row[ss, bi - D + m] += v * H[ph, m]
+                            else:
+                                for m in range(-D, D + 1):
+                                    bb = bi + m
+                                    if 0 <= bb < n_bins:
+                                        row[ss, bb] += v * H[ph, m + D]
+                            sb = bi + D + 1
+                            if sb < n_bins:
+                                step[ss, sb] += v * full
                     if ss != 0 or s <= 0:
                         break
                     ss = s
