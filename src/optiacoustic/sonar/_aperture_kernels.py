@@ -22,8 +22,9 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                        table_x0, table_dx, table_y, alpha_db, spreading, bin_width,
                        slot_of_ray, seabed_of_ray, dtheta, range_min, n_cells, H, V, full, q, n_bins,
                        want_area, j0, j1, out, area_out):
-    """Echo rows (``(S, n_beams, n_bins)`` float32, as ``echo_rows``) and seabed area rows
-    (``(n_beams, n_bins)`` float32, one cell per bin, no anti-aliasing, as ``cell_area``) of the
+    """Echo rows (``(S, n_beams, n_bins)`` float32, as ``echo_rows``) and the seabed area
+    (``(n_bins, n_beams)`` float32, the image layout, one cell per bin, no anti-aliasing, as
+    ``cell_area``; beams ``j0..j1`` are its columns) of the
     aperture model's sub-cells, for beams ``j0..j1``, straight from the primary rays.
 
     Per ray ``i = j K + k`` (flat beam-major ``(J * K,)`` arrays: each beam's rays contiguous;
@@ -275,12 +276,12 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
             used[ss] = False
         if want_area:
             if not a_used:
-                area_out[j, :] = 0.0
+                area_out[:, j] = 0.0
             else:
                 acc = 0.0
                 for bb in range(n_bins):
                     acc += a_step[bb]
-                    area_out[j, bb] = a_row[bb] + acc
+                    area_out[bb, j] = a_row[bb] + acc
                 a_row[:] = 0.0
                 a_step[:] = 0.0
                 a_used = False

@@ -1065,7 +1065,8 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
     one kernel pass per beam (``_aperture_kernels``): the same numbers as :func:`_subdivide_numba`,
     :func:`_form_with_shares_numba` and :func:`cell_area` on the sub-cells, without storing them.
 
-    Returns ``(intensity, shares, area or None)``, each ``(n_bins, n_beams)`` float32.
+    Returns ``(intensity, shares, area or None)``, each ``(n_bins, n_beams)`` float32; ``area`` is
+    a per-thread scratch that the next call on this thread overwrites.
     """
     from . import _aperture_kernels as ak
 
@@ -1089,8 +1090,9 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
     J, B = spec.n_beams, spec.n_bins
     K = body.size // J
     out = _workspace(f"echo{n_slots}", (n_slots, J, B), np.float32)
-    # a reused scratch (fresh pages fault on every frame): cv2.transpose below copies it out
-    area = _workspace("aperture_area", (J, B), np.float32) if need_area else np.empty((0, 0), np.float32)
+    # written in the image layout into a reused scratch (fresh pages fault on every frame): the
+    # caller reads it before the next frame on this thread (simulate_sonar: the noise's counts)
+    area = _workspace("aperture_area", (B, J), np.float32) if need_area else np.empty((0, 0), np.float32)
     x0, dx, y = cells.table
     dtheta = np.ascontiguousarray(np.diff(spec.beam_edges), float)
     bm = flat
@@ -1111,11 +1113,7 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
         for s in range(n_slots):
             _mix_beams(spec, out[s], out=mixed[s])
     intensity, shares = _finish_numba(spec, mixed, bottom_types, slot_of, threads)
-    if not need_area:
-        return intensity, shares, None
-    import cv2
-
-    return intensity, shares, cv2.transpose(area)
+    return intensity, shares, (area if need_area else None)
 
 
 #: Sub-rays cast across each visibility discontinuity between two elevation samples.
