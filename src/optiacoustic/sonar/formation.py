@@ -373,8 +373,10 @@ def simulate_sonar(
     options = options or SonarOptions()
     if not isinstance(options, SonarOptions):
         raise TypeError(f"options: expected SonarOptions, got {type(options).__name__}")
+    from .noise import ScattererNoise, release_draws
+
     if noise is not False:
-        from .noise import NoiseModel, ScattererNoise
+        from .noise import NoiseModel
 
         if noise is None:
             noise = NoiseModel()
@@ -389,6 +391,9 @@ def simulate_sonar(
     bottom_types = _bottom_types(scene)
     draws = None
     draw_args = (noise.draw, (spec.n_bins, spec.n_beams), list(bottom_types), as_rng(seed)) if noise is not False else None
+    pooled = noise is not False and isinstance(noise, ScattererNoise)
+    if pooled:  # its uniforms in pooled buffers, handed back once the noise has read them
+        draw_args = (functools.partial(noise.draw, _reuse=True),) + draw_args[1:]
 
     def start_draws():
         # the noise variates do not depend on the echo: with a second thread, draw them on the other
@@ -432,6 +437,8 @@ def simulate_sonar(
     else:
         image = noise.apply(intensity, spec=spec, seabed_share=shares, options=options, draws=draws.result(),
                             threads=caster.threads)
+    if pooled:
+        release_draws(draws.result())
     intensity.setflags(write=False)
     image.setflags(write=False)
     gt = SonarGroundTruth(
