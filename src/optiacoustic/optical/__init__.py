@@ -6,12 +6,14 @@ backscatter, final image) and ground truth (depth, body ids, normals). Derivatio
 every formula: docs/derivations.md (ch. 3).
 """
 
+from ._sanity import BlindCameraWarning
 from .frame import STAGES, OpticalFrame, auto_exposure, save_png, to_srgb8
 from .lights import Light, default_lights
 from .render import OpticalOptions, SensorNoise, backscatter, forward_scatter, simulate_optical
 from .water import JERLOV_KD, PhaseFunction, Water, jerlov_iops
 
 __all__ = [
+    "BlindCameraWarning",
     "JERLOV_KD",
     "Light",
     "OpticalFrame",
