@@ -391,7 +391,8 @@ def simulate_sonar(
     bottom_types = _bottom_types(scene)
     draws = None
     draw_args = (noise.draw, (spec.n_bins, spec.n_beams), list(bottom_types), as_rng(seed)) if noise is not False else None
-    pooled = noise is not False and isinstance(noise, ScattererNoise)
+    # (not for a subclass with its own draw, which may not take ``_reuse``)
+    pooled = noise is not False and isinstance(noise, ScattererNoise) and type(noise).draw is ScattererNoise.draw
     if pooled:  # its uniforms in pooled buffers, handed back once the noise has read them
         draw_args = (functools.partial(noise.draw, _reuse=True),) + draw_args[1:]
 
