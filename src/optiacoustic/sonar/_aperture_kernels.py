@@ -22,8 +22,9 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                        table_x0, table_dx, table_y, alpha_db, spreading, bin_width,
                        slot_of_ray, seabed_of_ray, dtheta, range_min, n_cells, H, V, full, q, n_bins,
                        want_area, j0, j1, out, area_out):
-    """Echo rows (``(S, n_beams, n_bins)`` float32, as ``echo_rows``) and seabed area rows
-    (``(n_beams, n_bins)`` float32, one cell per bin, no anti-aliasing, as ``cell_area``) of the
+    """Echo rows (``(S, n_beams, n_bins)`` float32, as ``echo_rows``) and the seabed area
+    (``(n_bins, n_beams)`` float32, the image layout, one cell per bin, no anti-aliasing, as
+    ``cell_area``; beams ``j0..j1`` are its columns) of the
     aperture model's sub-cells, for beams ``j0..j1``, straight from the primary rays.
 
     Per ray ``i = j K + k`` (flat beam-major ``(J * K,)`` arrays: each beam's rays contiguous;
@@ -53,6 +54,18 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     max_s = 1
     for i in range(n_sub.size):
         max_s = max(max_s, n_sub[i])
+    # deposits at fine cells c (phase ph) and c + 1 of the default q = 2 in one pass over bins
+    # bi - D .. bi + D + 1 (bi = c // 2): HA the first's taps, HB the second's (same bin at phase 0,
+    # the next bin at phase 1); the sums differ from two passes by float64 rounding only
+    pair = q == 2
+    HA = np.zeros((2, 2 * D + 2))
+    HB = np.zeros((2, 2 * D + 2))
+    if pair:
+        for m in range(2 * D + 1):
+            HA[0, m] = H[0, m]
+            HB[0, m] = H[1, m]
+            HA[1, m] = H[1, m]
+            HB[1, m + 1] = H[0, m]
     a_g = b_g = half_step  # formation._scan's cells before edge refinement
     trig = np.empty((max_s + 1, 7))
     for Sn in range(1, max_s + 1):
@@ -78,6 +91,12 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     c_cos = np.empty(cap)
     c_s = np.empty(cap, np.int64)
     c_sea = np.empty(cap, np.bool_)
+    c_key = np.empty(cap, np.int64)
+    # cos(elevation) of the sub-cells, remembered per (elevation sample, sub-cell): the grid's cells
+    # (most) give the same elevation, bit for bit, in every beam, so libm is called once per value
+    # (a hit only where the stored elevation is the same number: the same cos)
+    memo_el = np.full(K * max_s, np.nan)
+    memo_cos = np.empty(K * max_s)
     for j in range(j0, j1):
         dth = dtheta[j]
         nc = 0
@@ -138,6 +157,7 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                 c_e[nc] = refl[i] * c_mid * delta * w
                 c_s[nc] = s
                 c_sea[nc] = seabed
+                c_key[nc] = k * max_s + kk
                 nc += 1
         if spreading:
             for ic in range(nc):
@@ -145,7 +165,15 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                 c_e[ic] *= np.exp(k_abs * (r_mid - 1.0)) / (r_mid * r_mid)
         if want_area:
             for ic in range(nc):
-                c_cos[ic] = np.cos(c_el[ic])
+                key = c_key[ic]
+                el = c_el[ic]
+                if memo_el[key] == el:
+                    c_cos[ic] = memo_cos[key]
+                else:
+                    cv = np.cos(el)
+                    memo_el[key] = el
+                    memo_cos[key] = cv
+                    c_cos[ic] = cv
         for ic in range(nc):
             r_mid = c_r[ic]
             f_lo = c_lo[ic]
@@ -167,29 +195,45 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                 f1 = x1 - p1
                 ss = 0
                 while True:  # slot 0 (the whole echo), then the class's slot when it has one
-                    for c, v in ((p0, dens - dens * f0), (p0 + 1, dens * f0), (p1, dens * f1 - dens),
-                                 (p1 + 1, -dens * f1)):
-                        if c >= n_cells:  # only cells past the end, which are cut
-                            continue
-                        used[ss] = True
-                        end[ss] += v
-                        if q == 2:  # the default oversampling: no integer division
+                    for c, va, vb in ((p0, dens - dens * f0, dens * f0), (p1, dens * f1 - dens, -dens * f1)):
+                        # the deposits at fine cells c and c + 1 together: one pass over the bins both
+                        # reach (2 D + 2 at most) when both are inside the row (the default q = 2)
+                        if pair and c + 1 < n_cells:
                             bi = c >> 1
                             ph = c & 1
-                        else:
-                            bi = c // q
-                            ph = c - bi * q
-                        if D <= bi < n_bins - D:
-                            for m in range(2 * D + 1):
-                                row[ss, bi - D + m] += v * H[ph, m]
-                        else:
-                            for m in range(-D, D + 1):
-                                bb = bi + m
-                                if 0 <= bb < n_bins:
-                                    row[ss, bb] += v * H[ph, m + D]
-                        sb = bi + D + 1
-                        if sb < n_bins:
-                            step[ss, sb] += v * full
+                            if D <= bi and bi + 1 < n_bins - D:
+                                used[ss] = True
+                                end[ss] += va
+                                end[ss] += vb
+                                for m in range(2 * D + 2):
+                                    row[ss, bi - D + m] += va * HA[ph, m] + vb * HB[ph, m]
+                                step[ss, bi + D + 1] += va * full  # bi + D + 1 < n_bins: bi + 1 < n_bins - D
+                                sb = bi + ph + D + 1
+                                if sb < n_bins:
+                                    step[ss, sb] += vb * full
+                                continue
+                        for c1, v in ((c, va), (c + 1, vb)):
+                            if c1 >= n_cells:  # only cells past the end, which are cut
+                                continue
+                            used[ss] = True
+                            end[ss] += v
+                            if q == 2:  # the default oversampling: no integer division
+                                bi = c1 >> 1
+                                ph = c1 & 1
+                            else:
+                                bi = c1 // q
+                                ph = c1 - bi * q
+                            if D <= bi < n_bins - D:
+                                for m in range(2 * D + 1):
+                                    row[ss, bi - D + m] += v * H[ph, m]
+                            else:
+                                for m in range(-D, D + 1):
+                                    bb = bi + m
+                                    if 0 <= bb < n_bins:
+                                        row[ss, bb] += v * H[ph, m + D]
+                            sb = bi + D + 1
+                            if sb < n_bins:
+                                step[ss, sb] += v * full
                     if ss != 0 or s <= 0:
                         break
                     ss = s
@@ -232,13 +276,33 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
             used[ss] = False
         if want_area:
             if not a_used:
-                area_out[j, :] = 0.0
+                area_out[:, j] = 0.0
             else:
                 acc = 0.0
                 for bb in range(n_bins):
                     acc += a_step[bb]
-                    area_out[j, bb] = a_row[bb] + acc
+                    area_out[bb, j] = a_row[bb] + acc
                 a_row[:] = 0.0
                 a_step[:] = 0.0
                 a_used = False
 
+
+
+@njit(cache=True, nogil=True)
+def class_counts(body, energy, weight, cls, counts, ray_cls):
+    """``formation._class_slots``'s first pass: ``ray_cls[i] = cls[body[i]]`` (body -1 reads the last
+    entry) and ``counts[c]`` += ``weight[i]`` over the lit rays (``energy > 0``) of class ``c``."""
+    n_cls = cls.size
+    for i in range(body.size):
+        b = body[i]
+        c = cls[b if b >= 0 else n_cls + b]
+        ray_cls[i] = c
+        if energy[i] > 0:
+            counts[c] += weight[i]
+
+
+@njit(cache=True, nogil=True)
+def class_slots(ray_cls, table, slot):
+    """``slot[i] = table[ray_cls[i]]`` (``formation._class_slots``'s second pass)."""
+    for i in range(ray_cls.size):
+        slot[i] = table[ray_cls[i]]

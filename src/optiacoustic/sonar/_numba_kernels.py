@@ -108,6 +108,19 @@ def footprints(body, r, cos_inc, slope, a, b, refl, weight_k, gain, J, pad_width
 
 
 @njit(cache=True, nogil=True)
+def spreading_gain(body, r, k_abs, gain):
+    """``propagation.two_way_gain`` of every ray (reference range 1 m): ``exp(k_abs (r - 1)) / r^2``
+    with ``k_abs = -0.2 ln(10) alpha`` (alpha in dB/m) where ``body >= 0``, 0 on a miss (the same
+    factor as the aperture kernel's sub-cells; float64 rounding apart, ``10^(-2 alpha (r - 1) / 10) / r^2``)."""
+    for i in range(body.size):
+        if body[i] < 0:
+            gain[i] = 0.0
+        else:
+            ri = r[i]
+            gain[i] = np.exp(k_abs * (ri - 1.0)) / (ri * ri)
+
+
+@njit(cache=True, nogil=True)
 def bucket_by_beam(beam, lo_m, hi_m, energy, slot, range_min, scale, n_cells, n_beams, rec, starts):
     """The lit rays (``energy > 0``) as records grouped by beam (a counting sort), in their
     original order within a beam: ``rec[k] = (x0, x1, density, slot)`` with the footprint
@@ -567,11 +580,23 @@ def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, 
     half = np.float32(0.5)
     p0 = np.empty(J)
     rad = np.empty(J, np.float32)
+    need = np.empty(J, np.int64)
     for i in range(r0, r1):
         bk = back[i]
         # the row's exp(-mu) and Box-Muller radii in loops of their own: libm calls in the main
-        # loop spill its registers (the same numbers, measured faster)
+        # loop spill its registers (the same numbers, measured faster). exp(-mu) only where the
+        # count's inversion reads it: not where mu <= 0, nor where the uniform lies below a lower
+        # bound of exp(-mu) (1 - mu + mu^2/2 - mu^3/6, less a margin far above its rounding, for
+        # mu < 1): the count is 0 there whatever the exact value, so p0 = 1 gives the same count
+        n_need = 0
         for j in range(J):
+            m = density * area[i, j]
+            lb = 1.0 - m * (1.0 - m * (0.5 - m * (1.0 / 6.0))) - 1e-12
+            p0[j] = 1.0
+            need[n_need] = j
+            n_need += (m > 0) & ((m >= 1.0) | (u_count[i, j] > lb))
+        for t in range(n_need):
+            j = need[t]
             p0[j] = np.exp(-(density * area[i, j]))
         for j in range(J):
             rad[j] = np.sqrt(np.float32(-2.0) * np.log(np.float32(1.0 - u1[i, j])))

@@ -373,8 +373,10 @@ def simulate_sonar(
     options = options or SonarOptions()
     if not isinstance(options, SonarOptions):
         raise TypeError(f"options: expected SonarOptions, got {type(options).__name__}")
+    from .noise import ScattererNoise, release_draws
+
     if noise is not False:
-        from .noise import NoiseModel, ScattererNoise
+        from .noise import NoiseModel
 
         if noise is None:
             noise = NoiseModel()
@@ -389,6 +391,10 @@ def simulate_sonar(
     bottom_types = _bottom_types(scene)
     draws = None
     draw_args = (noise.draw, (spec.n_bins, spec.n_beams), list(bottom_types), as_rng(seed)) if noise is not False else None
+    # (not for a subclass with its own draw, which may not take ``_reuse``)
+    pooled = noise is not False and isinstance(noise, ScattererNoise) and type(noise).draw is ScattererNoise.draw
+    if pooled:  # its uniforms in pooled buffers, handed back once the noise has read them
+        draw_args = (functools.partial(noise.draw, _reuse=True),) + draw_args[1:]
 
     def start_draws():
         # the noise variates do not depend on the echo: with a second thread, draw them on the other
@@ -432,6 +438,8 @@ def simulate_sonar(
     else:
         image = noise.apply(intensity, spec=spec, seabed_share=shares, options=options, draws=draws.result(),
                             threads=caster.threads)
+    if pooled:
+        release_draws(draws.result())
     intensity.setflags(write=False)
     image.setflags(write=False)
     gt = SonarGroundTruth(
@@ -631,6 +639,36 @@ def _class_slots(bottom_types: dict, rays: SonarRays, weight=None):
     return table[ray_cls], k, slot_of
 
 
+def _class_slots_numba(bottom_types: dict, rays: SonarRays, weight: np.ndarray):
+    """:func:`_class_slots` with ``weight`` by two kernel passes (the aperture model's path; the same
+    slots: integer counts, the first largest class takes slot 0)."""
+    from . import _aperture_kernels as ak
+
+    body = np.ascontiguousarray(rays.body).reshape(-1)
+    n_bodies = int(body.max()) + 1 if body.size else 0
+    names = list(bottom_types) + [None]
+    cls = np.full(max(n_bodies, max((i for v in bottom_types.values() for i in v), default=-1) + 1) + 1,
+                  len(names) - 1, np.int64)
+    for c, name in enumerate(bottom_types):
+        cls[bottom_types[name]] = c
+    counts = np.zeros(len(names), np.int64)
+    ray_cls = np.empty(body.size, np.int64)
+    ak.class_counts(body, np.ascontiguousarray(rays.energy).reshape(-1), np.asarray(weight, np.int64), cls, counts,
+                    ray_cls)
+    largest = int(np.argmax(counts))
+    slot_of = {}
+    k = 1
+    for c, name in enumerate(names):
+        if c == largest:
+            slot_of[name] = 0
+        else:
+            slot_of[name] = k
+            k += 1
+    slot = np.empty(body.size, np.int8)
+    ak.class_slots(ray_cls, np.array([slot_of[n] for n in names], np.int8), slot)
+    return slot, k, slot_of
+
+
 def _form_with_shares_numba(spec: SonarSpec, rays: SonarRays, options: SonarOptions, bottom_types: dict,
                             threads: int):
     """Echo image and seabed shares in one pass of the kernels (``_form_image`` + ``_class_parts``
@@ -811,7 +849,14 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
         weights = _elevation_weights(spec, options.elevation_pattern)
     gain = None
     if options.propagation == "spreading":
-        gain = np.where(hit, two_way_gain(np.where(hit, r, 1.0), spec.frequency, options.water), 0.0)
+        if fast:  # one kernel pass (no float64 power and where-copies over the grid)
+            from .propagation import absorption_db_per_m
+
+            gain = np.empty(K * J)
+            k_abs = -0.2 * np.log(10.0) * float(absorption_db_per_m(spec.frequency, options.water))
+            kernels().spreading_gain(body, r, k_abs, gain)
+        else:
+            gain = np.where(hit, two_way_gain(np.where(hit, r, 1.0), spec.frequency, options.water), 0.0)
     if fast:
         energy, lo, hi = np.empty(K * J), np.empty(K * J), np.empty(K * J)
         kernels().footprints(body, r, cos_inc, slope, a, b, refl,
@@ -1028,7 +1073,8 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
     one kernel pass per beam (``_aperture_kernels``): the same numbers as :func:`_subdivide_numba`,
     :func:`_form_with_shares_numba` and :func:`cell_area` on the sub-cells, without storing them.
 
-    Returns ``(intensity, shares, area or None)``, each ``(n_bins, n_beams)`` float32.
+    Returns ``(intensity, shares, area or None)``, each ``(n_bins, n_beams)`` float32; ``area`` is
+    a per-thread scratch that the next call on this thread overwrites.
     """
     from . import _aperture_kernels as ak
 
@@ -1040,7 +1086,7 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
     if not bottom_types:
         slot, n_slots, slot_of = np.zeros(body.size, np.int8), 1, {}
     else:  # the class with most lit sub-cells takes slot 0, as _class_slots on the sub-cells
-        slot, n_slots, slot_of = _class_slots(bottom_types, rays, weight=n_sub)
+        slot, n_slots, slot_of = _class_slots_numba(bottom_types, rays, n_sub)
     ids = [i for v in bottom_types.values() for i in v]
     n_bodies = max([int(np.max(body, initial=-1))] + ids) + 1
     is_seabed = np.zeros(n_bodies + 1, np.bool_)
@@ -1052,7 +1098,9 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
     J, B = spec.n_beams, spec.n_bins
     K = body.size // J
     out = _workspace(f"echo{n_slots}", (n_slots, J, B), np.float32)
-    area = np.empty((J, B), np.float32) if need_area else np.empty((0, 0), np.float32)
+    # written in the image layout into a reused scratch (fresh pages fault on every frame): the
+    # caller reads it before the next frame on this thread (simulate_sonar: the noise's counts)
+    area = _workspace("aperture_area", (B, J), np.float32) if need_area else np.empty((0, 0), np.float32)
     x0, dx, y = cells.table
     dtheta = np.ascontiguousarray(np.diff(spec.beam_edges), float)
     bm = flat
@@ -1073,11 +1121,7 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
         for s in range(n_slots):
             _mix_beams(spec, out[s], out=mixed[s])
     intensity, shares = _finish_numba(spec, mixed, bottom_types, slot_of, threads)
-    if not need_area:
-        return intensity, shares, None
-    import cv2
-
-    return intensity, shares, cv2.transpose(area)
+    return intensity, shares, (area if need_area else None)
 
 
 #: Sub-rays cast across each visibility discontinuity between two elevation samples.

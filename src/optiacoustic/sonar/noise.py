@@ -18,6 +18,7 @@ reverberation and speckle only redistribute it (docs/physics.md).
 from __future__ import annotations
 
 import functools
+import threading
 from dataclasses import dataclass
 from typing import Optional
 
@@ -351,13 +352,23 @@ class ScattererNoise:
             if self.bottom_type not in BOTTOM_TYPES:
                 raise ValueError(f"ScattererNoise.bottom_type: unknown {self.bottom_type!r}; expected one of {sorted(BOTTOM_TYPES)}")
 
-    def draw(self, shape: tuple, bottom_types, rng: np.random.Generator):
+    def draw(self, shape: tuple, bottom_types, rng: np.random.Generator, *, _reuse: bool = False):
         """The uniforms of the complex normals and of the counts (drawn while the scene is
-        scanned), and the generator for counts of large mean (after the scan)."""
+        scanned), and the generator for counts of large mean (after the scan).
+
+        ``_reuse`` (``simulate_sonar``): the uniforms go into buffers taken from a pool (the same
+        numbers: ``Generator.random(out=...)``), which the caller hands back by
+        :func:`release_draws` once :meth:`apply` has read them (fresh 7.5 MB per frame fault)."""
         shape = tuple(shape)
-        u1 = rng.random(shape)
-        u2 = rng.random(shape, dtype=np.float32)
-        u_count = rng.random(shape)
+        if _reuse:
+            u1, u2, u_count = _take_draw_buffers(shape)
+            rng.random(shape, out=u1)
+            rng.random(shape, dtype=np.float32, out=u2)
+            rng.random(shape, out=u_count)
+        else:
+            u1 = rng.random(shape)
+            u2 = rng.random(shape, dtype=np.float32)
+            u_count = rng.random(shape)
         return (u1, u2, u_count), rng
 
     def kernels(self, spec):
@@ -384,7 +395,13 @@ class ScattererNoise:
         g = self.gain
         alpha = absorption_db_per_m(spec.frequency, options.water) if options.propagation == "spreading" else 0.0
         back = g.background_raw(spec.ranges, alpha).astype(np.float32)[:, None]
-        echo = I * np.float32(10.0 ** (g.gain_db / 10.0))
+        from ._kernels import workspace as _workspace
+
+        # the compiled path reuses per-thread scratch for the echo and the mean (fresh pages fault on
+        # every frame): neither outlives this call
+        fast = use_numba()
+        echo = np.multiply(I, np.float32(10.0 ** (g.gain_db / 10.0)),
+                           out=_workspace("scatterer_echo", I.shape, np.float32) if fast else None)
         if self.bottom_type is not None:
             from .distributions import bottom_model
 
@@ -395,8 +412,6 @@ class ScattererNoise:
             power = echo + back
         elif (use_numba() and np.isfinite(self.density) and not np.isfinite(self.clusters_per_m2)
               and len(_look_weights(self.looks)) == 1):  # counts, power and complex normals in one pass
-            from ._kernels import workspace as _workspace
-
             z = _workspace("scatterer_z", I.shape + (2,), np.float32)  # reused: no page faults per frame
             big = _workspace("scatterer_big", I.shape, np.bool_)
             area = np.ascontiguousarray(cell_area, np.float32)
@@ -430,7 +445,7 @@ class ScattererNoise:
         # (all float32; the filters are separable, cv2.sepFilter2D with zero borders)
         from .speckle import filter_real, look_weights
 
-        mean = echo + back
+        mean = np.add(echo, back, out=_workspace("scatterer_mean", I.shape, np.float32) if fast else None)
         weights = look_weights(self.looks)
         if use_numba() and len(weights) == 1:  # one look: |f|^2 x mean / expected x TVG in one pass
             from ._kernels import _pool
@@ -467,6 +482,30 @@ class ScattererNoise:
             out = fk if out is None else np.add(out, fk, out=out)
         out *= scale
         return out
+
+
+_DRAW_POOL: dict = {}
+_DRAW_POOL_LOCK = threading.Lock()
+
+
+def _take_draw_buffers(shape: tuple):
+    """``(u1 float64, u2 float32, u_count float64)`` buffers of ``shape`` from the pool (or fresh);
+    a buffer set is held by one frame at a time (thread-safe)."""
+    with _DRAW_POOL_LOCK:
+        free = _DRAW_POOL.get(shape)
+        if free:
+            return free.pop()
+    return np.empty(shape), np.empty(shape, np.float32), np.empty(shape)
+
+
+def release_draws(draws) -> None:
+    """Hand the buffers of ``ScattererNoise.draw(..., _reuse=True)`` back to the pool (at most two
+    sets per shape are kept); the caller must not read ``draws`` afterwards."""
+    (u1, u2, u_count), _ = draws
+    with _DRAW_POOL_LOCK:
+        free = _DRAW_POOL.setdefault(u1.shape, [])
+        if len(free) < 2:
+            free.append((u1, u2, u_count))
 
 
 @functools.lru_cache(maxsize=1)
