@@ -162,3 +162,35 @@ def test_texture_and_looks_through_the_noise_model(nu_c, looks):
     m = np.array([b.mean() for b in np.array_split(out, 20, axis=0)])
     assert abs(m.mean() - 1) < 4 * m.std(ddof=1) / np.sqrt(20)
     assert abs(c.mean() - expected) < 4 * c.std(ddof=1) / np.sqrt(len(c)) + 0.01
+
+
+@pytest.mark.parametrize("kernels", ["numba", "numpy"])
+@pytest.mark.parametrize("model", [dict(density=500.0), dict(density=500.0, clusters_per_m2=3000.0)])
+def test_rounding_sized_areas_are_no_seabed(monkeypatch, kernels, model):
+    """A cell's seabed area is a difference of cumulative sums: a cell without seabed holds
+    about +-1e-18 m^2 of rounding. Read as a real area, a positive one drew a count of 0 and
+    zeroed the cell's whole echo. The image must be the same for areas 0, +1e-18 and -1e-18
+    (same draws), and a seabed echo of real area must still be scaled by its counts."""
+    monkeypatch.setenv("OAS_KERNELS", kernels)
+    spec = SonarSpec(n_beams=64, n_bins=300, fov_azimuth=np.deg2rad(40), fov_elevation=np.deg2rad(14), range_min=1.0,
+                     range_max=4.0, frequency=900e3, beamwidth_azimuth=np.deg2rad(0.6), range_resolution=0.02)
+    noise = ScattererNoise(gain=DeviceGain(noise_db=-60.0, spreading_db=0.0, absorption_db_per_m=0.0), **model)
+    I = np.random.default_rng(5).uniform(0.5, 2.0, (spec.n_bins, spec.n_beams)).astype(np.float32)
+    area = np.full(I.shape, 1e-3)
+    area[100:200, 20:40] = 0.0  # a target's cells: no seabed there
+
+    def image(a):
+        d = noise.draw(I.shape, (), np.random.default_rng(9))
+        return noise.apply(I, spec=spec, seabed_share={}, options=SonarOptions(beam_model="aperture"), draws=d,
+                           cell_area=a, threads=2)
+
+    ref = image(area)
+    for eps in (1e-18, -1e-18):
+        a = area.copy()
+        a[100:200, 20:40] = eps
+        np.testing.assert_array_equal(image(a), ref)
+    # a real area is not taken for rounding: a tiny but physical sliver of seabed (1e-6 m^2,
+    # 5e-4 scatterers expected) changes the image there (its count is almost surely 0)
+    a = area.copy()
+    a[100:200, 20:40] = 1e-6
+    assert not np.array_equal(image(a)[100:200, 20:40], ref[100:200, 20:40])

@@ -11,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .speckle import MU_NO_SEABED
+
 _MIN_COS_FOOTPRINT = 0.02  # same clamp as formation._MIN_COS_FOOTPRINT
 
 
@@ -569,7 +571,7 @@ def poisson_inverse(mu, u, mu_max, out):
 def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, z, big, trig):
     """``ScattererNoise``'s white complex field, rows ``r0..r1``: per cell the Poisson count ``n``
     of mean ``mu = density area`` (by inversion of ``u_count``, as :func:`poisson_inverse`),
-    the power ``echo n / mu + back`` (``echo + back`` where ``mu = 0``) and a complex normal of
+    the power ``echo n / mu + back`` (``echo + back`` where ``mu <= MU_NO_SEABED``: no seabed) and a complex normal of
     that power (as :func:`box_muller`). Cells with ``mu >= mu_max`` are flagged in ``big``
     (their count is drawn by the caller) and get ``z = 0``. The phase's ``(cos, sin)`` by linear
     interpolation in ``trig`` ``(T + 1, 2)`` float32, ``(cos, sin)(2 pi k / T)`` (within 3e-7 for
@@ -594,7 +596,7 @@ def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, 
             lb = 1.0 - m * (1.0 - m * (0.5 - m * (1.0 / 6.0))) - 1e-12
             p0[j] = 1.0
             need[n_need] = j
-            n_need += (m > 0) & ((m >= 1.0) | (u_count[i, j] > lb))
+            n_need += (m > MU_NO_SEABED) & ((m >= 1.0) | (u_count[i, j] > lb))
         for t in range(n_need):
             j = need[t]
             p0[j] = np.exp(-(density * area[i, j]))
@@ -603,7 +605,7 @@ def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, 
         for j in range(J):
             m = density * area[i, j]
             big[i, j] = False
-            if m > 0:
+            if m > MU_NO_SEABED:
                 if m >= mu_max:
                     big[i, j] = True
                     z[i, j, 0] = 0.0

@@ -25,6 +25,7 @@ from typing import Optional
 import numpy as np
 
 from .propagation import absorption_db_per_m
+from .speckle import MU_NO_SEABED
 
 __all__ = ["NoiseModel"]
 
@@ -434,11 +435,13 @@ class ScattererNoise:
                     ratio = cluster_ratio(self.density * area, self.clusters_per_m2 * area, rng)
             else:  # plain Poisson counts, by inversion of the uniforms drawn during the scan
                 mu = self.density * np.asarray(cell_area, np.float32).astype(np.float64)
-                seabed = mu > 0
+                seabed = mu > MU_NO_SEABED  # below it: the area's rounding, no seabed
                 n = _poisson_counts(np.where(seabed, mu, 0.0), u_count, rng).astype(np.float32)
                 with np.errstate(invalid="ignore", divide="ignore"):
                     ratio = np.where(seabed, n / np.where(seabed, mu, 1.0), 1.0).astype(np.float32)
-            power = echo * np.where(area > 0, ratio, np.float32(1.0)) + back
+            # no seabed where the expected count of scatterers (or of clusters) is the area's rounding
+            rate = min(self.density, self.clusters_per_m2)  # per m^2; one of them is finite here
+            power = echo * np.where(rate * area > MU_NO_SEABED, ratio, np.float32(1.0)) + back
         # issue 10: the mean image ``echo + back`` is already blurred by the pulse and the beam
         # pattern (formation); filtering the field blurs its power a second time, so the
         # speckle is normalised by that filtered mean and multiplied by the image's own mean
