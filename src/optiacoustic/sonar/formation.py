@@ -617,15 +617,29 @@ def _class_slots(bottom_types: dict, rays: SonarRays, weight=None):
     Returns ``(slot per ray (N,) int8, n_slots, {class: slot})``.
     """
     body = rays.body.reshape(-1)
+    names, cls = _class_table(bottom_types, body)
+    lit = rays.energy.reshape(-1) > 0
+    ray_cls = cls[body]  # body -1 reads the last entry: unlit anyway
+    counts = np.bincount(ray_cls[lit], weights=None if weight is None else weight[lit], minlength=len(names))
+    table, k, slot_of = _slot_table(names, counts)
+    return table[ray_cls], k, slot_of
+
+
+def _class_table(bottom_types: dict, body: np.ndarray):
+    """``(names, cls)``: the classes (the bottom types, then ``None`` for the targets) and every
+    body id's class index (``cls[-1]``, read by body -1, is the targets')."""
     n_bodies = int(body.max()) + 1 if body.size else 0
     names = list(bottom_types) + [None]
     cls = np.full(max(n_bodies, max((i for v in bottom_types.values() for i in v), default=-1) + 1) + 1,
                   len(names) - 1, np.int64)
     for c, name in enumerate(bottom_types):
         cls[bottom_types[name]] = c
-    lit = rays.energy.reshape(-1) > 0
-    ray_cls = cls[body]  # body -1 reads the last entry: unlit anyway
-    counts = np.bincount(ray_cls[lit], weights=None if weight is None else weight[lit], minlength=len(names))
+    return names, cls
+
+
+def _slot_table(names: list, counts: np.ndarray):
+    """``(slot per class int8, n_slots, {class: slot})``: the first class with the largest count
+    takes slot 0, the others 1, 2, ... in order."""
     largest = int(np.argmax(counts))
     slot_of = {}
     k = 1
@@ -635,8 +649,7 @@ def _class_slots(bottom_types: dict, rays: SonarRays, weight=None):
         else:
             slot_of[name] = k
             k += 1
-    table = np.array([slot_of[n] for n in names], np.int8)
-    return table[ray_cls], k, slot_of
+    return np.array([slot_of[n] for n in names], np.int8), k, slot_of
 
 
 def _class_slots_numba(bottom_types: dict, rays: SonarRays, weight: np.ndarray):
@@ -645,27 +658,14 @@ def _class_slots_numba(bottom_types: dict, rays: SonarRays, weight: np.ndarray):
     from . import _aperture_kernels as ak
 
     body = np.ascontiguousarray(rays.body).reshape(-1)
-    n_bodies = int(body.max()) + 1 if body.size else 0
-    names = list(bottom_types) + [None]
-    cls = np.full(max(n_bodies, max((i for v in bottom_types.values() for i in v), default=-1) + 1) + 1,
-                  len(names) - 1, np.int64)
-    for c, name in enumerate(bottom_types):
-        cls[bottom_types[name]] = c
+    names, cls = _class_table(bottom_types, body)
     counts = np.zeros(len(names), np.int64)
     ray_cls = np.empty(body.size, np.int64)
     ak.class_counts(body, np.ascontiguousarray(rays.energy).reshape(-1), np.asarray(weight, np.int64), cls, counts,
                     ray_cls)
-    largest = int(np.argmax(counts))
-    slot_of = {}
-    k = 1
-    for c, name in enumerate(names):
-        if c == largest:
-            slot_of[name] = 0
-        else:
-            slot_of[name] = k
-            k += 1
+    table, k, slot_of = _slot_table(names, counts)
     slot = np.empty(body.size, np.int8)
-    ak.class_slots(ray_cls, np.array([slot_of[n] for n in names], np.int8), slot)
+    ak.class_slots(ray_cls, table, slot)
     return slot, k, slot_of
 
 
