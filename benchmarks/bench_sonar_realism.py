@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import time
 
 from _timing import median_ms, paired_ms
 
@@ -40,9 +41,9 @@ def run() -> list[dict]:
                                                           options=real_opts), repeat=11)
     clean_thesis = median_ms(lambda: simulate_sonar(scene, spec, pose, noise=False), repeat=7)
     clean_real = median_ms(lambda: simulate_sonar(scene, spec, pose, noise=False, options=real_opts), repeat=7)
-    thesis_cpu, real_cpu = _paired_cpu_ms(lambda: simulate_sonar(scene, spec, pose, seed=next(seeds)),
-                                          lambda: simulate_sonar(scene, spec, pose, seed=next(seeds), noise=noise,
-                                                                 options=real_opts), repeat=11)
+    thesis_cpu, real_cpu = paired_ms(lambda: simulate_sonar(scene, spec, pose, seed=next(seeds)),
+                                     lambda: simulate_sonar(scene, spec, pose, seed=next(seeds), noise=noise,
+                                                            options=real_opts), repeat=11, clock=time.process_time)
     small = dataclasses.replace(spec, elevation_samples=64)
     small_ms = median_ms(lambda: simulate_sonar(scene, small, pose, seed=next(seeds), noise=noise, options=real_opts), repeat=7)
     return [
@@ -60,23 +61,3 @@ def run() -> list[dict]:
              ratio=small_ms / thesis_ms, note="half the rays: the aperture model's samples span a wider elevation"),
     ]
 
-
-def _paired_cpu_ms(ref, fn, repeat: int = 11, warmup: int = 2) -> tuple[float, float]:
-    """Medians (ms) of the process CPU time (all threads) of ``ref()`` and ``fn()``, timed alternately."""
-    import time
-
-    import numpy as np
-
-    for _ in range(warmup):
-        ref()
-        fn()
-    a, b = [], []
-    for _ in range(repeat):
-        t0 = time.process_time()
-        ref()
-        t1 = time.process_time()
-        fn()
-        t2 = time.process_time()
-        a.append(t1 - t0)
-        b.append(t2 - t1)
-    return 1e3 * float(np.median(a)), 1e3 * float(np.median(b))
