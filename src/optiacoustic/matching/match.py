@@ -773,6 +773,34 @@ def crease_score_features(feats: dict) -> np.ndarray:
                             np.log(np.maximum(feats["image_contrast"], 1e-6))])
 
 
+#: Logistic model of P(correct) of the point on the face's fitted plane (:mod:`.face_plane`):
+#: intercept and weights of the standardised :func:`plane_score_features`. Fitted by
+#: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model.
+PLANE_SCORE_MODEL = dict(
+    weights=(-0.199, 0.703, -0.224, 1.111, -0.577, -0.303, 0.109, 0.425, 0.253, 0.148, 0.0, -0.177, -0.138, 0.34, 0.122),
+    mean=(0.0286, 1.5192, 0.7928, 0.6236, 0.4874, 0.908, 1.5563, 0.8552, 0.3601, 1.0, 1.7737, 0.383, 0.4633, 1.1032),
+    std=(1.1081, 0.8233, 0.4053, 0.7834, 0.4998, 0.289, 0.3776, 0.1847, 0.5608, 1.0, 1.0478, 0.6714, 0.6443, 0.554),
+)
+
+
+def plane_score_features(feats: dict) -> np.ndarray:
+    """The plane score model's inputs ``(N, 14)`` (NaN-free; meaningful where ``plane_found``)."""
+    d = np.nan_to_num(np.asarray(feats["plane_dphi_deg"], float))
+    cf = np.asarray(feats["crease_found"], bool)
+    dc = np.where(cf, np.nan_to_num(np.asarray(feats["plane_crease_dphi_deg"], float)), 0.0)
+    n_c = np.maximum(np.asarray(feats["plane_n_creases"], float), 1.0)
+    n_i = np.asarray(feats["plane_n_inliers"], float)
+    own = np.asarray(feats["plane_own_residual"], float)
+    has_own = np.isfinite(own)
+    pos = np.clip(np.nan_to_num(np.asarray(feats["plane_position"], float), nan=0.5), -1.0, 2.0)
+    hgt = np.clip(np.nan_to_num(np.asarray(feats["plane_height"], float), nan=0.5), -1.0, 2.0)
+    return np.column_stack([_logit(feats["arc_score"]), np.log1p(d / 0.25), cf.astype(float), np.log1p(dc / 0.25),
+                            feats["kind"], np.asarray(feats["plane_in_face"], float), np.log1p(n_i), n_i / n_c,
+                            np.where(has_own, np.log1p(np.nan_to_num(own) / 0.01), 0.0), has_own.astype(float),
+                            np.log1p(np.nan_to_num(np.asarray(feats["plane_spread"], float)) / 0.05), pos, hgt,
+                            np.log1p(feats["echo_depth_bins"])])
+
+
 def _logistic(X, model):
     w = np.asarray(model["weights"], float)
     z = w[0] + ((X - np.asarray(model["mean"])) / np.asarray(model["std"])) @ w[1:]
@@ -807,7 +835,8 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     from ..geometry.projection import camera_from_sonar
     from .arc_search import gradient_image, search_arcs, stretched
     from .camera_features import to_gray8
-    from .contact import crease_points, echo_start_ranges, search_contacts
+    from .contact import crease_points, crease_positions, echo_start_ranges, search_contacts
+    from .face_plane import face_labels, face_planes
 
     if np.ptp(to_gray8(cam_img)) == 0:
         return _empty("no camera features: the image is blank (or too turbid to show anything)", sf)
@@ -859,13 +888,35 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     feats["image_contrast"] = np.full(rows.size, (hi_i - lo_i) / max(hi_i + lo_i, 1e-12))
     feats["arc_u"], feats["arc_v"] = px_arc[:, 0], px_arc[:, 1]
     feats["crease_u"], feats["crease_v"] = cr.pixels[:, 0], cr.pixels[:, 1]
+    # The face-plane model (:mod:`.face_plane`): the vertical plane through all creases of the face.
+    labels = face_labels(grad, opt.arc_threshold)
+    H, W = labels.shape
+    face = labels[np.clip(np.rint(px_arc[:, 1]).astype(int), 0, H - 1), np.clip(np.rint(px_arc[:, 0]).astype(int), 0, W - 1)]
+    C, c_ok = crease_positions(rig, ch.top_pixels[rows], np.minimum(r_on, sf.ranges[rows]))
+    fp = face_planes(rig, seabed, sf.ranges[rows], sf.azimuths[rows], face, C, c_ok, ch.elevations[rows], labels)
+    feats["plane_u"], feats["plane_v"] = fp.pixels[:, 0], fp.pixels[:, 1]
+    feats["plane_found"] = fp.found
+    feats["plane_dphi_deg"] = np.where(fp.found, np.rad2deg(np.abs(np.nan_to_num(fp.elevations)
+                                                                  - ch.elevations[rows])), np.nan)
+    feats["plane_crease_dphi_deg"] = np.where(fp.found & cr.found, np.rad2deg(np.abs(
+        np.nan_to_num(fp.elevations) - np.nan_to_num(cr.elevations))), np.nan)
+    feats["plane_n_creases"], feats["plane_n_inliers"] = fp.n_creases, fp.n_inliers
+    feats["plane_spread"], feats["plane_own_residual"] = fp.spread, fp.own_residual
+    feats["plane_height"], feats["plane_in_face"] = fp.height, fp.in_face
+    with np.errstate(invalid="ignore", divide="ignore"):
+        feats["plane_position"] = np.where(fp.found, (fp.elevations - ch.run_low[rows])
+                                           / np.maximum(ch.run_high[rows] - ch.run_low[rows], 1e-9), np.nan)
     p_arc = _logistic(face_score_features(feats), FACE_SCORE_MODEL)
     p_crease = np.where(cr.found, _logistic(crease_score_features(feats), CREASE_SCORE_MODEL), 0.0)
-    use = cr.found & (p_crease > p_arc)
-    feats["face_source"] = use.astype(int)  # 0: the arc search's pixel, 1: the point below the crease
-    feats["elevation"] = np.where(use, cr.elevations, ch.elevations[rows])
-    px = np.where(use[:, None], cr.pixels, px_arc)
-    score = np.where(use, p_crease, p_arc)
+    p_plane = np.where(fp.found, _logistic(plane_score_features(feats), PLANE_SCORE_MODEL), 0.0)
+    # 0: the arc search's pixel, 1: the point below the crease, 2: the point on the face's plane.
+    probs = np.column_stack([p_arc, p_crease, p_plane])
+    source = np.argmax(probs, axis=1)
+    feats["face_source"] = source
+    feats["elevation"] = np.choose(source, [ch.elevations[rows], np.nan_to_num(cr.elevations),
+                                            np.nan_to_num(fp.elevations)])
+    px = np.choose(source[:, None], [px_arc, np.nan_to_num(cr.pixels), np.nan_to_num(fp.pixels)])
+    score = probs[np.arange(rows.size), source]
     s_px = noise.sigma_pixel or 0.5
     s_r = np.full(rows.size, noise.sigma_range) if noise.sigma_range else sf.sigma_range[rows]
     s_a = np.full(rows.size, noise.sigma_azimuth) if noise.sigma_azimuth else sf.sigma_azimuth[rows]
