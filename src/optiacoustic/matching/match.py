@@ -111,6 +111,10 @@ class MatchOptions:
         experiment's scenes it removed most matches of the built-in scenes whose objects share
         the seabed's colour and, in Jerlov 1C-3C water, where all colours converge to the
         water's, recall fell from 0.72 to 0.38.
+    face_plane : bool
+        Offer each feature the point where its arc meets its face's fitted plane
+        (:mod:`.face_plane`) as a third candidate (off: the arc search's pixel or the point below
+        the crease only, the previous round's matcher).
     cfar, keypoints : detector options.
     """
 
@@ -126,6 +130,7 @@ class MatchOptions:
     method: str = "arc"
     arc_threshold: float = 3.0
     seabed_contrast: float = 0.0
+    face_plane: bool = True
     cfar: CfarOptions = field(default_factory=CfarOptions)
     keypoints: KeypointOptions = field(default_factory=KeypointOptions)
 
@@ -777,14 +782,14 @@ def crease_score_features(feats: dict) -> np.ndarray:
 #: intercept and weights of the standardised :func:`plane_score_features`. Fitted by
 #: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model.
 PLANE_SCORE_MODEL = dict(
-    weights=(-0.199, 0.703, -0.224, 1.111, -0.577, -0.303, 0.109, 0.425, 0.253, 0.148, 0.0, -0.177, -0.138, 0.34, 0.122),
-    mean=(0.0286, 1.5192, 0.7928, 0.6236, 0.4874, 0.908, 1.5563, 0.8552, 0.3601, 1.0, 1.7737, 0.383, 0.4633, 1.1032),
-    std=(1.1081, 0.8233, 0.4053, 0.7834, 0.4998, 0.289, 0.3776, 0.1847, 0.5608, 1.0, 1.0478, 0.6714, 0.6443, 0.554),
+    weights=(-0.217, 0.935, -0.135, 0.88, -0.555, -0.31, 0.2, 0.42, 0.093, 0.11, 0.0, -0.178, 0.1, 0.165, 0.108, 0.675, -0.086),
+    mean=(0.0286, 1.5192, 0.7928, 0.6236, 0.4874, 0.908, 1.5563, 0.8552, 0.3601, 1.0, 1.7737, 0.383, 0.4633, 1.1032, 1.5495, -0.3307),
+    std=(1.1081, 0.8233, 0.4053, 0.7834, 0.4998, 0.289, 0.3776, 0.1847, 0.5608, 1.0, 1.0478, 0.6714, 0.6443, 0.554, 1.4245, 0.1945),
 )
 
 
 def plane_score_features(feats: dict) -> np.ndarray:
-    """The plane score model's inputs ``(N, 14)`` (NaN-free; meaningful where ``plane_found``)."""
+    """The plane score model's inputs ``(N, 16)`` (NaN-free; meaningful where ``plane_found``)."""
     d = np.nan_to_num(np.asarray(feats["plane_dphi_deg"], float))
     cf = np.asarray(feats["crease_found"], bool)
     dc = np.where(cf, np.nan_to_num(np.asarray(feats["plane_crease_dphi_deg"], float)), 0.0)
@@ -798,7 +803,8 @@ def plane_score_features(feats: dict) -> np.ndarray:
                             feats["kind"], np.asarray(feats["plane_in_face"], float), np.log1p(n_i), n_i / n_c,
                             np.where(has_own, np.log1p(np.nan_to_num(own) / 0.01), 0.0), has_own.astype(float),
                             np.log1p(np.nan_to_num(np.asarray(feats["plane_spread"], float)) / 0.05), pos, hgt,
-                            np.log1p(feats["echo_depth_bins"])])
+                            np.log1p(feats["echo_depth_bins"]), np.log1p(np.nan_to_num(feats["top_edge"])),
+                            np.log(np.maximum(feats["image_contrast"], 1e-6))])
 
 
 def _logistic(X, model):
@@ -908,7 +914,8 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
                                            / np.maximum(ch.run_high[rows] - ch.run_low[rows], 1e-9), np.nan)
     p_arc = _logistic(face_score_features(feats), FACE_SCORE_MODEL)
     p_crease = np.where(cr.found, _logistic(crease_score_features(feats), CREASE_SCORE_MODEL), 0.0)
-    p_plane = np.where(fp.found, _logistic(plane_score_features(feats), PLANE_SCORE_MODEL), 0.0)
+    p_plane = np.where(fp.found, _logistic(plane_score_features(feats), PLANE_SCORE_MODEL), 0.0) \
+        if opt.face_plane else np.zeros(rows.size)
     # 0: the arc search's pixel, 1: the point below the crease, 2: the point on the face's plane.
     probs = np.column_stack([p_arc, p_crease, p_plane])
     source = np.argmax(probs, axis=1)
