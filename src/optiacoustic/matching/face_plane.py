@@ -171,7 +171,7 @@ def fit_line_2d(q, *, inlier_m: float = 0.02, min_spread: float = 0.05, fallback
 
 def face_planes(rig, seabed, ranges, azimuths, face, creases, crease_ok, near, labels, *,
                 window: float = float(np.deg2rad(3.0)), inlier_m: float = 0.02,
-                min_spread: float = 0.05) -> FacePlaneChoice:
+                min_spread: float = 0.05, height_margin: float = 0.03) -> FacePlaneChoice:
     """For every feature, the point where its arc meets the vertical plane fitted to its face's creases.
 
     Parameters
@@ -196,6 +196,9 @@ def face_planes(rig, seabed, ranges, azimuths, face, creases, crease_ok, near, l
         Creases of the same face within this azimuth (rad) of the feature's enter its plane.
     inlier_m, min_spread : float
         See :func:`fit_line_2d`.
+    height_margin : float
+        The point must lie between ``height_margin`` (m) below the seabed and as far above the face's
+        top edge (the median height of its inlier creases); elsewhere it is not found.
 
     Returns
     -------
@@ -256,8 +259,12 @@ def face_planes(rig, seabed, ranges, azimuths, face, creases, crease_ok, near, l
     H, W = labels.shape
     ui = np.clip(np.rint(np.nan_to_num(px[:, 0])).astype(int), 0, W - 1)
     vi = np.clip(np.rint(np.nan_to_num(px[:, 1])).astype(int), 0, H - 1)
+    # A point on a face standing on the seabed lies between the seabed and the face's top edge.
+    h_pt = X @ n_up - seabed.offset
+    with np.errstate(invalid="ignore"):
+        found &= (h_pt >= -height_margin) & (h_pt <= top_h + height_margin)
     in_face = found & (labels[vi, ui] == face)
     with np.errstate(invalid="ignore", divide="ignore"):
-        hf = np.where(found, (X @ n_up - seabed.offset) / top_h, np.nan)
+        hf = np.where(found, h_pt / top_h, np.nan)
     return FacePlaneChoice(np.where(found[:, None], px, np.nan), np.where(found, phi, np.nan), normals, offsets,
                            n_cr, n_in, spread, own, hf, in_face, found)
