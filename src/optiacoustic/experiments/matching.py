@@ -725,43 +725,43 @@ FACE_TRAINING = ((range(5000, 5048), "thesis"), (range(5000, 5024), "jerlov-1C")
 
 
 def calibrate_face_score(scenes=FACE_TRAINING, *, ridge: float = 1.0) -> dict:
-    """Refit ``matching.match.FACE_SCORE_MODEL`` and ``CREASE_SCORE_MODEL`` (the vertical-face evidence).
+    """Refit ``matching.match.FACE_SCORE_MODEL``, ``CREASE_SCORE_MODEL`` and ``PLANE_SCORE_MODEL``.
 
     Runs the matcher on the random scenes ``scenes`` (pairs of seeds and water, default sonar
-    noise; :data:`FACE_TRAINING`) and labels, by the depth-map truth, the arc search's pixel of every match and the point below
-    the crease where there is one; fits a logistic regression of each on
-    :func:`matching.match.face_score_features` and :func:`matching.match.crease_score_features`.
-    Refit after ``ARC_SCORE_MODEL``. Use seeds disjoint from the evaluation's.
+    noise; :data:`FACE_TRAINING`) and labels, by the depth-map truth, the arc search's pixel of every
+    match, the point below the crease and the point on the face's fitted plane where there are
+    ones; fits a logistic regression of each on :func:`matching.match.face_score_features`,
+    :func:`matching.match.crease_score_features` and :func:`matching.match.plane_score_features`
+    (the features do not depend on which candidate the current models choose). Refit after
+    ``ARC_SCORE_MODEL``. Use seeds disjoint from the evaluation's.
 
     Returns
     -------
     dict
-        ``face`` and ``crease``: each ``weights`` (intercept first), ``mean``, ``std``, ``n``,
-        ``positive_rate``.
+        ``face``, ``crease`` and ``plane``: each ``weights`` (intercept first), ``mean``, ``std``,
+        ``n``, ``positive_rate``.
     """
-    from ..matching import match, truth
-    from ..matching.match import crease_score_features, face_score_features
+    from ..matching import MatchOptions, match, truth
+    from ..matching.match import crease_score_features, face_score_features, plane_score_features
 
-    XF, yF, XC, yC = [], [], [], []
+    X = {k: [] for k in ("face", "crease", "plane")}
+    y = {k: [] for k in X}
+    featurise = dict(face=face_score_features, crease=crease_score_features, plane=plane_score_features)
     for sd, water in ((sd, water) for seeds, water in scenes for sd in seeds):
         s, o, rig = simulate_pair(random_scene(int(sd)), water, "default", int(sd))
-        m = match(s, o.image, rig, min_score=0.0)
+        m = match(s, o.image, rig, min_score=0.0, options=MatchOptions(face_plane=False))
         if not m:
             continue
         bw, aw = float(np.median(np.diff(s.ranges))), float(np.median(np.diff(s.azimuths)))
         f = m.features
-        ok_arc = truth.correct(rig, o.depth, np.column_stack([f["arc_u"], f["arc_v"]]), m.ranges, m.azimuths,
-                               bin_width=bw, beam_width=aw)
-        XF.append(face_score_features(f))
-        yF.append(ok_arc.astype(float))
-        c = np.asarray(f["crease_found"], bool)
-        if c.any():
-            ok_c = truth.correct(rig, o.depth, np.column_stack([f["crease_u"], f["crease_v"]])[c], m.ranges[c],
-                                 m.azimuths[c], bin_width=bw, beam_width=aw)
-            XC.append(crease_score_features(f)[c])
-            yC.append(ok_c.astype(float))
-    return dict(face=_fit_logistic(np.concatenate(XF), np.concatenate(yF), ridge),
-                crease=_fit_logistic(np.concatenate(XC), np.concatenate(yC), ridge))
+        for key, prefix in (("face", "arc"), ("crease", "crease"), ("plane", "plane")):
+            c = np.ones(len(m), bool) if key == "face" else np.asarray(f[f"{prefix}_found"], bool)
+            if c.any():
+                ok = truth.correct(rig, o.depth, np.column_stack([f[f"{prefix}_u"], f[f"{prefix}_v"]])[c],
+                                   m.ranges[c], m.azimuths[c], bin_width=bw, beam_width=aw)
+                X[key].append(featurise[key](f)[c])
+                y[key].append(ok.astype(float))
+    return {k: _fit_logistic(np.concatenate(X[k]), np.concatenate(y[k]), ridge) for k in X}
 
 
 def _fit_logistic(X, y, ridge):

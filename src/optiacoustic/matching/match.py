@@ -100,7 +100,8 @@ class MatchOptions:
         ``"arc"`` (default): each sonar feature searches its own epipolar arc, inside the
         elevation interval of the seabed and shadow evidence, for the middle of the longest
         edge-free run of pixels (:mod:`.arc_search`), or takes the point below that face's
-        crease (:mod:`.contact`) where that is the more probable; ``"corners"``: OpenCV corners gated by
+        crease (:mod:`.contact`) or on the face's fitted plane (:mod:`.face_plane`) where that is
+        the more probable; ``"corners"``: OpenCV corners gated by
         the epipolar distance and assigned globally (the first design, kept for comparison).
     arc_threshold : float
         Gradient (gray levels per px) below which an arc pixel is edge-free.
@@ -722,15 +723,16 @@ def arc_score_features(feats: dict) -> np.ndarray:
 
 #: Second-stage logistic model of P(correct) of the arc search's pixel: intercept and weights of
 #: the standardised :func:`face_score_features` (logit of :data:`ARC_SCORE_MODEL`'s score; for the
-#: seabed-contact search of :mod:`.contact` and for the point below the crease: whether it found
-#: one, log of 1 + its elevation's distance from the arc search's in units of 0.25 deg, and whether
-#: they agree within 0.5 deg). Fitted by ``experiments.matching.calibrate_face_score()`` on random
-#: scenes seeded 5000-5047 in thesis water and 5000-5023 in Jerlov 1C water
+#: seabed-contact search of :mod:`.contact`, for the point below the crease and for the point on the
+#: face's plane (:mod:`.face_plane`): whether it found one, log of 1 + its elevation's distance from
+#: the arc search's in units of 0.25 deg, and whether they agree within 0.5 deg). Fitted by
+#: ``experiments.matching.calibrate_face_score()`` on random scenes seeded 5000-5047 in thesis water
+#: and 5000-5023 in Jerlov 1C water
 #: (``experiments.matching.FACE_TRAINING``; 1627 matches, 51% correct).
 FACE_SCORE_MODEL = dict(
-    weights=(-0.029, 1.109, 0.946, -1.018, -0.076, 0.187, -0.012, 0.043),
-    mean=(-0.0952, 0.3049, 0.4877, 0.0719, 0.7591, 0.9647, 0.3196),
-    std=(1.2825, 0.4603, 0.8294, 0.2583, 0.4277, 0.8, 0.4663),
+    weights=(-0.028, 1.099, 0.896, -0.986, -0.09, -0.124, 0.258, 0.034, 0.578, -0.448, 0.005),
+    mean=(-0.0952, 0.3049, 0.4877, 0.0719, 0.7591, 0.9647, 0.3196, 0.6945, 0.9283, 0.2661),
+    std=(1.2825, 0.4603, 0.8294, 0.2583, 0.4277, 0.8, 0.4663, 0.4606, 0.8495, 0.4419),
 )
 
 #: Logistic model of P(correct) of the point below the crease (:func:`.contact.crease_points`):
@@ -763,9 +765,10 @@ def _logit(p):
 
 
 def face_score_features(feats: dict) -> np.ndarray:
-    """The face score model's inputs ``(N, 7)`` from a :attr:`Matches.features` mapping."""
+    """The face score model's inputs ``(N, 10)`` from a :attr:`Matches.features` mapping."""
     return np.column_stack([_logit(feats["arc_score"]), *_agreement(feats["contact_found"], feats["contact_dphi_deg"]),
-                            *_agreement(feats["crease_found"], feats["crease_dphi_deg"])])
+                            *_agreement(feats["crease_found"], feats["crease_dphi_deg"]),
+                            *_agreement(feats["plane_found"], feats["plane_dphi_deg"])])
 
 
 def crease_score_features(feats: dict) -> np.ndarray:
@@ -779,8 +782,16 @@ def crease_score_features(feats: dict) -> np.ndarray:
 
 
 #: Logistic model of P(correct) of the point on the face's fitted plane (:mod:`.face_plane`):
-#: intercept and weights of the standardised :func:`plane_score_features`. Fitted by
-#: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model.
+#: intercept and weights of the standardised :func:`plane_score_features` (logit of the arc
+#: search's own score; log of 1 + the point's elevation distance from the arc search's, in units of
+#: 0.25 deg; the crease point found, and log of 1 + the plane point's distance from it; onset or
+#: peak; the point's pixel in the feature's face; log of 1 + the plane's inlier creases and their
+#: fraction; log of 1 + the feature's own crease's distance from the plane in cm, and whether it has
+#: one; log of 1 + the inliers' extent along the edge in units of 5 cm; where the point sits in the
+#: run; its height as a fraction of the face's; log of 1 + how many bins the feature lies behind its
+#: echo's start; log of 1 + the gradient just above the run; log of the image's contrast). Fitted by
+#: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model (1130
+#: plane points, 63% correct).
 PLANE_SCORE_MODEL = dict(
     weights=(0.595, 0.62, -0.019, 0.387, -0.339, -0.251, 0.24, 0.284, 0.058, 0.12, 0.0, -0.004, -0.049, 0.176, 0.106, 0.617, -0.045),
     mean=(0.3183, 1.3367, 0.923, 0.6095, 0.4929, 0.9381, 1.534, 0.8806, 0.2862, 1.0, 1.6239, 0.5338, 0.5928, 1.0204, 1.715, -0.3276),
@@ -835,8 +846,9 @@ def _elevation_intervals(sf, img_s, r_bins, th_beams, rig, opt):
 def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Matches:
     """Every sonar feature takes a pixel of the longest edge-free run of its arc (:mod:`.arc_search`).
 
-    The run's middle (or 70% up for onsets), or the point below the face's crease
-    (:func:`.contact.crease_points`) where its calibrated probability is the higher.
+    The run's middle (or 70% up for onsets), the point below the face's crease
+    (:func:`.contact.crease_points`) or the point where the arc meets the plane fitted to all the
+    face's creases (:func:`.face_plane.face_planes`), whichever has the highest calibrated probability.
     """
     from ..geometry.projection import camera_from_sonar
     from .arc_search import gradient_image, search_arcs, stretched
