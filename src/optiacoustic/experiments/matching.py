@@ -725,43 +725,48 @@ FACE_TRAINING = ((range(5000, 5048), "thesis"), (range(5000, 5024), "jerlov-1C")
 
 
 def calibrate_face_score(scenes=FACE_TRAINING, *, ridge: float = 1.0) -> dict:
-    """Refit ``matching.match.FACE_SCORE_MODEL``, ``CREASE_SCORE_MODEL`` and ``PLANE_SCORE_MODEL``.
+    """Refit ``matching.match.FACE_SCORE_MODEL``, ``FACE_PLANE_SCORE_MODEL``, ``CREASE_SCORE_MODEL`` and ``PLANE_SCORE_MODEL``.
 
     Runs the matcher on the random scenes ``scenes`` (pairs of seeds and water, default sonar
     noise; :data:`FACE_TRAINING`) and labels, by the depth-map truth, the arc search's pixel of every
     match, the point below the crease and the point on the face's fitted plane where there are
-    ones; fits a logistic regression of each on :func:`matching.match.face_score_features`,
-    :func:`matching.match.crease_score_features` and :func:`matching.match.plane_score_features`
-    (the features do not depend on which candidate the current models choose). Refit after
-    ``ARC_SCORE_MODEL``. Use seeds disjoint from the evaluation's.
+    ones; fits a logistic regression of each on :func:`matching.match.face_score_features` (all
+    matches), :func:`matching.match.face_plane_score_features` (the matches where the plane is
+    offered), :func:`matching.match.crease_score_features` and
+    :func:`matching.match.plane_score_features` (the features do not depend on which candidate the
+    current models choose). Refit after ``ARC_SCORE_MODEL``. Use seeds disjoint from the evaluation's.
 
     Returns
     -------
     dict
-        ``face``, ``crease`` and ``plane``: each ``weights`` (intercept first), ``mean``, ``std``,
-        ``n``, ``positive_rate``.
+        ``face``, ``face_plane``, ``crease`` and ``plane``: each ``weights`` (intercept first),
+        ``mean``, ``std``, ``n``, ``positive_rate``.
     """
-    from ..matching import MatchOptions, match, truth
-    from ..matching.match import crease_score_features, face_score_features, plane_score_features
+    from ..matching import match, truth
+    from ..matching.match import (crease_score_features, face_plane_score_features, face_score_features,
+                                  plane_score_features)
 
-    X = {k: [] for k in ("face", "crease", "plane")}
-    y = {k: [] for k in X}
-    featurise = dict(face=face_score_features, crease=crease_score_features, plane=plane_score_features)
+    featurise = dict(face=face_score_features, face_plane=face_plane_score_features, crease=crease_score_features,
+                     plane=plane_score_features)
+    X = {k: [] for k in featurise}
+    y = {k: [] for k in featurise}
     for sd, water in ((sd, water) for seeds, water in scenes for sd in seeds):
         s, o, rig = simulate_pair(random_scene(int(sd)), water, "default", int(sd))
-        m = match(s, o.image, rig, min_score=0.0, options=MatchOptions(face_plane=False))
+        m = match(s, o.image, rig, min_score=0.0)
         if not m:
             continue
         bw, aw = float(np.median(np.diff(s.ranges))), float(np.median(np.diff(s.azimuths)))
         f = m.features
-        for key, prefix in (("face", "arc"), ("crease", "crease"), ("plane", "plane")):
-            c = np.ones(len(m), bool) if key == "face" else np.asarray(f[f"{prefix}_found"], bool)
+        for key, prefix, c in (("face", "arc", np.ones(len(m), bool)),
+                               ("face_plane", "arc", np.asarray(f["plane_offered"], bool)),
+                               ("crease", "crease", np.asarray(f["crease_found"], bool)),
+                               ("plane", "plane", np.asarray(f["plane_found"], bool))):
             if c.any():
                 ok = truth.correct(rig, o.depth, np.column_stack([f[f"{prefix}_u"], f[f"{prefix}_v"]])[c],
                                    m.ranges[c], m.azimuths[c], bin_width=bw, beam_width=aw)
                 X[key].append(featurise[key](f)[c])
                 y[key].append(ok.astype(float))
-    return {k: _fit_logistic(np.concatenate(X[k]), np.concatenate(y[k]), ridge) for k in X}
+    return {k: _fit_logistic(np.concatenate(X[k]), np.concatenate(y[k]), ridge) for k in X if X[k]}
 
 
 def _fit_logistic(X, y, ridge):

@@ -116,6 +116,12 @@ class MatchOptions:
         Offer each feature the point where its arc meets its face's fitted plane
         (:mod:`.face_plane`) as a third candidate (off: the arc search's pixel or the point below
         the crease only, the previous round's matcher).
+    face_plane_min_contrast : float
+        The plane is fitted only in images whose contrast (0.5-99.5 percentile range of the mean
+        channel over their sum) is at least this: in turbid water the crease between a box's front
+        and top faces washes out and the plane follows the top face's far edge. The training
+        scenes' images have 0.79-0.86 in thesis water and 0.53 in Jerlov 1C, where the plane cost
+        correct matches (302 -> 298 on scenes 5000-5023); 0.65 lies between.
     cfar, keypoints : detector options.
     """
 
@@ -132,6 +138,7 @@ class MatchOptions:
     arc_threshold: float = 3.0
     seabed_contrast: float = 0.0
     face_plane: bool = True
+    face_plane_min_contrast: float = 0.65
     cfar: CfarOptions = field(default_factory=CfarOptions)
     keypoints: KeypointOptions = field(default_factory=KeypointOptions)
 
@@ -730,9 +737,22 @@ def arc_score_features(feats: dict) -> np.ndarray:
 #: and 5000-5023 in Jerlov 1C water
 #: (``experiments.matching.FACE_TRAINING``; 1627 matches, 51% correct).
 FACE_SCORE_MODEL = dict(
-    weights=(-0.028, 1.099, 0.896, -0.986, -0.09, -0.124, 0.258, 0.034, 0.578, -0.448, 0.005),
-    mean=(-0.0952, 0.3049, 0.4877, 0.0719, 0.7591, 0.9647, 0.3196, 0.6945, 0.9283, 0.2661),
-    std=(1.2825, 0.4603, 0.8294, 0.2583, 0.4277, 0.8, 0.4663, 0.4606, 0.8495, 0.4419),
+    weights=(-0.029, 1.109, 0.946, -1.018, -0.076, 0.187, -0.012, 0.043),
+    mean=(-0.0952, 0.3049, 0.4877, 0.0719, 0.7591, 0.9647, 0.3196),
+    std=(1.2825, 0.4603, 0.8294, 0.2583, 0.4277, 0.8, 0.4663),
+)
+
+#: :data:`FACE_SCORE_MODEL` where the face-plane candidate is offered (``MatchOptions.face_plane``
+#: and an image contrast of at least ``face_plane_min_contrast``): intercept and weights of the
+#: standardised :func:`face_plane_score_features` (those of :func:`face_score_features`, then for
+#: the point on the face's plane: found, log of 1 + its elevation distance from the arc search's in
+#: units of 0.25 deg, agreement within 0.5 deg). Fitted by
+#: ``experiments.matching.calibrate_face_score()`` on the matches of those scenes where the plane is
+#: offered (thesis water; 1079 matches, 49% correct).
+FACE_PLANE_SCORE_MODEL = dict(
+    weights=(-0.113, 1.178, 1.121, -0.952, -0.079, 0.08, -0.308, -0.129, 0.521, -0.513, 0.06),
+    mean=(-0.116, 0.4597, 0.7354, 0.1084, 0.7461, 0.8503, 0.3763, 0.7553, 0.9421, 0.3281),
+    std=(1.3063, 0.4984, 0.9248, 0.3109, 0.4353, 0.7315, 0.4845, 0.4299, 0.7965, 0.4695),
 )
 
 #: Logistic model of P(correct) of the point below the crease (:func:`.contact.crease_points`):
@@ -765,10 +785,14 @@ def _logit(p):
 
 
 def face_score_features(feats: dict) -> np.ndarray:
-    """The face score model's inputs ``(N, 10)`` from a :attr:`Matches.features` mapping."""
+    """The face score model's inputs ``(N, 7)`` from a :attr:`Matches.features` mapping."""
     return np.column_stack([_logit(feats["arc_score"]), *_agreement(feats["contact_found"], feats["contact_dphi_deg"]),
-                            *_agreement(feats["crease_found"], feats["crease_dphi_deg"]),
-                            *_agreement(feats["plane_found"], feats["plane_dphi_deg"])])
+                            *_agreement(feats["crease_found"], feats["crease_dphi_deg"])])
+
+
+def face_plane_score_features(feats: dict) -> np.ndarray:
+    """:data:`FACE_PLANE_SCORE_MODEL`'s inputs ``(N, 10)``: :func:`face_score_features` and the plane point's agreement."""
+    return np.column_stack([face_score_features(feats), *_agreement(feats["plane_found"], feats["plane_dphi_deg"])])
 
 
 def crease_score_features(feats: dict) -> np.ndarray:
@@ -793,9 +817,9 @@ def crease_score_features(feats: dict) -> np.ndarray:
 #: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model (1130
 #: plane points, 63% correct).
 PLANE_SCORE_MODEL = dict(
-    weights=(0.595, 0.62, -0.019, 0.387, -0.339, -0.251, 0.24, 0.284, 0.058, 0.12, 0.0, -0.004, -0.049, 0.176, 0.106, 0.617, -0.045),
-    mean=(0.3183, 1.3367, 0.923, 0.6095, 0.4929, 0.9381, 1.534, 0.8806, 0.2862, 1.0, 1.6239, 0.5338, 0.5928, 1.0204, 1.715, -0.3276),
-    std=(0.8258, 0.7023, 0.2666, 0.6321, 0.4999, 0.2411, 0.3239, 0.1704, 0.4212, 1.0, 0.8784, 0.3846, 0.2545, 0.3927, 1.3983, 0.1935),
+    weights=(0.792, 0.743, 0.231, 0.462, -0.469, -0.259, 0.301, 0.464, 0.094, 0.126, 0.0, -0.018, -0.017, 0.32, -0.012, 0.446, -0.116),
+    mean=(0.2865, 1.2473, 0.8982, 0.5551, 0.4871, 0.9141, 1.4994, 0.9219, 0.2683, 1.0, 1.5306, 0.4759, 0.5721, 1.0301, 2.3417, -0.2082),
+    std=(0.8773, 0.6777, 0.3024, 0.5928, 0.4998, 0.2802, 0.3423, 0.1351, 0.4074, 1.0, 0.9188, 0.4173, 0.2646, 0.4171, 1.1355, 0.0263),
 )
 
 
@@ -911,6 +935,9 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     H, W = labels.shape
     face = labels[np.clip(np.rint(px_arc[:, 1]).astype(int), 0, H - 1), np.clip(np.rint(px_arc[:, 0]).astype(int), 0, W - 1)]
     C, c_ok = crease_positions(rig, ch.top_pixels[rows], np.minimum(r_on, sf.ranges[rows]))
+    offered = opt.face_plane & (feats["image_contrast"] >= opt.face_plane_min_contrast)
+    feats["plane_offered"] = offered
+    c_ok &= offered
     fp = face_planes(rig, seabed, sf.ranges[rows], sf.azimuths[rows], face, C, c_ok, ch.elevations[rows], labels)
     feats["plane_u"], feats["plane_v"] = fp.pixels[:, 0], fp.pixels[:, 1]
     feats["plane_found"] = fp.found
@@ -924,7 +951,10 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     with np.errstate(invalid="ignore", divide="ignore"):
         feats["plane_position"] = np.where(fp.found, (fp.elevations - ch.run_low[rows])
                                            / np.maximum(ch.run_high[rows] - ch.run_low[rows], 1e-9), np.nan)
-    p_arc = _logistic(face_score_features(feats), FACE_SCORE_MODEL)
+    # Where the plane is offered, the arc search's pixel is scored knowing whether the plane
+    # point agrees with it; elsewhere exactly as before the face-plane model.
+    p_arc = np.where(offered, _logistic(face_plane_score_features(feats), FACE_PLANE_SCORE_MODEL),
+                     _logistic(face_score_features(feats), FACE_SCORE_MODEL))
     p_crease = np.where(cr.found, _logistic(crease_score_features(feats), CREASE_SCORE_MODEL), 0.0)
     p_plane = np.where(fp.found, _logistic(plane_score_features(feats), PLANE_SCORE_MODEL), 0.0) \
         if opt.face_plane else np.zeros(rows.size)
