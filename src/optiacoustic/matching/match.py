@@ -814,8 +814,8 @@ def crease_score_features(feats: dict) -> np.ndarray:
 #: one; log of 1 + the inliers' extent along the edge in units of 5 cm; where the point sits in the
 #: run; its height as a fraction of the face's; log of 1 + how many bins the feature lies behind its
 #: echo's start; log of 1 + the gradient just above the run; log of the image's contrast). Fitted by
-#: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model (1130
-#: plane points, 63% correct).
+#: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model (815
+#: plane points, all in thesis water where the plane is offered, 67% correct).
 PLANE_SCORE_MODEL = dict(
     weights=(0.792, 0.743, 0.231, 0.462, -0.469, -0.259, 0.301, 0.464, 0.094, 0.126, 0.0, -0.018, -0.017, 0.32, -0.012, 0.446, -0.116),
     mean=(0.2865, 1.2473, 0.8982, 0.5551, 0.4871, 0.9141, 1.4994, 0.9219, 0.2683, 1.0, 1.5306, 0.4759, 0.5721, 1.0301, 2.3417, -0.2082),
