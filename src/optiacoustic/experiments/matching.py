@@ -344,6 +344,71 @@ def _arc_profiles_figure(path, sonar, optical, rig, m, n_rows: int = 6):
     return out
 
 
+def _candidate_truth(m, sonar, optical, rig) -> dict:
+    """Which of each one-view match's candidates (arc search, crease, face plane) is right (evaluation only)."""
+    from ..matching import truth
+
+    bw, aw = float(np.median(np.diff(sonar.ranges))), float(np.median(np.diff(sonar.azimuths)))
+    out = {}
+    for name in ("arc", "crease", "plane"):
+        has = np.zeros(len(m), bool)
+        ok = np.zeros(len(m), bool)
+        if m and f"{name}_u" in m.features:
+            px = np.column_stack([m.features[f"{name}_u"], m.features[f"{name}_v"]])
+            has = np.all(np.isfinite(px), axis=1)
+            if has.any():
+                ok[has] = truth.correct(rig, optical.depth, px[has], m.ranges[has], m.azimuths[has], bin_width=bw,
+                                        beam_width=aw)
+        out[f"has_{name}"], out[f"ok_{name}"] = has, ok
+    out["source"] = np.asarray(m.features.get("face_source", np.zeros(len(m), int)), int) if m else np.zeros(0, int)
+    return out
+
+
+def _face_plane_figure(path, scene_name, sonar, optical, rig, m, cand, pooled):
+    """The face-plane model on one scene (faces, candidates, right or wrong) and its candidates' precision pooled."""
+    import matplotlib.pyplot as plt
+
+    from .._atomic import savefig
+    from ..matching.arc_search import gradient_image
+    from ..matching.face_plane import face_labels
+    from ..matching.figures import _camera_display
+
+    fig, ax = plt.subplots(1, 2, figsize=(13, 4.6), gridspec_kw=dict(width_ratios=[1.6, 1]))
+    img = _camera_display(optical.image)
+    labels = face_labels(gradient_image(optical.image))
+    edges = labels == 0
+    shown = img.copy()
+    shown[edges] = 0.5 * shown[edges]
+    ax[0].imshow(shown)
+    f = m.features
+    styles = (("arc", "o", "run's middle"), ("crease", "^", "below the crease"), ("plane", "s", "on the face plane"))
+    for name, marker, label in styles:
+        u, v = np.asarray(f[f"{name}_u"], float), np.asarray(f[f"{name}_v"], float)
+        has, ok = cand[f"has_{name}"], cand[f"ok_{name}"]
+        ax[0].scatter(u[has & ok], v[has & ok], marker=marker, s=22, facecolors="none", edgecolors="#3cb44b",
+                      linewidths=1.1, label=f"{label}: right")
+        ax[0].scatter(u[has & ~ok], v[has & ~ok], marker=marker, s=22, facecolors="none", edgecolors="#e6194b",
+                      linewidths=1.1, label=f"{label}: wrong")
+    ax[0].set_title(f"{scene_name}: candidates of each sonar feature (edges darkened; faces = regions between them)",
+                    fontsize=8)
+    ax[0].legend(fontsize=6, loc="lower left", ncol=3)
+    ax[0].set_axis_off()
+    names = ["run's middle", "below the crease", "on the face plane", "chosen (most probable)", "any of the three"]
+    vals = [pooled["arc"], pooled["crease"], pooled["plane"], pooled["chosen"], pooled["any"]]
+    ax[1].barh(np.arange(5), vals, color=["#4363d8", "#f58231", "#911eb4", "#000000", "#aaaaaa"])
+    for i, (v_, n_) in enumerate(zip(vals, pooled["n"])):
+        ax[1].text(min(v_ + 0.01, 0.85), i, f"{v_:.2f} of {n_}", va="center", fontsize=8)
+    ax[1].set_yticks(np.arange(5), names, fontsize=8)
+    ax[1].set_xlim(0, 1)
+    ax[1].invert_yaxis()
+    ax[1].set_xlabel("fraction right (where the candidate exists)")
+    ax[1].set_title(f"one view, {pooled['n_scenes']} scenes, thesis water", fontsize=9)
+    fig.tight_layout()
+    out = savefig(fig, path, dpi=100)
+    plt.close(fig)
+    return out
+
+
 def _operating_point(evals, target: float = 0.95) -> dict:
     """The lowest score threshold whose precision is >= ``target`` (every distinct score tried), and the AUC."""
     n_vis = sum(e["n_visible"] for e in evals)
@@ -416,7 +481,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     from ..matching import MatchOptions
     from ..optical import BlindCameraWarning
 
-    evals, evals_corners, per_scene, evals_two, sub_pairs = [], [], [], [], []
+    evals, evals_corners, per_scene, evals_two, sub_pairs, cands = [], [], [], [], [], []
     n_sub = 1 if quick else 8
     first = profile = None
     profile_name = ""
@@ -437,6 +502,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
             first = (sc.name, s, o, m, e["correct"])
         if profile is None and sc.name.startswith("random") and m:
             profile, profile_name = (s, o, rig, m), sc.name
+        cands.append(_candidate_truth(m, s, o, rig))
     prec, rec, npt, n_vis, thresholds = _pr(evals)
     b_prec, b_rec, b_n = _baseline(evals)
     c_prec, c_rec, _, c_vis, _ = _pr(evals_corners, [0.0])
@@ -469,6 +535,25 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
         f_ar = _arc_profiles_figure(out_dir / "matching_arcs.png", *profile)
         figures.append((f_ar, f"Along-arc profiles of matches on {profile_name} (evaluation only: reads the depth "
                               "map): where the correct pixels lie against the edge-free runs the matcher chose."))
+    cat = {k: np.concatenate([c[k] for c in cands]) for k in cands[0]} if cands else {}
+    face_plane_numbers = {}
+    if cat and cat["source"].size:
+        ok_chosen = np.concatenate([e["ok"] for e in evals])
+        pooled = dict(n=[int(cat["has_arc"].sum()), int(cat["has_crease"].sum()), int(cat["has_plane"].sum()),
+                         int(ok_chosen.size), int(ok_chosen.size)], n_scenes=len(all_scenes))
+        for name in ("arc", "crease", "plane"):
+            h = cat[f"has_{name}"]
+            pooled[name] = float(cat[f"ok_{name}"][h].mean()) if h.any() else 0.0
+        pooled["chosen"] = float(ok_chosen.mean())
+        pooled["any"] = float(np.mean(cat["ok_arc"] | cat["ok_crease"] | cat["ok_plane"]))
+        face_plane_numbers = dict(pooled, source_counts=np.bincount(cat["source"], minlength=3).tolist())
+        if profile is not None:
+            s_p, o_p, rig_p, m_p = profile
+            f_fp = _face_plane_figure(out_dir / "matching_face_plane.png", profile_name, s_p, o_p, rig_p, m_p,
+                                      _candidate_truth(m_p, s_p, o_p, rig_p), pooled)
+            figures.append((f_fp, f"The face-plane model on {profile_name} (evaluation only: right or wrong by the "
+                                  "depth map): each sonar feature's three candidate pixels, and how often each is "
+                                  f"right over the {len(all_scenes)} scenes."))
 
     # 2. Turbidity and sonar noise (on a subset of scenes).
     sub = all_scenes[:n_sub]
@@ -616,7 +701,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
         corners_precision_all_assigned=float(c_prec[0]), corners_recall_all_assigned=float(c_rec[0]),
         baseline_precision=b_prec, baseline_recall=b_rec, baseline_n=b_n, precision_ratio_to_baseline=ratio,
         median_error_auto_m=med_auto, median_error_true_matches_m=med_true,
-        two_view=two_view, three_bins_three_beams=loose,
+        two_view=two_view, three_bins_three_beams=loose, face_plane=face_plane_numbers,
         turbidity=[dict(zip(["water", "n_visible", "precision_cut", "recall_cut", "precision_all", "recall_all",
                              "baseline_precision", "baseline_recall"], r_)) for r_ in turb],
         sonar_noise=[dict(zip(["noise_floor", "n_visible", "precision_cut", "recall_cut", "precision_all",
