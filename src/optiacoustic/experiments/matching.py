@@ -389,6 +389,8 @@ def _face_plane_figure(path, scene_name, sonar, optical, rig, m, cand, pooled):
                       linewidths=1.1, label=f"{label}: right")
         ax[0].scatter(u[has & ~ok], v[has & ~ok], marker=marker, s=22, facecolors="none", edgecolors="#e6194b",
                       linewidths=1.1, label=f"{label}: wrong")
+    ax[0].scatter(m.pixels[:, 0], m.pixels[:, 1], marker="+", s=14, color="k", linewidths=0.8,
+                  label="chosen (most probable)")
     ax[0].set_title(f"{scene_name}: candidates of each sonar feature (edges darkened; faces = regions between them)",
                     fontsize=8)
     ax[0].legend(fontsize=6, loc="lower left", ncol=3)
