@@ -730,11 +730,10 @@ def arc_score_features(feats: dict) -> np.ndarray:
 
 #: Second-stage logistic model of P(correct) of the arc search's pixel: intercept and weights of
 #: the standardised :func:`face_score_features` (logit of :data:`ARC_SCORE_MODEL`'s score; for the
-#: seabed-contact search of :mod:`.contact`, for the point below the crease and for the point on the
-#: face's plane (:mod:`.face_plane`): whether it found one, log of 1 + its elevation's distance from
-#: the arc search's in units of 0.25 deg, and whether they agree within 0.5 deg). Fitted by
-#: ``experiments.matching.calibrate_face_score()`` on random scenes seeded 5000-5047 in thesis water
-#: and 5000-5023 in Jerlov 1C water
+#: seabed-contact search of :mod:`.contact` and for the point below the crease: whether it found
+#: one, log of 1 + its elevation's distance from the arc search's in units of 0.25 deg, and whether
+#: they agree within 0.5 deg). Fitted by ``experiments.matching.calibrate_face_score()`` on random
+#: scenes seeded 5000-5047 in thesis water and 5000-5023 in Jerlov 1C water
 #: (``experiments.matching.FACE_TRAINING``; 1627 matches, 51% correct).
 FACE_SCORE_MODEL = dict(
     weights=(-0.029, 1.109, 0.946, -1.018, -0.076, 0.187, -0.012, 0.043),
@@ -810,33 +809,35 @@ def crease_score_features(feats: dict) -> np.ndarray:
 #: search's own score; log of 1 + the point's elevation distance from the arc search's, in units of
 #: 0.25 deg; the crease point found, and log of 1 + the plane point's distance from it; onset or
 #: peak; the point's pixel in the feature's face; log of 1 + the plane's inlier creases and their
-#: fraction; log of 1 + the feature's own crease's distance from the plane in cm, and whether it has
-#: one; log of 1 + the inliers' extent along the edge in units of 5 cm; where the point sits in the
+#: fraction; log of 1 + the feature's own crease's distance from the plane in cm; log of 1 + the
+#: inliers' extent along the edge in units of 5 cm; where the point sits in the
 #: run; its height as a fraction of the face's; log of 1 + how many bins the feature lies behind its
 #: echo's start; log of 1 + the gradient just above the run; log of the image's contrast). Fitted by
 #: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model (815
 #: plane points, all in thesis water where the plane is offered, 67% correct).
 PLANE_SCORE_MODEL = dict(
-    weights=(0.792, 0.743, 0.231, 0.462, -0.469, -0.259, 0.301, 0.464, 0.094, 0.126, 0.0, -0.018, -0.017, 0.32, -0.012, 0.446, -0.116),
-    mean=(0.2865, 1.2473, 0.8982, 0.5551, 0.4871, 0.9141, 1.4994, 0.9219, 0.2683, 1.0, 1.5306, 0.4759, 0.5721, 1.0301, 2.3417, -0.2082),
-    std=(0.8773, 0.6777, 0.3024, 0.5928, 0.4998, 0.2802, 0.3423, 0.1351, 0.4074, 1.0, 0.9188, 0.4173, 0.2646, 0.4171, 1.1355, 0.0263),
+    weights=(0.792, 0.743, 0.231, 0.462, -0.469, -0.259, 0.301, 0.464, 0.094, 0.126, -0.018, -0.017, 0.32,
+             -0.012, 0.446, -0.116),
+    mean=(0.2865, 1.2473, 0.8982, 0.5551, 0.4871, 0.9141, 1.4994, 0.9219, 0.2683, 1.5306, 0.4759, 0.5721,
+          1.0301, 2.3417, -0.2082),
+    std=(0.8773, 0.6777, 0.3024, 0.5928, 0.4998, 0.2802, 0.3423, 0.1351, 0.4074, 0.9188, 0.4173, 0.2646,
+         0.4171, 1.1355, 0.0263),
 )
 
 
 def plane_score_features(feats: dict) -> np.ndarray:
-    """The plane score model's inputs ``(N, 16)`` (NaN-free; meaningful where ``plane_found``)."""
+    """The plane score model's inputs ``(N, 15)`` (NaN-free; meaningful where ``plane_found``)."""
     d = np.nan_to_num(np.asarray(feats["plane_dphi_deg"], float))
     cf = np.asarray(feats["crease_found"], bool)
     dc = np.where(cf, np.nan_to_num(np.asarray(feats["plane_crease_dphi_deg"], float)), 0.0)
     n_c = np.maximum(np.asarray(feats["plane_n_creases"], float), 1.0)
     n_i = np.asarray(feats["plane_n_inliers"], float)
     own = np.asarray(feats["plane_own_residual"], float)
-    has_own = np.isfinite(own)
     pos = np.clip(np.nan_to_num(np.asarray(feats["plane_position"], float), nan=0.5), -1.0, 2.0)
     hgt = np.clip(np.nan_to_num(np.asarray(feats["plane_height"], float), nan=0.5), -1.0, 2.0)
     return np.column_stack([_logit(feats["arc_score"]), np.log1p(d / 0.25), cf.astype(float), np.log1p(dc / 0.25),
                             feats["kind"], np.asarray(feats["plane_in_face"], float), np.log1p(n_i), n_i / n_c,
-                            np.where(has_own, np.log1p(np.nan_to_num(own) / 0.01), 0.0), has_own.astype(float),
+                            np.where(np.isfinite(own), np.log1p(np.nan_to_num(own) / 0.01), 0.0),
                             np.log1p(np.nan_to_num(np.asarray(feats["plane_spread"], float)) / 0.05), pos, hgt,
                             np.log1p(feats["echo_depth_bins"]), np.log1p(np.nan_to_num(feats["top_edge"])),
                             np.log(np.maximum(feats["image_contrast"], 1e-6))])
@@ -933,7 +934,8 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     # The face-plane model (:mod:`.face_plane`): the vertical plane through all creases of the face.
     labels = face_labels(grad, opt.arc_threshold)
     H, W = labels.shape
-    face = labels[np.clip(np.rint(px_arc[:, 1]).astype(int), 0, H - 1), np.clip(np.rint(px_arc[:, 0]).astype(int), 0, W - 1)]
+    face = labels[np.clip(np.rint(px_arc[:, 1]).astype(int), 0, H - 1),
+                  np.clip(np.rint(px_arc[:, 0]).astype(int), 0, W - 1)]  # the face the arc search chose
     C, c_ok = crease_positions(rig, ch.top_pixels[rows], np.minimum(r_on, sf.ranges[rows]))
     offered = opt.face_plane & (feats["image_contrast"] >= opt.face_plane_min_contrast)
     feats["plane_offered"] = offered
@@ -956,8 +958,7 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     p_arc = np.where(offered, _logistic(face_plane_score_features(feats), FACE_PLANE_SCORE_MODEL),
                      _logistic(face_score_features(feats), FACE_SCORE_MODEL))
     p_crease = np.where(cr.found, _logistic(crease_score_features(feats), CREASE_SCORE_MODEL), 0.0)
-    p_plane = np.where(fp.found, _logistic(plane_score_features(feats), PLANE_SCORE_MODEL), 0.0) \
-        if opt.face_plane else np.zeros(rows.size)
+    p_plane = np.where(fp.found, _logistic(plane_score_features(feats), PLANE_SCORE_MODEL), 0.0)
     # 0: the arc search's pixel, 1: the point below the crease, 2: the point on the face's plane.
     probs = np.column_stack([p_arc, p_crease, p_plane])
     source = np.argmax(probs, axis=1)
