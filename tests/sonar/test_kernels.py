@@ -174,14 +174,25 @@ def test_poisson_inversion_is_scipys_quantile_and_poisson(monkeypatch):
 
 
 def test_box_muller_normals(monkeypatch):
+    """Normals from random words: both paths agree, each part is N(0, 1) (KS), the parts are
+    uncorrelated, and the extreme words give the documented tail (radius sqrt(2 ln 2^33))."""
     rng = np.random.default_rng(8)
-    u1, u2 = rng.random((300, 200)), rng.random((300, 200), dtype=np.float32)
+    bits = rng.integers(0, 2**32, (3, 300, 200), dtype=np.uint32)
+    bits[1, 0, :4] = [0, 1, 2**32 - 1, 2**31]
+    bits[2, 0, :4] = [0, 2**30, 2**31, 3 * 2**30]  # phases 0, 1/4, 1/2, 3/4 of a turn
     scale = np.full((300, 200), 2.0, np.float32)
-    a, b = _both(monkeypatch, lambda: N._complex_normals(u1, u2, scale))
+    a, b = _both(monkeypatch, lambda: N._complex_normals(bits, scale))
     _close(a, b, rtol=1e-5)
     for c in (0, 1):
         assert stats.kstest(a[..., c].ravel() / 2.0, "norm").pvalue > 1e-3
     assert abs(np.corrcoef(a[..., 0].ravel(), a[..., 1].ravel())[0, 1]) < 0.02
+    r = np.hypot(a[0, :4, 0], a[0, :4, 1]) / 2.0
+    np.testing.assert_allclose(r[0], np.sqrt(2 * 33 * np.log(2)), rtol=1e-6)  # the largest radius
+    np.testing.assert_allclose(r[2], np.sqrt(-2 * np.log1p(-0.5 * 2.0**-32)), rtol=1e-3)  # the smallest
+    np.testing.assert_allclose(r[3], np.sqrt(-2 * np.log((2**31 + 0.5) / 2**32)), rtol=1e-6)
+    ang = np.arctan2(a[0, :4, 1], a[0, :4, 0])
+    np.testing.assert_allclose(np.cos(ang), [1, 0, -1, 0], atol=1e-6)
+    np.testing.assert_allclose(np.sin(ang), [0, 1, 0, -1], atol=1e-6)
 
 
 def test_import_does_not_load_numba():
