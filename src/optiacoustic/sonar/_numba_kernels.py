@@ -638,21 +638,22 @@ def _exp_neg_row(m, mu_clamp, p, scale):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def scatterer_field(echo, back, area, density, bits, mu_max, r0, r1, z, big):
+def scatterer_field(intensity, gain, back, area, density, bits, mu_max, r0, r1, z, big, mean):
     """``ScattererNoise``'s white complex field, rows ``r0..r1``: per cell the Poisson count ``n``
     of mean ``mu = density area`` (the least ``n`` with ``P(N <= n) >= u``, ``u = (b0 + 1/2)
-    2^-32``: :func:`poisson_inverse`'s inversion), the power ``echo n / mu + back`` (``echo +
-    back`` where ``mu <= MU_NO_SEABED``: no seabed) and a complex normal of that power from the
-    words ``b1``, ``b2`` (:func:`box_muller`). ``bits`` ``(3, B, J)`` uint32 random words.
-    Cells with ``mu >= mu_max`` (<= 40) are flagged in ``big`` (their count is drawn by the
-    caller) and get ``z = 0``.
+    2^-32``: :func:`poisson_inverse`'s inversion), the power ``echo n / mu + back`` with
+    ``echo = intensity gain`` (float32; ``echo + back`` where ``mu <= MU_NO_SEABED``: no seabed)
+    and a complex normal of that power from the words ``b1``, ``b2`` (:func:`box_muller`);
+    ``mean = echo + back``. ``bits`` ``(3, B, J)`` uint32 random words. Cells with
+    ``mu >= mu_max`` (<= 40) are flagged in ``big`` (their count is drawn by the caller) and
+    get ``z = 0``.
 
     Row by row in loops without libm calls or branches on the data, which vectorise:
     ``exp(-mu)`` (:func:`_exp_neg_row`), the first four steps of the inversion (counts 0..3:
     all but a few cells of a resolution-cell-sized mean), the radius (:func:`_radius2_row`)
     and the normals (:func:`_normals_row`); a scalar loop finishes the rare counts above 3.
     """
-    J = echo.shape[1]
+    J = intensity.shape[1]
     m_row = np.empty(J)
     p0 = np.empty(J)
     scale = np.empty(J)
@@ -671,6 +672,8 @@ def scatterer_field(echo, back, area, density, bits, mu_max, r0, r1, z, big):
             m_row[j] = density * a_row[j]
         _exp_neg_row(m_row, 40.0, p0, scale)
         _uniform_bits_row(bits[0, i], u_row)
+        i_row = intensity[i]
+        fours = np.int32(0)
         for j in range(J):  # counts 0..3 by comparisons with the first four cumulative probabilities
             m = min(max(m_row[j], 0.0), 40.0)
             p = p0[j] * scale[j]
@@ -681,9 +684,11 @@ def scatterer_field(echo, back, area, density, bits, mu_max, r0, r1, z, big):
             t2 = t1 * (m / 2.0)
             c2 = c1 + t2
             c3 = c2 + t2 * (m / 3.0)
-            n_row[j] = np.int32(uu > p) + np.int32(uu > c1) + np.int32(uu > c2) + np.int32(uu > c3)
+            n = np.int32(uu > p) + np.int32(uu > c1) + np.int32(uu > c2) + np.int32(uu > c3)
+            n_row[j] = n
+            fours += np.int32(n == 4)
         n_fix = 0
-        for j in range(J):
+        for j in range(J if fours > 0 else 0):  # most rows have no count above 3: no scan
             m = m_row[j]
             fix[n_fix] = j
             n_fix += (n_row[j] == 4) & (m > MU_NO_SEABED) & (m < mu_max)
@@ -699,8 +704,8 @@ def scatterer_field(echo, back, area, density, bits, mu_max, r0, r1, z, big):
                 p *= m / n
                 c += p
             n_row[j] = n
-        e_row = echo[i]
         b_row = big[i]
+        mean_row = mean[i]
         one = np.float32(1.0)
         for j in range(J):  # the power; none where the count is left to the caller
             m = m_row[j]
@@ -708,7 +713,9 @@ def scatterer_field(echo, back, area, density, bits, mu_max, r0, r1, z, big):
             bg = sea & (m >= mu_max)
             seaf = np.float32(sea)
             ratio = np.float32(n_row[j] / (m if sea else 1.0)) * seaf + (one - seaf)
-            power[j] = (e_row[j] * ratio + bk) * (one - np.float32(bg))
+            echo = i_row[j] * gain
+            power[j] = (echo * ratio + bk) * (one - np.float32(bg))
+            mean_row[j] = echo + bk
             b_row[j] = bg
         _radius2_row(bits[1, i], x, e, mant, r2)
         _normals_row(bits[2, i], r2, power, z[i].reshape(2 * J))

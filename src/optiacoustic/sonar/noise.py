@@ -399,9 +399,30 @@ class ScattererNoise:
         # the compiled path reuses per-thread scratch for the echo and the mean (fresh pages fault on
         # every frame): neither outlives this call
         fast = use_numba()
-        echo = np.multiply(I, np.float32(10.0 ** (g.gain_db / 10.0)),
-                           out=_workspace("scatterer_echo", I.shape, np.float32) if fast else None)
-        if self.bottom_type is not None:
+        gain = np.float32(10.0 ** (g.gain_db / 10.0))
+        mean = None
+        if (fast and self.bottom_type is None and cell_area is not None and np.isfinite(self.density)
+                and not np.isfinite(self.clusters_per_m2) and len(_look_weights(self.looks)) == 1):
+            # counts, power, complex normals and the mean image in one pass
+            z = _workspace("scatterer_z", I.shape + (2,), np.float32)  # reused: no page faults per frame
+            big = _workspace("scatterer_big", I.shape, np.bool_)
+            mean = _workspace("scatterer_mean", I.shape, np.float32)
+            area = np.ascontiguousarray(cell_area, np.float32)
+            kn = kernels()
+            split_run(lambda r0, r1: kn.scatterer_field(I, gain, back[:, 0], area, float(self.density), bits,
+                                                        _POISSON_INVERSION_MAX, r0, r1, z, big, mean), I.shape[0], threads)
+            if big.any():  # the rare cells of large mean: counts from the generator, as the numpy path
+                mu = self.density * area[big].astype(np.float64)
+                ratio = (rng.poisson(mu) / mu).astype(np.float32)
+                z[big] = _complex_normals(bits[:, big][:, None],
+                                          np.sqrt((I[big] * gain * ratio + back[:, 0][np.nonzero(big)[0]])
+                                                  * np.float32(0.5))[None])[0]
+            power = None
+        else:
+            echo = np.multiply(I, gain, out=_workspace("scatterer_echo", I.shape, np.float32) if fast else None)
+        if mean is not None:  # done above
+            pass
+        elif self.bottom_type is not None:
             from .distributions import bottom_model
 
             x = bottom_model(self.bottom_type, "mixture").sample(I.shape, rng, dtype=np.float32)
@@ -409,20 +430,6 @@ class ScattererNoise:
             h_r, h_b = np.ones(1), np.ones(1)
         elif cell_area is None or not (np.isfinite(self.density) or np.isfinite(self.clusters_per_m2)):
             power = echo + back
-        elif (use_numba() and np.isfinite(self.density) and not np.isfinite(self.clusters_per_m2)
-              and len(_look_weights(self.looks)) == 1):  # counts, power and complex normals in one pass
-            z = _workspace("scatterer_z", I.shape + (2,), np.float32)  # reused: no page faults per frame
-            big = _workspace("scatterer_big", I.shape, np.bool_)
-            area = np.ascontiguousarray(cell_area, np.float32)
-            kn = kernels()
-            split_run(lambda r0, r1: kn.scatterer_field(echo, back[:, 0], area, float(self.density), bits,
-                                                        _POISSON_INVERSION_MAX, r0, r1, z, big), I.shape[0], threads)
-            if big.any():  # the rare cells of large mean: counts from the generator, as the numpy path
-                mu = self.density * area[big].astype(np.float64)
-                ratio = (rng.poisson(mu) / mu).astype(np.float32)
-                z[big] = _complex_normals(bits[:, big][:, None],
-                                          np.sqrt((echo[big] * ratio + back[:, 0][np.nonzero(big)[0]]) * np.float32(0.5))[None])[0]
-            power = None
         else:
             area = np.asarray(cell_area, np.float64)
             if np.isfinite(self.clusters_per_m2):
@@ -445,7 +452,8 @@ class ScattererNoise:
         # (all float32; the filters are separable, cv2.sepFilter2D with zero borders)
         from .speckle import filter_real, look_weights
 
-        mean = np.add(echo, back, out=_workspace("scatterer_mean", I.shape, np.float32) if fast else None)
+        if mean is None:
+            mean = np.add(echo, back, out=_workspace("scatterer_mean", I.shape, np.float32) if fast else None)
         weights = look_weights(self.looks)
         if use_numba() and len(weights) == 1:  # one look: the filters and |f|^2 x mean / expected x TVG in one pass
             zk = z if power is None else _complex_normals(bits, np.sqrt(power * np.float32(0.5)))
