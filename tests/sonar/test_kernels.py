@@ -173,6 +173,41 @@ def test_poisson_inversion_is_scipys_quantile_and_poisson(monkeypatch):
     assert abs(n.var() - 0.7) < 0.02
 
 
+# Random123's published known-answer vectors of Philox4x32-10 (counter, key, output)
+PHILOX_KAT = [
+    ((0, 0, 0, 0), (0, 0), (0x6627E8D5, 0xE169C58D, 0xBC57AC4C, 0x9B00DBD8)),
+    ((0xFFFFFFFF,) * 4, (0xFFFFFFFF,) * 2, (0x408F276D, 0x41C83B0E, 0xA20BC7C6, 0x6D5451FD)),
+    ((0x243F6A88, 0x85A308D3, 0x13198A2E, 0x03707344), (0xA4093822, 0x299F31D0),
+     (0xD16CFE09, 0x94FDCCEB, 0x5001E420, 0x24126EA1)),
+]
+
+
+@pytest.mark.parametrize("ctr,key,want", PHILOX_KAT)
+def test_philox_known_answers(ctr, key, want):
+    from optiacoustic.sonar._numba_kernels import philox_block
+
+    out = np.zeros(4, np.uint32)
+    philox_block(*ctr, *key, out)
+    assert out.tolist() == list(want)
+
+
+def test_noise_words_agree_and_are_uniform(monkeypatch):
+    """The words of the scatterer noise (Philox of the cell index): numba and numpy give the same
+    words; each word's uniform passes KS, and the three words of a cell are uncorrelated."""
+    key = np.array([12345, 678910], np.uint32)
+    cells = np.arange(200_000)
+    a, b = _both(monkeypatch, lambda: N.cell_words(key, cells))
+    assert a.dtype == np.uint32 and a.shape == (3, cells.size)
+    assert np.array_equal(a, b)
+    assert np.array_equal(N.cell_words(key, cells[::7]), a[:, ::7])  # a cell's words depend on it alone
+    u = N._uniforms(a)
+    for k in range(3):
+        assert stats.kstest(u[k], "uniform").pvalue > 1e-3
+    c = np.corrcoef(u)
+    assert np.all(np.abs(c[np.triu_indices(3, 1)]) < 5 / np.sqrt(cells.size))
+    assert not np.array_equal(N.cell_words(key + 1, cells[:100]), a[:, :100])
+
+
 def test_box_muller_normals(monkeypatch):
     """Normals from random words: both paths agree, each part is N(0, 1) (KS), the parts are
     uncorrelated, and the extreme words give the documented tail (radius sqrt(2 ln 2^33))."""

@@ -552,6 +552,66 @@ def poisson_inverse(mu, u, mu_max, out):
         out.flat[i] = n
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _philox(c0, c1, c2, c3, k0, k1):
+    """Philox4x32-10 (Salmon, Moraes, Dror and Shaw 2011, "Parallel random numbers: as easy as
+    1, 2, 3"): the four uint32 words of counter ``(c0, c1, c2, c3)`` under key ``(k0, k1)``, ten
+    rounds of two 32 x 32 -> 64-bit products (Random123's constants; its known-answer vectors
+    in tests/sonar/test_kernels.py). A counter-based generator: each cell's words are a pure
+    function of its index, so rows are drawn inside the kernels, on any thread, in any order,
+    with no array of draws (and the loops over cells vectorise: ``vpmuludq``)."""
+    M0 = np.uint64(0xD2511F53)
+    M1 = np.uint64(0xCD9E8D57)
+    W0 = np.uint32(0x9E3779B9)
+    W1 = np.uint32(0xBB67AE85)
+    for _ in range(10):
+        p0 = M0 * np.uint64(c0)
+        p1 = M1 * np.uint64(c2)
+        hi0 = np.uint32(p0 >> np.uint64(32))
+        lo0 = np.uint32(p0 & np.uint64(0xFFFFFFFF))
+        hi1 = np.uint32(p1 >> np.uint64(32))
+        lo1 = np.uint32(p1 & np.uint64(0xFFFFFFFF))
+        # (no uint32 casts of the xors: they stay below 2^32, and the casts cost 3x)
+        c0, c1, c2, c3 = hi1 ^ c1 ^ k0, lo1, hi0 ^ c3 ^ k1, lo0
+        k0 = np.uint32(k0 + W0)
+        k1 = np.uint32(k1 + W1)
+    return c0, c1, c2, c3
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def philox_block(c0, c1, c2, c3, k0, k1, out):
+    """``out[:] = Philox4x32-10((c0, c1, c2, c3), (k0, k1))`` (uint32 (4,)): the known-answer check."""
+    a, b, c, d = _philox(np.uint32(c0), np.uint32(c1), np.uint32(c2), np.uint32(c3), np.uint32(k0), np.uint32(k1))
+    out[0] = a
+    out[1] = b
+    out[2] = c
+    out[3] = d
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _cell_words_row(k0, k1, first, w0, w1, w2):
+    """The noise words of cells ``first .. first + len(w0)``: words 0..2 of Philox4x32-10 of counter
+    ``(cell, 0, 0, 0)`` under key ``(k0, k1)`` (uint32 rows ``w0``, ``w1``, ``w2``)."""
+    z = np.uint32(0)
+    for j in range(w0.size):
+        a, b, c, _ = _philox(np.uint32(first + j), z, z, z, k0, k1)
+        w0[j] = a
+        w1[j] = b
+        w2[j] = c
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def cell_words(k0, k1, cells, out):
+    """The noise words (:func:`_cell_words_row`) of the flat cell indices ``cells`` (int64) into
+    ``out`` (3, n) uint32."""
+    z = np.uint32(0)
+    for t in range(cells.size):
+        a, b, c, _ = _philox(np.uint32(cells[t]), z, z, z, k0, k1)
+        out[0, t] = a
+        out[1, t] = b
+        out[2, t] = c
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _uniform_bits_row(b, out):
     """``(b + 1/2) 2^-32`` (float64, in ``(0, 1)``) of a row of uint32 random words: the midpoints of
@@ -638,13 +698,14 @@ def _exp_neg_row(m, mu_clamp, p, scale):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def scatterer_field(intensity, gain, back, area, density, bits, mu_max, r0, r1, z, big, mean):
+def scatterer_field(intensity, gain, back, area, density, k0, k1, mu_max, r0, r1, z, big, mean):
     """``ScattererNoise``'s white complex field, rows ``r0..r1``: per cell the Poisson count ``n``
     of mean ``mu = density area`` (the least ``n`` with ``P(N <= n) >= u``, ``u = (b0 + 1/2)
     2^-32``: :func:`poisson_inverse`'s inversion), the power ``echo n / mu + back`` with
     ``echo = intensity gain`` (float32; ``echo + back`` where ``mu <= MU_NO_SEABED``: no seabed)
     and a complex normal of that power from the words ``b1``, ``b2`` (:func:`box_muller`);
-    ``mean = echo + back``. ``bits`` ``(3, B, J)`` uint32 random words. Cells with
+    ``mean = echo + back``. The words ``b0, b1, b2`` of each cell come from Philox4x32-10 under
+    the key ``(k0, k1)`` (:func:`_cell_words_row`), drawn row by row here. Cells with
     ``mu >= mu_max`` (<= 40) are flagged in ``big`` (their count is drawn by the caller) and
     get ``z = 0``.
 
@@ -665,13 +726,17 @@ def scatterer_field(intensity, gain, back, area, density, bits, mu_max, r0, r1, 
     r2 = np.empty(J, np.float32)
     power = np.empty(J, np.float32)
     fix = np.empty(J, np.int64)
+    w0 = np.empty(J, np.uint32)
+    w1 = np.empty(J, np.uint32)
+    w2 = np.empty(J, np.uint32)
     for i in range(r0, r1):
+        _cell_words_row(k0, k1, i * J, w0, w1, w2)
         bk = back[i]
         a_row = area[i]
         for j in range(J):
             m_row[j] = density * a_row[j]
         _exp_neg_row(m_row, 40.0, p0, scale)
-        _uniform_bits_row(bits[0, i], u_row)
+        _uniform_bits_row(w0, u_row)
         i_row = intensity[i]
         fours = np.int32(0)
         for j in range(J):  # counts 0..3 by comparisons with the first four cumulative probabilities
@@ -717,8 +782,8 @@ def scatterer_field(intensity, gain, back, area, density, bits, mu_max, r0, r1, 
             power[j] = (echo * ratio + bk) * (one - np.float32(bg))
             mean_row[j] = echo + bk
             b_row[j] = bg
-        _radius2_row(bits[1, i], x, e, mant, r2)
-        _normals_row(bits[2, i], r2, power, z[i].reshape(2 * J))
+        _radius2_row(w1, x, e, mant, r2)
+        _normals_row(w2, r2, power, z[i].reshape(2 * J))
 
 
 @njit(cache=True, nogil=True)

@@ -353,22 +353,15 @@ class ScattererNoise:
                 raise ValueError(f"ScattererNoise.bottom_type: unknown {self.bottom_type!r}; expected one of {sorted(BOTTOM_TYPES)}")
 
     def draw(self, shape: tuple, bottom_types, rng: np.random.Generator, *, _reuse: bool = False):
-        """The random words of the counts and of the complex normals (drawn while the scene is
-        scanned), and the generator for counts of large mean (after the scan).
+        """The key of the frame's noise words, and the generator for counts of large mean.
 
-        Returns ``(bits, rng)``: ``bits`` ``(3, n_bins, n_beams)`` uint32, per cell the word of
-        its count's uniform ``(b0 + 1/2) 2^-32``, of its Box-Muller radius ``(b1 + 1/2) 2^-32``
-        and of its phase ``b2 2^-32`` (:func:`_uniforms`; docs/physics.md, "Random words of the
-        scatterer noise"). They come from an SFC64 generator seeded from ``rng`` (one draw of
-        ``rng``), raw 64-bit outputs split in halves: a third of the cost of three
-        ``Generator.random`` arrays, and 32 bits for each variate (the float32 uniforms
-        ``random`` makes hold 24). ``_reuse`` is accepted for ``simulate_sonar`` and changes
-        nothing (the words are fresh arrays; :func:`release_draws` keeps nothing)."""
-        shape = tuple(int(n) for n in shape)
-        size = int(np.prod(shape))
-        gen = np.random.SFC64(rng.integers(0, 2**63, size=2))
-        words = gen.random_raw((3 * size + 1) // 2).view(np.uint32)[: 3 * size]
-        return words.reshape((3,) + shape), rng
+        Returns ``(key, rng)``: ``key`` (2,) uint32, one draw of ``rng``. Each cell's three
+        random words (its count's uniform, its Box-Muller radius and phase) are Philox4x32-10
+        of the cell's index under this key (:func:`cell_words`; docs/physics.md, "Random words
+        of the scatterer noise"): the compiled path draws them row by row inside its kernel, so
+        no array of draws is made. ``_reuse`` is accepted for ``simulate_sonar`` and changes
+        nothing (:func:`release_draws` keeps nothing)."""
+        return rng.integers(0, 2**32, size=2, dtype=np.uint32), rng
 
     def kernels(self, spec):
         """Amplitude kernels along range (the pulse) and across beams (two-way ``F^2``)."""
@@ -389,7 +382,7 @@ class ScattererNoise:
         from .speckle import filter_complex
 
         I = np.asarray(intensity, np.float32)
-        bits, rng = draws if draws is not None else self.draw(I.shape, (), np.random.default_rng(rng))
+        key, rng = draws if draws is not None else self.draw(I.shape, (), np.random.default_rng(rng))
         h_r, h_b = self.kernels(spec)
         g = self.gain
         alpha = absorption_db_per_m(spec.frequency, options.water) if options.propagation == "spreading" else 0.0
@@ -409,17 +402,19 @@ class ScattererNoise:
             mean = _workspace("scatterer_mean", I.shape, np.float32)
             area = np.ascontiguousarray(cell_area, np.float32)
             kn = kernels()
-            split_run(lambda r0, r1: kn.scatterer_field(I, gain, back[:, 0], area, float(self.density), bits,
+            k0, k1 = np.uint32(key[0]), np.uint32(key[1])
+            split_run(lambda r0, r1: kn.scatterer_field(I, gain, back[:, 0], area, float(self.density), k0, k1,
                                                         _POISSON_INVERSION_MAX, r0, r1, z, big, mean), I.shape[0], threads)
             if big.any():  # the rare cells of large mean: counts from the generator, as the numpy path
                 mu = self.density * area[big].astype(np.float64)
                 ratio = (rng.poisson(mu) / mu).astype(np.float32)
-                z[big] = _complex_normals(bits[:, big][:, None],
+                z[big] = _complex_normals(cell_words(key, np.flatnonzero(big))[:, None],
                                           np.sqrt((I[big] * gain * ratio + back[:, 0][np.nonzero(big)[0]])
                                                   * np.float32(0.5))[None])[0]
             power = None
         else:
             echo = np.multiply(I, gain, out=_workspace("scatterer_echo", I.shape, np.float32) if fast else None)
+            bits = cell_words(key, np.arange(I.size)).reshape((3,) + I.shape)
         if mean is not None:  # done above
             pass
         elif self.bottom_type is not None:
@@ -526,6 +521,42 @@ def _poisson_counts(mu: np.ndarray, u: np.ndarray, rng: np.random.Generator) -> 
     if big.any():
         n[big] = rng.poisson(mu[big])
     return n
+
+
+_PHILOX_M = (0xD2511F53, 0xCD9E8D57)
+_PHILOX_W = (0x9E3779B9, 0xBB67AE85)
+
+
+def _philox_numpy(cells: np.ndarray, key) -> tuple:
+    """Philox4x32-10 of counters ``(cells, 0, 0, 0)`` under ``key``: four uint32 arrays (numpy
+    reference of the kernels' generator)."""
+    c0 = np.asarray(cells).astype(np.uint64) & np.uint64(0xFFFFFFFF)
+    c1 = np.zeros_like(c0)
+    c2 = np.zeros_like(c0)
+    c3 = np.zeros_like(c0)
+    k0, k1 = np.uint64(int(key[0])), np.uint64(int(key[1]))
+    mask = np.uint64(0xFFFFFFFF)
+    for _ in range(10):
+        p0 = np.uint64(_PHILOX_M[0]) * c0
+        p1 = np.uint64(_PHILOX_M[1]) * c2
+        c0, c1, c2, c3 = (p1 >> np.uint64(32)) ^ c1 ^ k0, p1 & mask, (p0 >> np.uint64(32)) ^ c3 ^ k1, p0 & mask
+        k0 = (k0 + np.uint64(_PHILOX_W[0])) & mask
+        k1 = (k1 + np.uint64(_PHILOX_W[1])) & mask
+    return tuple(c.astype(np.uint32) for c in (c0, c1, c2, c3))
+
+
+def cell_words(key, cells: np.ndarray) -> np.ndarray:
+    """The three noise words ``(3, n)`` uint32 of the flat cell indices ``cells``: words 0..2 of
+    Philox4x32-10 of the counter ``(cell, 0, 0, 0)`` under ``key`` (2,) uint32 (word 0: the
+    count's uniform, 1: the Box-Muller radius, 2: the phase)."""
+    from ._kernels import kernels, use_numba
+
+    cells = np.ascontiguousarray(cells, np.int64).reshape(-1)
+    if use_numba():
+        out = np.empty((3, cells.size), np.uint32)
+        kernels().cell_words(np.uint32(key[0]), np.uint32(key[1]), cells, out)
+        return out
+    return np.stack(_philox_numpy(cells, key)[:3])
 
 
 def _uniforms(words: np.ndarray) -> np.ndarray:
