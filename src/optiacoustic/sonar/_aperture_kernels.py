@@ -22,7 +22,7 @@ _AREA_BLOCK = 16  # beams whose area rows are written to the image layout togeth
 def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K, J,
                        table_x0, table_dx, table_y, alpha_db, spreading, bin_width,
                        slot_of_ray, seabed_of_ray, dtheta, range_min, n_cells, H, V, full, q, n_bins,
-                       want_area, j0, j1, out, area_out):
+                       want_area, j0, j1, out, area_out, live):
     """Echo rows (``(S, n_beams, n_bins)`` float32, as ``echo_rows``) and the seabed area
     (``(n_bins, n_beams)`` float32, the image layout, one cell per bin, no anti-aliasing, as
     ``cell_area``; beams ``j0..j1`` are its columns) of the
@@ -34,7 +34,8 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     and gain of ``_numba_kernels.subdivide``; a sub-cell of energy ``> 0`` deposits its box
     into slot 0 and its class's slot ``slot_of_ray[i]``; a seabed sub-cell
     (``seabed_of_ray[i]``) deposits its area ``r^2 cos(phi) dtheta_j dphi / max(cos, 0.05)`` into
-    ``area_out`` (when ``want_area``).
+    ``area_out`` (when ``want_area``). ``live[s, j]`` (bool ``(S, n_beams)``) tells whether row
+    ``out[s, j]`` has deposits (a row without is written as zeros).
 
     Deposit, then convolve: a box's two edges each put their two fine-cell values (the
     linear two-cell split of ``formation._box_integrate``) into the beam's per-slot array of
@@ -268,7 +269,8 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
             last = hi_c[ss]
             lo_c[ss] = n_cells + 2
             hi_c[ss] = -1
-            _rows_from_deposits(dep[ss], first, last, H, V, full, q, n_bins, ph, cum, rowbuf, out[ss, j])
+            live[ss, j] = _rows_from_deposits(dep[ss], first, last, H, V, full, q, n_bins, ph, cum, rowbuf,
+                                              out[ss, j])
         if want_area:
             jb = j - blk0
             if a_hi < 0:
@@ -302,7 +304,8 @@ def _rows_from_deposits(dep, c_lo, c_top, H, V, full, q, n_bins, ph, cum, rowbuf
     here for the next beam): ``echo_rows``' linear map (``H`` taps around each deposit's bin, a
     step of ``full`` from ``D + 1`` bins after it on, ``V`` at the row's end) over the bins it
     reaches, into ``row_out`` (float32, written whole). ``ph`` ``(q, n_bins + 2 D)`` zeros
-    (left zero), ``cum`` ``(n_bins + D + 2,)`` and ``rowbuf`` ``(n_bins,)`` scratch."""
+    (left zero), ``cum`` ``(n_bins + D + 2,)`` and ``rowbuf`` ``(n_bins,)`` scratch. Returns False
+    when no deposit is inside the row (written as zeros)."""
     D = (H.shape[1] - 1) // 2
     nt = 2 * D + 1
     n_cells = n_bins * q
@@ -311,7 +314,7 @@ def _rows_from_deposits(dep, c_lo, c_top, H, V, full, q, n_bins, ph, cum, rowbuf
         row_out[:] = 0.0
         if c_top >= c_lo:
             dep[c_lo:c_top + 1] = 0.0
-        return
+        return False
     lo = c_lo // q
     hi = c_hi // q
     # the deposits by phase, bins offset by D (zero margins for the taps), and their running
@@ -395,6 +398,7 @@ def _rows_from_deposits(dep, c_lo, c_top, H, V, full, q, n_bins, ph, cum, rowbuf
         if bb >= 0:
             row_out[bb] -= tot * V[tv]
     ph[:, D + lo:D + hi + 1] = 0.0
+    return True
 
 
 

@@ -155,6 +155,34 @@ def _mix_beams(spec: SonarSpec, echo: np.ndarray, out=None) -> np.ndarray:
     return out
 
 
+def _live_span(live: np.ndarray, spec: SonarSpec):
+    """The beams ``(j0, j1)`` whose mixed rows can be nonzero: the rows with echo (``live``, bool
+    ``(n_beams,)``) widened by the azimuth kernel's half-length; ``None`` for all beams (a beam
+    table mixes every beam with every other); ``(0, 0)`` when no row has echo."""
+    if spec.beam_azimuths is not None:
+        return None
+    idx = np.flatnonzero(live)
+    if idx.size == 0:
+        return (0, 0)
+    m = (azimuth_kernel(spec).size - 1) // 2
+    return (max(int(idx[0]) - m, 0), min(int(idx[-1]) + m + 1, spec.n_beams))
+
+
+def _mix_rows(spec: SonarSpec, rows: np.ndarray, out: np.ndarray, span) -> None:
+    """:func:`_mix_beams` of ``rows`` ``(n_beams, n_bins)`` into ``out``, computed over the beams of
+    ``span`` only (:func:`_live_span`; ``None``: all): the rows outside it are zero and take none
+    from the rows with echo. The same numbers as the whole array (the rows left out are zeros,
+    which add nothing, with the same zero border)."""
+    if span is None:
+        _mix_beams(spec, rows, out=out)
+        return
+    j0, j1 = span
+    out[:j0] = 0.0
+    out[j1:] = 0.0
+    if j1 > j0:
+        _mix_beams(spec, rows[j0:j1], out=out[j0:j1])
+
+
 @functools.lru_cache(maxsize=16)
 def azimuth_kernel(spec: SonarSpec) -> np.ndarray:
     """Two-way azimuth power ``F^4`` averaged over beam cells at offsets ``-m..m`` beams.
@@ -1107,19 +1135,21 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
     args = (bm(rays.range), bm(cells.nd), bm(cells.ndd), bm(cells.a), bm(cells.b), 0.5 * rays.elevation_step,
             bm(cells.refl), bm(rays.elevation), bm(n_sub), K, J, x0, dx, y, cells.alpha_db, cells.spreading, spec.bin_width, bm(slot),
             bm(seabed_of_ray), dtheta, float(spec.range_min), B * q, H, V, full, q, B, bool(need_area))
-    split_run(lambda j0, j1: ak.aperture_echo_rows(*args, j0, j1, out, area), J, threads)
+    live = np.empty((n_slots, J), np.bool_)
+    split_run(lambda j0, j1: ak.aperture_echo_rows(*args, j0, j1, out, area, live), J, threads)
     # the azimuth pattern mixes whole rows (beams); scale, threshold, shares and the image layout in one pass
     mixed = _workspace(f"mixed{n_slots}", (n_slots, J, B), np.float32)
+    spans = [_live_span(live[s], spec) for s in range(n_slots)]
     if threads > 1 and n_slots > 1:  # the class images on the other threads meanwhile (cv2 releases the GIL)
         from ._kernels import _pool
 
-        jobs = [_pool(threads - 1).submit(_mix_beams, spec, out[s], mixed[s]) for s in range(1, n_slots)]
-        _mix_beams(spec, out[0], out=mixed[0])
+        jobs = [_pool(threads - 1).submit(_mix_rows, spec, out[s], mixed[s], spans[s]) for s in range(1, n_slots)]
+        _mix_rows(spec, out[0], mixed[0], spans[0])
         for job in jobs:
             job.result()
     else:
         for s in range(n_slots):
-            _mix_beams(spec, out[s], out=mixed[s])
+            _mix_rows(spec, out[s], mixed[s], spans[s])
     intensity, shares = _finish_numba(spec, mixed, bottom_types, slot_of, threads)
     return intensity, shares, (area if need_area else None)
 
