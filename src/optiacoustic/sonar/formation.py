@@ -1098,12 +1098,38 @@ def _aperture_cells(spec: SonarSpec, rays: SonarRays, nd, ndd, a, b, refl, patte
 def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarOptions, bottom_types: dict,
                          threads: int, need_area: bool):
     """The aperture model's intensity, seabed shares and (``need_area``) seabed area per cell from
-    one kernel pass per beam (``_aperture_kernels``): the same numbers as :func:`_subdivide_numba`,
-    :func:`_form_with_shares_numba` and :func:`cell_area` on the sub-cells, without storing them.
+    one kernel pass per beam (``_aperture_kernels``): what :func:`_subdivide_numba`,
+    :func:`_form_with_shares_numba` and :func:`cell_area` give on the sub-cells, without storing
+    them (the area bit for bit; the echo's float64 sums in another order, the same to their rounding).
 
     Returns ``(intensity, shares, area or None)``, each ``(n_bins, n_beams)`` float32; ``area`` is
     a per-thread scratch that the next call on this thread overwrites.
     """
+    out, area, live, slot_of = _aperture_rows(spec, cells, options, bottom_types, threads, need_area)
+    n_slots, J, B = out.shape
+    # the azimuth pattern mixes whole rows (beams); scale, threshold, shares and the image layout in one pass
+    mixed = _workspace(f"mixed{n_slots}", (n_slots, J, B), np.float32)
+    spans = [_live_span(live[s], spec) for s in range(n_slots)]
+    if threads > 1 and n_slots > 1:  # the class images on the other threads meanwhile (cv2 releases the GIL)
+        from ._kernels import _pool
+
+        jobs = [_pool(threads - 1).submit(_mix_rows, spec, out[s], mixed[s], spans[s]) for s in range(1, n_slots)]
+        _mix_rows(spec, out[0], mixed[0], spans[0])
+        for job in jobs:
+            job.result()
+    else:
+        for s in range(n_slots):
+            _mix_rows(spec, out[s], mixed[s], spans[s])
+    intensity, shares = _finish_numba(spec, mixed, bottom_types, slot_of, threads)
+    return intensity, shares, area
+
+
+def _aperture_rows(spec: SonarSpec, cells: _ApertureCells, options: SonarOptions, bottom_types: dict,
+                   threads: int, need_area: bool):
+    """:func:`_form_aperture_numba`'s kernel pass (``_aperture_kernels.aperture_echo_rows``): the rows
+    ``(n_slots, n_beams, n_bins)`` float32 (per-thread scratch, as :func:`_echo_rows_numba`'s), the
+    seabed area ``(n_bins, n_beams)`` (``None`` unless ``need_area``), which rows have echo
+    (bool ``(n_slots, n_beams)``) and the slot of each class (as :func:`_class_slots`)."""
     from . import _aperture_kernels as ak
 
     rays = cells.rays
@@ -1137,21 +1163,7 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
             bm(seabed_of_ray), dtheta, float(spec.range_min), B * q, H, V, full, q, B, bool(need_area))
     live = np.empty((n_slots, J), np.bool_)
     split_run(lambda j0, j1: ak.aperture_echo_rows(*args, j0, j1, out, area, live), J, threads)
-    # the azimuth pattern mixes whole rows (beams); scale, threshold, shares and the image layout in one pass
-    mixed = _workspace(f"mixed{n_slots}", (n_slots, J, B), np.float32)
-    spans = [_live_span(live[s], spec) for s in range(n_slots)]
-    if threads > 1 and n_slots > 1:  # the class images on the other threads meanwhile (cv2 releases the GIL)
-        from ._kernels import _pool
-
-        jobs = [_pool(threads - 1).submit(_mix_rows, spec, out[s], mixed[s], spans[s]) for s in range(1, n_slots)]
-        _mix_rows(spec, out[0], mixed[0], spans[0])
-        for job in jobs:
-            job.result()
-    else:
-        for s in range(n_slots):
-            _mix_rows(spec, out[s], mixed[s], spans[s])
-    intensity, shares = _finish_numba(spec, mixed, bottom_types, slot_of, threads)
-    return intensity, shares, (area if need_area else None)
+    return out, (area if need_area else None), live, slot_of
 
 
 #: Sub-rays cast across each visibility discontinuity between two elevation samples.
