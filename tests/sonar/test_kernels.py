@@ -286,7 +286,8 @@ def test_fused_aperture_pass_matches_materialised_subcells(thesis, monkeypatch):
         monkeypatch.setenv("OAS_KERNELS", "numba")
 
 
-def test_aperture_rows_match_deposit_by_deposit(thesis, monkeypatch):
+@pytest.mark.parametrize("q", [2, 3])  # the default two phases, and the general path
+def test_aperture_rows_match_deposit_by_deposit(thesis, monkeypatch, q):
     """The aperture kernel's rows (per beam: the boxes' fine-cell deposits, then one pass of the
     taps and steps) against ``echo_rows`` on the materialised sub-cells (each deposit carried to
     the bins by the same tables, one at a time): the same linear map on the same deposits, so
@@ -300,7 +301,7 @@ def test_aperture_rows_match_deposit_by_deposit(thesis, monkeypatch):
     monkeypatch.setenv("OAS_KERNELS", "numba")
     bt = F._bottom_types(sc)
     caster = F.caster_for(sc)
-    opts = SonarOptions(beam_model="aperture", propagation="spreading")
+    opts = SonarOptions(beam_model="aperture", propagation="spreading", range_oversample=q)
     sspec = F.scan_spec(SPEC, "aperture")
     args = (sc, caster, sspec, pose, opts, F._aperture_elevation_weights(SPEC), SPEC.elevation_pattern())
     _, cells = F._scan(*args, materialise=False)
