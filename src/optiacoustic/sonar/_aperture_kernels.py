@@ -22,7 +22,7 @@ _AREA_BLOCK = 16  # beams whose area rows are written to the image layout togeth
 def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K, J,
                        table_x0, table_dx, table_y, alpha_db, spreading, bin_width,
                        slot_of_ray, seabed_of_ray, dtheta, range_min, n_cells, H, V, full, q, n_bins,
-                       want_area, j0, j1, out, area_out, live):
+                       want_area, max_s, j0, j1, out, area_out, live):
     """Echo rows (``(S, n_beams, n_bins)`` float32, as ``echo_rows``) and the seabed area
     (``(n_bins, n_beams)`` float32, the image layout, one cell per bin, no anti-aliasing, as
     ``cell_area``; beams ``j0..j1`` are its columns) of the
@@ -34,7 +34,8 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     and gain of ``_numba_kernels.subdivide``; a sub-cell of energy ``> 0`` deposits its box
     into slot 0 and its class's slot ``slot_of_ray[i]``; a seabed sub-cell
     (``seabed_of_ray[i]``) deposits its area ``r^2 cos(phi) dtheta_j dphi / max(cos, 0.05)`` into
-    ``area_out`` (when ``want_area``). ``live[s, j]`` (bool ``(S, n_beams)``) tells whether row
+    ``area_out`` (when ``want_area``). ``max_s``: the largest ``n_sub`` (1 at least).
+    ``live[s, j]`` (bool ``(S, n_beams)``) tells whether row
     ``out[s, j]`` has deposits (a row without is written as zeros).
 
     Deposit, then convolve: a box's two edges each put their two fine-cell values (the
@@ -73,9 +74,6 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     a_scale = 1.0 / bin_width
     # the trigonometry of a cell depends only on (a, b, S): most cells have the grid's (a, b)
     # (all but the refined edges), so it is tabulated per S for those (the same numbers)
-    max_s = 1
-    for i in range(n_sub.size):
-        max_s = max(max_s, n_sub[i])
     a_g = b_g = half_step  # formation._scan's cells before edge refinement
     trig = np.empty((max_s + 1, 7))
     for Sn in range(1, max_s + 1):

@@ -1160,10 +1160,39 @@ def _aperture_rows(spec: SonarSpec, cells: _ApertureCells, options: SonarOptions
     bm = flat
     args = (bm(rays.range), bm(cells.nd), bm(cells.ndd), bm(cells.a), bm(cells.b), 0.5 * rays.elevation_step,
             bm(cells.refl), bm(rays.elevation), bm(n_sub), K, J, x0, dx, y, cells.alpha_db, cells.spreading, spec.bin_width, bm(slot),
-            bm(seabed_of_ray), dtheta, float(spec.range_min), B * q, H, V, full, q, B, bool(need_area))
+            bm(seabed_of_ray), dtheta, float(spec.range_min), B * q, H, V, full, q, B, bool(need_area),
+            max(1, int(n_sub.max(initial=0))))
     live = np.empty((n_slots, J), np.bool_)
-    split_run(lambda j0, j1: ak.aperture_echo_rows(*args, j0, j1, out, area, live), J, threads)
+    _chunked_run(lambda j0, j1: ak.aperture_echo_rows(*args, j0, j1, out, area, live), J, threads)
     return out, (area if need_area else None), live, slot_of
+
+
+#: Beam chunks per thread of :func:`_chunked_run`.
+_CHUNKS_PER_THREAD = 4
+
+
+def _chunked_run(fn, n: int, threads: int) -> None:
+    """``fn(a, b)`` over ``[0, n)`` in chunks that ``threads`` workers (this thread one of them)
+    take in turn as they finish the last: a thread slowed by another process, or by the noise
+    draws on the second core, takes fewer (``split_run``'s fixed halves waited for it). For
+    GIL-releasing kernels whose chunks write disjoint outputs."""
+    threads = max(1, min(int(threads), n // 64 or 1))
+    if threads == 1:
+        fn(0, n)
+        return
+    from ._kernels import _pool
+
+    step = -(-n // (threads * _CHUNKS_PER_THREAD))
+    starts = iter(range(0, n, step))  # next() on it is atomic under the GIL: each chunk goes to one worker
+
+    def work():
+        for a in starts:
+            fn(a, min(a + step, n))
+
+    jobs = [_pool(threads - 1).submit(work) for _ in range(threads - 1)]
+    work()
+    for job in jobs:
+        job.result()
 
 
 #: Sub-rays cast across each visibility discontinuity between two elevation samples.
