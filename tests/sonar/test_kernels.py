@@ -286,6 +286,34 @@ def test_fused_aperture_pass_matches_materialised_subcells(thesis, monkeypatch):
         monkeypatch.setenv("OAS_KERNELS", "numba")
 
 
+def test_chunked_run_covers_each_index_once():
+    seen = []
+    F._chunked_run(lambda a, b: seen.append((a, b)), 1000, 2)
+    assert sorted(i for a, b in seen for i in range(a, b)) == list(range(1000))
+    assert len(seen) == 2 * F._CHUNKS_PER_THREAD
+    seen.clear()
+    F._chunked_run(lambda a, b: seen.append((a, b)), 100, 2)  # too few for two threads: one call
+    assert seen == [(0, 100)]
+
+
+def test_aperture_rows_independent_of_threads(thesis, monkeypatch):
+    """The kernel's beams in chunks on two threads give the rows, live flags and seabed areas of
+    one pass on one thread, bit for bit (each beam's row is its own; the cos memo holds only
+    values that libm gives again)."""
+    sc, pose = thesis
+    monkeypatch.setenv("OAS_KERNELS", "numba")
+    spec = dataclasses.replace(SPEC, n_beams=160, elevation_samples=24)
+    bt = F._bottom_types(sc)
+    opts = SonarOptions(beam_model="aperture", propagation="spreading")
+    sspec = F.scan_spec(spec, "aperture")
+    _, cells = F._scan(sc, F.caster_for(sc), sspec, pose, opts, F._aperture_elevation_weights(spec),
+                       spec.elevation_pattern(), materialise=False)
+    got = [tuple(np.copy(x) for x in F._aperture_rows(spec, cells, opts, bt, t, True)[:3]) for t in (1, 2)]
+    for a, b in zip(*got):
+        np.testing.assert_array_equal(a, b)
+    assert np.count_nonzero(got[0][1]) > 0
+
+
 @pytest.mark.parametrize("q", [2, 3])  # the default two phases, and the general path
 def test_aperture_rows_match_deposit_by_deposit(thesis, monkeypatch, q):
     """The aperture kernel's rows (per beam: the boxes' fine-cell deposits, then one pass of the
