@@ -5,8 +5,10 @@ formed before (issue 10, cost): each hit ray's sub-cells (``formation._subdivide
 their echo with the seabed/target split (``_numba_kernels.bucket_by_beam`` + ``echo_rows``) and
 the seabed area per cell (``formation.cell_area``). The sub-cells of a beam are visited in the
 order the materialised path buckets them (elevation sample, then sub-cell), with the same
-formulas, so the sums are the same numbers; the tests compare it with the numpy reference
-(``OAS_KERNELS=numpy``: materialised sub-cells, ``_form_image``, ``cell_area``).
+formulas: the areas are the same numbers, bit for bit; the echo is the same linear map of the
+same deposits summed in another order (deposit, then convolve: see ``aperture_echo_rows``), the
+same to float64 rounding. The tests compare it with the materialised numba path and with the
+numpy reference (``OAS_KERNELS=numpy``: materialised sub-cells, ``_form_image``, ``cell_area``).
 """
 
 from __future__ import annotations
