@@ -303,9 +303,10 @@ def test_echo_and_shares_of_several_classes_agree(thesis, bottom_types, monkeypa
 def test_fused_aperture_pass_matches_materialised_subcells(thesis, monkeypatch):
     """The aperture model's one-pass kernel (sub-cells formed in the kernel, never stored; echo,
     seabed split and cell areas together) against the sub-cells materialised and integrated by
-    the numba path (the same formulas summed in the same order: the areas bit for bit, the
-    echo to float32 rounding, which scales before or after mixing beams) and by the numpy
-    reference path (``_subdivide``, ``_form_image``, ``cell_area``)."""
+    the numba path (the same formulas: the areas summed in the same order, bit for bit; the
+    echo to float32 rounding, which scales before or after mixing beams and whose float64 sums
+    run in another order: ``test_aperture_rows_match_deposit_by_deposit`` bounds that) and by
+    the numpy reference path (``_subdivide``, ``_form_image``, ``cell_area``)."""
     sc, pose = thesis
     monkeypatch.setenv("OAS_KERNELS", "numba")
     bt = F._bottom_types(sc)
@@ -329,3 +330,66 @@ def test_fused_aperture_pass_matches_materialised_subcells(thesis, monkeypatch):
         _close(inten, F._form_image(SPEC, img_np, opts))
         _close(area, F.cell_area(SPEC, img_np, bt))
         monkeypatch.setenv("OAS_KERNELS", "numba")
+
+
+def test_chunked_run_covers_each_index_once():
+    seen = []
+    F._chunked_run(lambda a, b: seen.append((a, b)), 1000, 2)
+    assert sorted(i for a, b in seen for i in range(a, b)) == list(range(1000))
+    assert len(seen) == 2 * F._CHUNKS_PER_THREAD
+    seen.clear()
+    F._chunked_run(lambda a, b: seen.append((a, b)), 100, 2)  # too few for two threads: one call
+    assert seen == [(0, 100)]
+
+
+def test_aperture_rows_independent_of_threads(thesis, monkeypatch):
+    """The kernel's beams in chunks on two threads give the rows, live flags and seabed areas of
+    one pass on one thread, bit for bit (each beam's row is its own; the cos memo holds only
+    values that libm gives again)."""
+    sc, pose = thesis
+    monkeypatch.setenv("OAS_KERNELS", "numba")
+    spec = dataclasses.replace(SPEC, n_beams=160, elevation_samples=24)
+    bt = F._bottom_types(sc)
+    opts = SonarOptions(beam_model="aperture", propagation="spreading")
+    sspec = F.scan_spec(spec, "aperture")
+    _, cells = F._scan(sc, F.caster_for(sc), sspec, pose, opts, F._aperture_elevation_weights(spec),
+                       spec.elevation_pattern(), materialise=False)
+    got = [tuple(np.copy(x) for x in F._aperture_rows(spec, cells, opts, bt, t, True)[:3]) for t in (1, 2)]
+    for a, b in zip(*got):
+        np.testing.assert_array_equal(a, b)
+    assert np.count_nonzero(got[0][1]) > 0
+
+
+@pytest.mark.parametrize("q", [2, 3])  # the default two phases, and the general path
+def test_aperture_rows_match_deposit_by_deposit(thesis, monkeypatch, q):
+    """The aperture kernel's rows (per beam: the boxes' fine-cell deposits, then one pass of the
+    taps and steps) against ``echo_rows`` on the materialised sub-cells (each deposit carried to
+    the bins by the same tables, one at a time): the same linear map on the same deposits, so
+    the float64 rows differ only by the order of their sums: by float64 rounding (``2^-52``) of
+    the running sums, which a short footprint's ``+dens``/``-dens`` pair (its width at least
+    ``1e-4`` bin) can make up to ``~1e4`` times the echo it leaves (measured here: ~1e-13 of a
+    row's peak). Tolerance: one float32 rounding step each side (``2^-23`` relative) plus
+    ``1e-9`` of the row's peak, the level below which the image keeps nothing
+    (``_finish_numba`` zeroes it as the cumulative sums' residue)."""
+    sc, pose = thesis
+    monkeypatch.setenv("OAS_KERNELS", "numba")
+    bt = F._bottom_types(sc)
+    caster = F.caster_for(sc)
+    opts = SonarOptions(beam_model="aperture", propagation="spreading", range_oversample=q)
+    sspec = F.scan_spec(SPEC, "aperture")
+    args = (sc, caster, sspec, pose, opts, F._aperture_elevation_weights(SPEC), SPEC.elevation_pattern())
+    _, cells = F._scan(*args, materialise=False)
+    rows, _, live, slot_of = F._aperture_rows(SPEC, cells, opts, bt, 2, False)
+    rows = rows.copy()  # a scratch that _echo_rows_numba reuses
+    _, img = F._scan(*args)
+    slot, n_slots, slot_of_m = F._class_slots(bt, img)
+    assert slot_of_m == slot_of and n_slots == rows.shape[0]
+    sigma_bins = max(SPEC.pulse_width / SPEC.bin_width / 2.3548, 0.5)
+    ref = F._echo_rows_numba(SPEC, img, slot, n_slots, 1, opts.range_oversample, sigma_bins).copy()
+    assert np.count_nonzero(ref[0]) > ref[0].size // 2  # the seabed fills most of the fan
+    for s in range(n_slots):
+        peak = float(np.abs(ref[s]).max())
+        np.testing.assert_allclose(rows[s], ref[s], rtol=2.0**-23, atol=1e-9 * peak)
+        # rows without deposits (left out of the beam mixing) are zeros, in both
+        assert not np.any(rows[s][~live[s]]) and not np.any(ref[s][~live[s]])
+        assert live[s].any()
