@@ -173,15 +173,89 @@ def test_poisson_inversion_is_scipys_quantile_and_poisson(monkeypatch):
     assert abs(n.var() - 0.7) < 0.02
 
 
+# Random123's published known-answer vectors of Philox4x32-10 (counter, key, output)
+PHILOX_KAT = [
+    ((0, 0, 0, 0), (0, 0), (0x6627E8D5, 0xE169C58D, 0xBC57AC4C, 0x9B00DBD8)),
+    ((0xFFFFFFFF,) * 4, (0xFFFFFFFF,) * 2, (0x408F276D, 0x41C83B0E, 0xA20BC7C6, 0x6D5451FD)),
+    ((0x243F6A88, 0x85A308D3, 0x13198A2E, 0x03707344), (0xA4093822, 0x299F31D0),
+     (0xD16CFE09, 0x94FDCCEB, 0x5001E420, 0x24126EA1)),
+]
+
+
+@pytest.mark.parametrize("ctr,key,want", PHILOX_KAT)
+def test_philox_known_answers(ctr, key, want):
+    from optiacoustic.sonar._numba_kernels import philox_block
+
+    out = np.zeros(4, np.uint32)
+    philox_block(*ctr, *key, out)
+    assert out.tolist() == list(want)
+
+
+def test_noise_words_agree_and_are_uniform(monkeypatch):
+    """The words of the scatterer noise (Philox of the cell index): numba and numpy give the same
+    words; each word's uniform passes KS, and the three words of a cell are uncorrelated."""
+    key = np.array([12345, 678910], np.uint32)
+    cells = np.arange(200_000)
+    a, b = _both(monkeypatch, lambda: N.cell_words(key, cells))
+    assert a.dtype == np.uint32 and a.shape == (3, cells.size)
+    assert np.array_equal(a, b)
+    assert np.array_equal(N.cell_words(key, cells[::7]), a[:, ::7])  # a cell's words depend on it alone
+    u = N._uniforms(a)
+    for k in range(3):
+        assert stats.kstest(u[k], "uniform").pvalue > 1e-3
+    c = np.corrcoef(u)
+    assert np.all(np.abs(c[np.triu_indices(3, 1)]) < 5 / np.sqrt(cells.size))
+    assert not np.array_equal(N.cell_words(key + 1, cells[:100]), a[:, :100])
+
+
+@pytest.mark.parametrize("n_r,n_b", [(1, 1), (3, 27), (7, 5), (9, 1)])
+def test_speckle_image_kernel_matches_cv2_filters(n_r, n_b):
+    """The fused one-look image pass against its reference: the field filtered by cv2.sepFilter2D
+    (zero borders), the mean by the squared kernels, |f|^2 x mean / expected x TVG (0 where the
+    filtered mean is not positive). Asymmetric kernels (cv2 correlates), images smaller than a
+    kernel's reach on one side, rows of no mean."""
+    from optiacoustic.sonar._numba_kernels import speckle_image
+    from optiacoustic.sonar.speckle import filter_complex, filter_real
+
+    rng = np.random.default_rng(n_r * 100 + n_b)
+    B, J = 40, 23
+    z = rng.standard_normal((B, J, 2)).astype(np.float32)
+    mean = rng.uniform(0.5, 2.0, (B, J)).astype(np.float32)
+    mean[10:14] = 0.0  # no echo and no background: expected 0 there when the kernel is short
+    h_r = rng.uniform(0.1, 1.0, n_r).astype(np.float32)
+    h_b = rng.uniform(0.1, 1.0, n_b).astype(np.float32)
+    tvg = rng.uniform(1.0, 3.0, B).astype(np.float32)
+    f = filter_complex(z, h_r, h_b)
+    expected = filter_real(mean, h_r**2, h_b**2)
+    ref = np.where(expected > 0, (f[..., 0] ** 2 + f[..., 1] ** 2) * mean / np.where(expected > 0, expected, 1)
+                   * tvg[:, None], 0.0)
+    out = np.full((B, J), np.nan, np.float32)
+    speckle_image(z, mean, h_r, h_b, tvg, 0, 17, out)  # two row ranges, as two threads take them
+    speckle_image(z, mean, h_r, h_b, tvg, 17, B, out)
+    np.testing.assert_allclose(out, ref, rtol=2e-5, atol=1e-6 * float(ref.max()))
+    assert np.array_equal(out == 0, ref == 0)
+
+
 def test_box_muller_normals(monkeypatch):
+    """Normals from random words: both paths agree, each part is N(0, 1) (KS), the parts are
+    uncorrelated, and the extreme words give the documented tail (radius sqrt(2 ln 2^33))."""
     rng = np.random.default_rng(8)
-    u1, u2 = rng.random((300, 200)), rng.random((300, 200), dtype=np.float32)
+    bits = rng.integers(0, 2**32, (3, 300, 200), dtype=np.uint32)
+    bits[1, 0, :4] = [0, 1, 2**32 - 1, 2**31]
+    bits[2, 0, :4] = [0, 2**30, 2**31, 3 * 2**30]  # phases 0, 1/4, 1/2, 3/4 of a turn
     scale = np.full((300, 200), 2.0, np.float32)
-    a, b = _both(monkeypatch, lambda: N._complex_normals(u1, u2, scale))
+    a, b = _both(monkeypatch, lambda: N._complex_normals(bits, scale))
     _close(a, b, rtol=1e-5)
     for c in (0, 1):
         assert stats.kstest(a[..., c].ravel() / 2.0, "norm").pvalue > 1e-3
     assert abs(np.corrcoef(a[..., 0].ravel(), a[..., 1].ravel())[0, 1]) < 0.02
+    r = np.hypot(a[0, :4, 0], a[0, :4, 1]) / 2.0
+    np.testing.assert_allclose(r[0], np.sqrt(2 * 33 * np.log(2)), rtol=1e-6)  # the largest radius
+    np.testing.assert_allclose(r[2], np.sqrt(-2 * np.log1p(-0.5 * 2.0**-32)), rtol=1e-3)  # the smallest
+    np.testing.assert_allclose(r[3], np.sqrt(-2 * np.log((2**31 + 0.5) / 2**32)), rtol=1e-6)
+    ang = np.arctan2(a[0, :4, 1], a[0, :4, 0])
+    np.testing.assert_allclose(np.cos(ang), [1, 0, -1, 0], atol=1e-6)
+    np.testing.assert_allclose(np.sin(ang), [0, 1, 0, -1], atol=1e-6)
 
 
 def test_import_does_not_load_numba():
@@ -257,9 +331,10 @@ def test_echo_and_shares_of_several_classes_agree(thesis, bottom_types, monkeypa
 def test_fused_aperture_pass_matches_materialised_subcells(thesis, monkeypatch):
     """The aperture model's one-pass kernel (sub-cells formed in the kernel, never stored; echo,
     seabed split and cell areas together) against the sub-cells materialised and integrated by
-    the numba path (the same formulas summed in the same order: the areas bit for bit, the
-    echo to float32 rounding, which scales before or after mixing beams) and by the numpy
-    reference path (``_subdivide``, ``_form_image``, ``cell_area``)."""
+    the numba path (the same formulas: the areas summed in the same order, bit for bit; the
+    echo to float32 rounding, which scales before or after mixing beams and whose float64 sums
+    run in another order: ``test_aperture_rows_match_deposit_by_deposit`` bounds that) and by
+    the numpy reference path (``_subdivide``, ``_form_image``, ``cell_area``)."""
     sc, pose = thesis
     monkeypatch.setenv("OAS_KERNELS", "numba")
     bt = F._bottom_types(sc)
@@ -283,3 +358,66 @@ def test_fused_aperture_pass_matches_materialised_subcells(thesis, monkeypatch):
         _close(inten, F._form_image(SPEC, img_np, opts))
         _close(area, F.cell_area(SPEC, img_np, bt))
         monkeypatch.setenv("OAS_KERNELS", "numba")
+
+
+def test_chunked_run_covers_each_index_once():
+    seen = []
+    F._chunked_run(lambda a, b: seen.append((a, b)), 1000, 2)
+    assert sorted(i for a, b in seen for i in range(a, b)) == list(range(1000))
+    assert len(seen) == 2 * F._CHUNKS_PER_THREAD
+    seen.clear()
+    F._chunked_run(lambda a, b: seen.append((a, b)), 100, 2)  # too few for two threads: one call
+    assert seen == [(0, 100)]
+
+
+def test_aperture_rows_independent_of_threads(thesis, monkeypatch):
+    """The kernel's beams in chunks on two threads give the rows, live flags and seabed areas of
+    one pass on one thread, bit for bit (each beam's row is its own; the cos memo holds only
+    values that libm gives again)."""
+    sc, pose = thesis
+    monkeypatch.setenv("OAS_KERNELS", "numba")
+    spec = dataclasses.replace(SPEC, n_beams=160, elevation_samples=24)
+    bt = F._bottom_types(sc)
+    opts = SonarOptions(beam_model="aperture", propagation="spreading")
+    sspec = F.scan_spec(spec, "aperture")
+    _, cells = F._scan(sc, F.caster_for(sc), sspec, pose, opts, F._aperture_elevation_weights(spec),
+                       spec.elevation_pattern(), materialise=False)
+    got = [tuple(np.copy(x) for x in F._aperture_rows(spec, cells, opts, bt, t, True)[:3]) for t in (1, 2)]
+    for a, b in zip(*got):
+        np.testing.assert_array_equal(a, b)
+    assert np.count_nonzero(got[0][1]) > 0
+
+
+@pytest.mark.parametrize("q", [2, 3])  # the default two phases, and the general path
+def test_aperture_rows_match_deposit_by_deposit(thesis, monkeypatch, q):
+    """The aperture kernel's rows (per beam: the boxes' fine-cell deposits, then one pass of the
+    taps and steps) against ``echo_rows`` on the materialised sub-cells (each deposit carried to
+    the bins by the same tables, one at a time): the same linear map on the same deposits, so
+    the float64 rows differ only by the order of their sums: by float64 rounding (``2^-52``) of
+    the running sums, which a short footprint's ``+dens``/``-dens`` pair (its width at least
+    ``1e-4`` bin) can make up to ``~1e4`` times the echo it leaves (measured here: ~1e-13 of a
+    row's peak). Tolerance: one float32 rounding step each side (``2^-23`` relative) plus
+    ``1e-9`` of the row's peak, the level below which the image keeps nothing
+    (``_finish_numba`` zeroes it as the cumulative sums' residue)."""
+    sc, pose = thesis
+    monkeypatch.setenv("OAS_KERNELS", "numba")
+    bt = F._bottom_types(sc)
+    caster = F.caster_for(sc)
+    opts = SonarOptions(beam_model="aperture", propagation="spreading", range_oversample=q)
+    sspec = F.scan_spec(SPEC, "aperture")
+    args = (sc, caster, sspec, pose, opts, F._aperture_elevation_weights(SPEC), SPEC.elevation_pattern())
+    _, cells = F._scan(*args, materialise=False)
+    rows, _, live, slot_of = F._aperture_rows(SPEC, cells, opts, bt, 2, False)
+    rows = rows.copy()  # a scratch that _echo_rows_numba reuses
+    _, img = F._scan(*args)
+    slot, n_slots, slot_of_m = F._class_slots(bt, img)
+    assert slot_of_m == slot_of and n_slots == rows.shape[0]
+    sigma_bins = max(SPEC.pulse_width / SPEC.bin_width / 2.3548, 0.5)
+    ref = F._echo_rows_numba(SPEC, img, slot, n_slots, 1, opts.range_oversample, sigma_bins).copy()
+    assert np.count_nonzero(ref[0]) > ref[0].size // 2  # the seabed fills most of the fan
+    for s in range(n_slots):
+        peak = float(np.abs(ref[s]).max())
+        np.testing.assert_allclose(rows[s], ref[s], rtol=2.0**-23, atol=1e-9 * peak)
+        # rows without deposits (left out of the beam mixing) are zeros, in both
+        assert not np.any(rows[s][~live[s]]) and not np.any(ref[s][~live[s]])
+        assert live[s].any()

@@ -5,8 +5,10 @@ formed before (issue 10, cost): each hit ray's sub-cells (``formation._subdivide
 their echo with the seabed/target split (``_numba_kernels.bucket_by_beam`` + ``echo_rows``) and
 the seabed area per cell (``formation.cell_area``). The sub-cells of a beam are visited in the
 order the materialised path buckets them (elevation sample, then sub-cell), with the same
-formulas, so the sums are the same numbers; the tests compare it with the numpy reference
-(``OAS_KERNELS=numpy``: materialised sub-cells, ``_form_image``, ``cell_area``).
+formulas: the areas are the same numbers, bit for bit; the echo is the same linear map of the
+same deposits summed in another order (deposit, then convolve: see ``aperture_echo_rows``), the
+same to float64 rounding. The tests compare it with the materialised numba path and with the
+numpy reference (``OAS_KERNELS=numpy``: materialised sub-cells, ``_form_image``, ``cell_area``).
 """
 
 from __future__ import annotations
@@ -15,35 +17,58 @@ import numpy as np
 from numba import njit
 
 _MIN_COS_FOOTPRINT = 0.02  # same clamp as formation._MIN_COS_FOOTPRINT
+_AREA_BLOCK = 16  # beams whose area rows are written to the image layout together
 
 
 @njit(cache=True, nogil=True)
 def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K, J,
                        table_x0, table_dx, table_y, alpha_db, spreading, bin_width,
                        slot_of_ray, seabed_of_ray, dtheta, range_min, n_cells, H, V, full, q, n_bins,
-                       want_area, j0, j1, out, area_out):
+                       want_area, max_s, j0, j1, out, area_out, live):
     """Echo rows (``(S, n_beams, n_bins)`` float32, as ``echo_rows``) and the seabed area
     (``(n_bins, n_beams)`` float32, the image layout, one cell per bin, no anti-aliasing, as
     ``cell_area``; beams ``j0..j1`` are its columns) of the
     aperture model's sub-cells, for beams ``j0..j1``, straight from the primary rays.
 
-    Per ray ``i = j K + k`` (flat beam-major ``(J * K,)`` arrays: each beam's rays contiguous;
-    ``half_step`` the cells' extents ``a``, ``b`` but at refined edges): ``n_sub[i]`` sub-cells
+    Per ray ``i = k J + j`` (flat ``(K * J,)`` arrays in the grid's layout; ``half_step`` the
+    cells' extents ``a``, ``b`` but at refined edges): ``n_sub[i]`` sub-cells
     (``subcell_counts``), each with the range, footprint, Lambert factor, two-way pattern weight
     and gain of ``_numba_kernels.subdivide``; a sub-cell of energy ``> 0`` deposits its box
     into slot 0 and its class's slot ``slot_of_ray[i]``; a seabed sub-cell
     (``seabed_of_ray[i]``) deposits its area ``r^2 cos(phi) dtheta_j dphi / max(cos, 0.05)`` into
-    ``area_out`` (when ``want_area``).
+    ``area_out`` (when ``want_area``). ``max_s``: the largest ``n_sub`` (1 at least).
+    ``live[s, j]`` (bool ``(S, n_beams)``) tells whether row
+    ``out[s, j]`` has deposits (a row without is written as zeros).
+
+    Deposit, then convolve: a box's two edges each put their two fine-cell values (the
+    linear two-cell split of ``formation._box_integrate``) into the beam's per-slot array of
+    fine-cell deposits ``dep[s, cell]`` (four adds per slot instead of ``2 (2 D + 2)`` taps and
+    two steps); after the beam's sub-cells, :func:`_rows_from_deposits` applies ``echo_rows``'
+    linear map to each slot's array once (the ``H`` taps around each deposit's bin, a step of
+    ``full`` from ``D + 1`` bins on, ``V`` at the row's end), over the bins the deposits reach,
+    in loops over bins that the compiler vectorises. The same linear map as ``echo_rows``
+    applied deposit by deposit, summed in another order (float64): the rows differ from it by
+    float64 rounding of the partial sums (``~1e-16`` of the largest running sum of a row, which
+    a short footprint's ``+dens``/``-dens`` pair can make ``~1e4`` times its echo).
+    The area (no anti-aliasing: one cell per bin) is the cumulative sum of its deposits,
+    the same additions in the same order as ``echo_rows`` with one cell per bin: bit for bit.
     """
     S = out.shape[0]
     D = (H.shape[1] - 1) // 2
-    row = np.zeros((S, n_bins))
-    step = np.zeros((S, n_bins + 1))
-    end = np.zeros(S)
-    used = np.zeros(S, np.bool_)
-    a_row = np.zeros(n_bins)
-    a_step = np.zeros(n_bins + 1)
-    a_used = False
+    nt = 2 * D + 1
+    # fine-cell deposits per slot; cells n_cells, n_cells + 1 take the deposits past the end
+    # (cut: never read, zeroed with the rest)
+    dep = np.zeros((S, n_cells + 2))
+    lo_c = np.full(S, n_cells + 2, np.int64)  # fine cells reached by each slot's deposits (inclusive)
+    hi_c = np.full(S, -1, np.int64)
+    ph = np.zeros((q, n_bins + 2 * D))
+    cum = np.empty(n_bins + D + 2)
+    a_rows = np.empty((_AREA_BLOCK, n_bins), np.float32)
+    blk0 = j0
+    rowbuf = np.zeros(n_bins)
+    a_dep = np.zeros(n_bins + 2)  # the area's deposits, one cell per bin
+    a_lo = n_bins + 2
+    a_hi = -1
     n_tab = table_y.size
     pad_w = 1e-4 * bin_width
     k_abs = -0.2 * np.log(10.0) * alpha_db
@@ -51,21 +76,6 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     a_scale = 1.0 / bin_width
     # the trigonometry of a cell depends only on (a, b, S): most cells have the grid's (a, b)
     # (all but the refined edges), so it is tabulated per S for those (the same numbers)
-    max_s = 1
-    for i in range(n_sub.size):
-        max_s = max(max_s, n_sub[i])
-    # deposits at fine cells c (phase ph) and c + 1 of the default q = 2 in one pass over bins
-    # bi - D .. bi + D + 1 (bi = c // 2): HA the first's taps, HB the second's (same bin at phase 0,
-    # the next bin at phase 1); the sums differ from two passes by float64 rounding only
-    pair = q == 2
-    HA = np.zeros((2, 2 * D + 2))
-    HB = np.zeros((2, 2 * D + 2))
-    if pair:
-        for m in range(2 * D + 1):
-            HA[0, m] = H[0, m]
-            HB[0, m] = H[1, m]
-            HA[1, m] = H[1, m]
-            HB[1, m + 1] = H[0, m]
     a_g = b_g = half_step  # formation._scan's cells before edge refinement
     trig = np.empty((max_s + 1, 7))
     for Sn in range(1, max_s + 1):
@@ -78,8 +88,8 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
         trig[Sn, 4] = np.sin(d_)
         trig[Sn, 5] = np.cos(t0)
         trig[Sn, 6] = np.sin(t0)
-    # one beam's sub-cells, formed in a first pass and deposited in a third: the exp and cos
-    # between them run in a loop of their own (libm calls in the big loop spill its registers)
+    # one beam's sub-cells, formed in a first pass and deposited after: the exp and cos run in
+    # loops of their own (libm calls in the big loop spill its registers)
     cap = K * max_s
     c_r = np.empty(cap)
     c_lo = np.empty(cap)
@@ -88,7 +98,6 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     c_el = np.empty(cap)
     c_d = np.empty(cap)
     c_e = np.empty(cap)
-    c_cos = np.empty(cap)
     c_s = np.empty(cap, np.int64)
     c_sea = np.empty(cap, np.bool_)
     c_key = np.empty(cap, np.int64)
@@ -97,6 +106,13 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     # (a hit only where the stored elevation is the same number: the same cos)
     memo_el = np.full(K * max_s, np.nan)
     memo_cos = np.empty(K * max_s)
+    # a beam's deposits (first cells and values), computed in a loop that does not add them:
+    # neighbouring sub-cells' deposits share cells, and adds that wait on the divisions
+    # before them serialised the loop that did both
+    d_p0 = np.empty(cap, np.int64)
+    d_p1 = np.empty(cap, np.int64)
+    d_v = np.empty((cap, 4))
+    d_s = np.empty(cap, np.int64)
     for j in range(j0, j1):
         dth = dtheta[j]
         nc = 0
@@ -163,87 +179,67 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
             for ic in range(nc):
                 r_mid = c_r[ic]
                 c_e[ic] *= np.exp(k_abs * (r_mid - 1.0)) / (r_mid * r_mid)
+        # the echo: each box's edges as four fine-cell deposits per slot (slot 0, the class's);
+        # their places and values first, in a loop without stores to the rows (deposits of
+        # neighbouring sub-cells share cells: adds that wait on the divisions serialise the loop)
+        nd_ = 0
+        for ic in range(nc):
+            e = c_e[ic]
+            if not e > 0:  # as bucket_by_beam: footprint in fine cells, density, clipped
+                continue
+            x0 = (c_lo[ic] - range_min) * scale
+            x1 = (c_hi[ic] - range_min) * scale
+            dens = e / (x1 - x0)
+            x0 = min(max(x0, 0.0), n_cells)
+            x1 = min(max(x1, 0.0), n_cells)
+            p0 = int(x0)
+            f0 = x0 - p0
+            p1 = int(x1)
+            f1 = x1 - p1
+            d_p0[nd_] = p0
+            d_p1[nd_] = p1
+            d_v[nd_, 0] = dens - dens * f0
+            d_v[nd_, 1] = dens * f0
+            d_v[nd_, 2] = dens * f1 - dens
+            d_v[nd_, 3] = -dens * f1
+            d_s[nd_] = c_s[ic]
+            nd_ += 1
+        for idd in range(nd_):
+            p0 = d_p0[idd]
+            p1 = d_p1[idd]
+            s = d_s[idd]
+            ss = 0
+            while True:  # slot 0 (the whole echo), then the class's slot when it has one
+                dep[ss, p0] += d_v[idd, 0]
+                dep[ss, p0 + 1] += d_v[idd, 1]
+                dep[ss, p1] += d_v[idd, 2]
+                dep[ss, p1 + 1] += d_v[idd, 3]
+                lo_c[ss] = min(lo_c[ss], p0)
+                hi_c[ss] = max(hi_c[ss], p1 + 1)
+                if ss != 0 or s <= 0:
+                    break
+                ss = s
         if want_area:
+            na = 0
             for ic in range(nc):
+                if not c_sea[ic]:
+                    continue
                 key = c_key[ic]
                 el = c_el[ic]
                 if memo_el[key] == el:
-                    c_cos[ic] = memo_cos[key]
+                    cv = memo_cos[key]
                 else:
                     cv = np.cos(el)
                     memo_el[key] = el
                     memo_cos[key] = cv
-                    c_cos[ic] = cv
-        for ic in range(nc):
-            r_mid = c_r[ic]
-            f_lo = c_lo[ic]
-            f_hi = c_hi[ic]
-            c_mid = c_c[ic]
-            el = c_el[ic]
-            delta = c_d[ic]
-            e = c_e[ic]
-            s = c_s[ic]
-            if e > 0:  # as bucket_by_beam: footprint in fine cells, density, clipped
-                x0 = (f_lo - range_min) * scale
-                x1 = (f_hi - range_min) * scale
-                dens = e / (x1 - x0)
-                x0 = min(max(x0, 0.0), n_cells)
-                x1 = min(max(x1, 0.0), n_cells)
-                p0 = int(x0)
-                f0 = x0 - p0
-                p1 = int(x1)
-                f1 = x1 - p1
-                ss = 0
-                while True:  # slot 0 (the whole echo), then the class's slot when it has one
-                    for c, va, vb in ((p0, dens - dens * f0, dens * f0), (p1, dens * f1 - dens, -dens * f1)):
-                        # the deposits at fine cells c and c + 1 together: one pass over the bins both
-                        # reach (2 D + 2 at most) when both are inside the row (the default q = 2)
-                        if pair and c + 1 < n_cells:
-                            bi = c >> 1
-                            ph = c & 1
-                            if D <= bi and bi + 1 < n_bins - D:
-                                used[ss] = True
-                                end[ss] += va
-                                end[ss] += vb
-                                for m in range(2 * D + 2):
-                                    row[ss, bi - D + m] += va * HA[ph, m] + vb * HB[ph, m]
-                                step[ss, bi + D + 1] += va * full  # bi + D + 1 < n_bins: bi + 1 < n_bins - D
-                                sb = bi + ph + D + 1
-                                if sb < n_bins:
-                                    step[ss, sb] += vb * full
-                                continue
-                        for c1, v in ((c, va), (c + 1, vb)):
-                            if c1 >= n_cells:  # only cells past the end, which are cut
-                                continue
-                            used[ss] = True
-                            end[ss] += v
-                            if q == 2:  # the default oversampling: no integer division
-                                bi = c1 >> 1
-                                ph = c1 & 1
-                            else:
-                                bi = c1 // q
-                                ph = c1 - bi * q
-                            if D <= bi < n_bins - D:
-                                for m in range(2 * D + 1):
-                                    row[ss, bi - D + m] += v * H[ph, m]
-                            else:
-                                for m in range(-D, D + 1):
-                                    bb = bi + m
-                                    if 0 <= bb < n_bins:
-                                        row[ss, bb] += v * H[ph, m + D]
-                            sb = bi + D + 1
-                            if sb < n_bins:
-                                step[ss, sb] += v * full
-                    if ss != 0 or s <= 0:
-                        break
-                    ss = s
-            if c_sea[ic]:
+                r_mid = c_r[ic]
+                delta = c_d[ic]
                 el_lo = el - 0.5 * delta
                 el_hi = el + 0.5 * delta
-                ar = r_mid * r_mid * c_cos[ic] * dth * (el_hi - el_lo) / max(c_mid, 0.05)
+                ar = r_mid * r_mid * cv * dth * (el_hi - el_lo) / max(c_c[ic], 0.05)
                 if ar > 0:
-                    x0 = (f_lo - range_min) * a_scale
-                    x1 = (f_hi - range_min) * a_scale
+                    x0 = (c_lo[ic] - range_min) * a_scale
+                    x1 = (c_hi[ic] - range_min) * a_scale
                     dens = ar / (x1 - x0)
                     x0 = min(max(x0, 0.0), n_bins)
                     x1 = min(max(x1, 0.0), n_bins)
@@ -251,40 +247,158 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                     f0 = x0 - p0
                     p1 = int(x1)
                     f1 = x1 - p1
-                    a_used = True
-                    for c, v in ((p0, dens - dens * f0), (p0 + 1, dens * f0), (p1, dens * f1 - dens),
-                                 (p1 + 1, -dens * f1)):
-                        if c < n_bins:  # one cell per bin, no anti-aliasing: echo_rows with D = 0
-                            a_row[c] += v
-                            if c + 1 < n_bins:
-                                a_step[c + 1] += v
+                    d_p0[na] = p0
+                    d_p1[na] = p1
+                    d_v[na, 0] = dens - dens * f0
+                    d_v[na, 1] = dens * f0
+                    d_v[na, 2] = dens * f1 - dens
+                    d_v[na, 3] = -dens * f1
+                    na += 1
+            # one cell per bin (echo_rows with D = 0); cells past the end are not read
+            for ia in range(na):
+                p0 = d_p0[ia]
+                p1 = d_p1[ia]
+                a_dep[p0] += d_v[ia, 0]
+                a_dep[p0 + 1] += d_v[ia, 1]
+                a_dep[p1] += d_v[ia, 2]
+                a_dep[p1 + 1] += d_v[ia, 3]
+                a_lo = min(a_lo, p0)
+                a_hi = max(a_hi, p1 + 1)
         for ss in range(S):
-            if not used[ss]:
-                out[ss, j, :] = 0.0
-                continue
-            acc = 0.0
-            for bb in range(n_bins):
-                acc += step[ss, bb]
-                out[ss, j, bb] = row[ss, bb] + acc
-            for tv in range(V.size):
-                bb = n_bins - V.size + tv
-                if bb >= 0:
-                    out[ss, j, bb] -= end[ss] * V[tv]
-            row[ss, :] = 0.0
-            step[ss, :] = 0.0
-            end[ss] = 0.0
-            used[ss] = False
+            first = lo_c[ss]
+            last = hi_c[ss]
+            lo_c[ss] = n_cells + 2
+            hi_c[ss] = -1
+            live[ss, j] = _rows_from_deposits(dep[ss], first, last, H, V, full, q, n_bins, ph, cum, rowbuf,
+                                              out[ss, j])
         if want_area:
-            if not a_used:
-                area_out[:, j] = 0.0
+            jb = j - blk0
+            if a_hi < 0:
+                a_rows[jb, :] = 0.0
             else:
+                # the cumulative sum (zero before the first deposit, constant after the last)
+                ar_row = a_rows[jb]
+                first = min(a_lo, n_bins)
+                last = min(a_hi + 1, n_bins)
+                ar_row[:first] = 0.0
                 acc = 0.0
+                for bb in range(first, last):
+                    acc += a_dep[bb]
+                    ar_row[bb] = acc
+                ar_row[last:] = acc
+                a_dep[a_lo:a_hi + 1] = 0.0
+                a_lo = n_bins + 2
+                a_hi = -1
+            if jb == _AREA_BLOCK - 1 or j == j1 - 1:
+                # the image layout, a block of beams at a time (a column at a time, with the beams'
+                # power-of-two stride, would miss the caches at every bin)
                 for bb in range(n_bins):
-                    acc += a_step[bb]
-                    area_out[bb, j] = a_row[bb] + acc
-                a_row[:] = 0.0
-                a_step[:] = 0.0
-                a_used = False
+                    for t in range(jb + 1):
+                        area_out[bb, blk0 + t] = a_rows[t, bb]
+                blk0 = j + 1
+
+
+@njit(cache=True, nogil=True)
+def _rows_from_deposits(dep, c_lo, c_top, H, V, full, q, n_bins, ph, cum, rowbuf, row_out):
+    """One slot's echo row from its fine-cell deposits ``dep[c_lo..c_top]`` (zero elsewhere; zeroed
+    here for the next beam): ``echo_rows``' linear map (``H`` taps around each deposit's bin, a
+    step of ``full`` from ``D + 1`` bins after it on, ``V`` at the row's end) over the bins it
+    reaches, into ``row_out`` (float32, written whole). ``ph`` ``(q, n_bins + 2 D)`` zeros
+    (left zero), ``cum`` ``(n_bins + D + 2,)`` and ``rowbuf`` ``(n_bins,)`` scratch. Returns False
+    when no deposit is inside the row (written as zeros)."""
+    D = (H.shape[1] - 1) // 2
+    nt = 2 * D + 1
+    n_cells = n_bins * q
+    c_hi = min(c_top, n_cells - 1)  # the cells past the end are cut
+    if c_hi < c_lo:
+        row_out[:] = 0.0
+        if c_top >= c_lo:
+            dep[c_lo:c_top + 1] = 0.0
+        return False
+    lo = c_lo // q
+    hi = c_hi // q
+    # the deposits by phase, bins offset by D (zero margins for the taps), and their running
+    # sum over bins, ``cum[b]`` for the bins up to ``b - D - 1`` (what the steps add up to)
+    tot = 0.0
+    if q == 2:  # the default oversampling: two phases, no integer division
+        p0r = ph[0]
+        p1r = ph[1]
+        for bq in range(lo, hi + 1):
+            v0 = dep[2 * bq]
+            v1 = dep[2 * bq + 1]
+            p0r[D + bq] = v0
+            p1r[D + bq] = v1
+            tot += v0 + v1
+            cum[D + 1 + bq] = tot
+    else:
+        for bq in range(lo, hi + 1):
+            g = 0.0
+            for h in range(q):
+                v = dep[bq * q + h]
+                ph[h, D + bq] = v
+                g += v
+            tot += g
+            cum[D + 1 + bq] = tot
+    dep[c_lo:c_top + 1] = 0.0
+    # the steps (bins e1 on), then the taps: row[b] += sum_{h, m} H[h, m + D] ph[h, D + b - m]
+    r0 = max(lo - D, 0)
+    r1 = min(hi + D + 1, n_bins)
+    e1 = min(lo + D + 1, n_bins)
+    n = r1 - r0
+    rb = rowbuf[:n]
+    rb[:e1 - r0] = 0.0
+    cs = cum[e1:r1]
+    rs = rb[e1 - r0:]
+    for t in range(r1 - e1):
+        rs[t] = full * cs[t]
+    if q == 2:  # two taps of both phases per pass over the row (fewer loads and stores of it)
+        p0r = ph[0]
+        p1r = ph[1]
+        mm = 0
+        while mm + 1 < nt:
+            ha0 = H[0, mm]
+            ha1 = H[1, mm]
+            hb0 = H[0, mm + 1]
+            hb1 = H[1, mm + 1]
+            o = r0 + 2 * D - mm  # D + (r0 + t) - (mm - D)
+            sa0 = p0r[o:o + n]
+            sa1 = p1r[o:o + n]
+            sb0 = p0r[o - 1:o - 1 + n]
+            sb1 = p1r[o - 1:o - 1 + n]
+            for t in range(n):
+                rb[t] += (ha0 * sa0[t] + ha1 * sa1[t]) + (hb0 * sb0[t] + hb1 * sb1[t])
+            mm += 2
+        if mm < nt:
+            ha0 = H[0, mm]
+            ha1 = H[1, mm]
+            o = r0 + 2 * D - mm
+            sa0 = p0r[o:o + n]
+            sa1 = p1r[o:o + n]
+            for t in range(n):
+                rb[t] += ha0 * sa0[t] + ha1 * sa1[t]
+    else:
+        for h in range(q):
+            for mm in range(nt):
+                hv = H[h, mm]
+                o = r0 + 2 * D - mm
+                src = ph[h, o:o + n]
+                for t in range(n):
+                    rb[t] += hv * src[t]
+    row_out[:r0] = 0.0
+    ro = row_out[r0:r1]
+    for t in range(n):
+        ro[t] = rb[t]
+    e2 = min(hi + D + 2, n_bins)
+    for bb in range(r1, e2):
+        row_out[bb] = full * cum[bb]
+    row_out[e2:] = full * tot
+    # fine cells past the end do not exist: V removes what the steps put there
+    for tv in range(V.size):
+        bb = n_bins - V.size + tv
+        if bb >= 0:
+            row_out[bb] -= tot * V[tv]
+    ph[:, D + lo:D + hi + 1] = 0.0
+    return True
 
 
 

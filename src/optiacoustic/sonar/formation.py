@@ -155,6 +155,34 @@ def _mix_beams(spec: SonarSpec, echo: np.ndarray, out=None) -> np.ndarray:
     return out
 
 
+def _live_span(live: np.ndarray, spec: SonarSpec):
+    """The beams ``(j0, j1)`` whose mixed rows can be nonzero: the rows with echo (``live``, bool
+    ``(n_beams,)``) widened by the azimuth kernel's half-length; ``None`` for all beams (a beam
+    table mixes every beam with every other); ``(0, 0)`` when no row has echo."""
+    if spec.beam_azimuths is not None:
+        return None
+    idx = np.flatnonzero(live)
+    if idx.size == 0:
+        return (0, 0)
+    m = (azimuth_kernel(spec).size - 1) // 2
+    return (max(int(idx[0]) - m, 0), min(int(idx[-1]) + m + 1, spec.n_beams))
+
+
+def _mix_rows(spec: SonarSpec, rows: np.ndarray, out: np.ndarray, span) -> None:
+    """:func:`_mix_beams` of ``rows`` ``(n_beams, n_bins)`` into ``out``, computed over the beams of
+    ``span`` only (:func:`_live_span`; ``None``: all): the rows outside it are zero and take none
+    from the rows with echo. The same numbers as the whole array (the rows left out are zeros,
+    which add nothing, with the same zero border)."""
+    if span is None:
+        _mix_beams(spec, rows, out=out)
+        return
+    j0, j1 = span
+    out[:j0] = 0.0
+    out[j1:] = 0.0
+    if j1 > j0:
+        _mix_beams(spec, rows[j0:j1], out=out[j0:j1])
+
+
 @functools.lru_cache(maxsize=16)
 def azimuth_kernel(spec: SonarSpec) -> np.ndarray:
     """Two-way azimuth power ``F^4`` averaged over beam cells at offsets ``-m..m`` beams.
@@ -1070,12 +1098,38 @@ def _aperture_cells(spec: SonarSpec, rays: SonarRays, nd, ndd, a, b, refl, patte
 def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarOptions, bottom_types: dict,
                          threads: int, need_area: bool):
     """The aperture model's intensity, seabed shares and (``need_area``) seabed area per cell from
-    one kernel pass per beam (``_aperture_kernels``): the same numbers as :func:`_subdivide_numba`,
-    :func:`_form_with_shares_numba` and :func:`cell_area` on the sub-cells, without storing them.
+    one kernel pass per beam (``_aperture_kernels``): what :func:`_subdivide_numba`,
+    :func:`_form_with_shares_numba` and :func:`cell_area` give on the sub-cells, without storing
+    them (the area bit for bit; the echo's float64 sums in another order, the same to their rounding).
 
     Returns ``(intensity, shares, area or None)``, each ``(n_bins, n_beams)`` float32; ``area`` is
     a per-thread scratch that the next call on this thread overwrites.
     """
+    out, area, live, slot_of = _aperture_rows(spec, cells, options, bottom_types, threads, need_area)
+    n_slots, J, B = out.shape
+    # the azimuth pattern mixes whole rows (beams); scale, threshold, shares and the image layout in one pass
+    mixed = _workspace(f"mixed{n_slots}", (n_slots, J, B), np.float32)
+    spans = [_live_span(live[s], spec) for s in range(n_slots)]
+    if threads > 1 and n_slots > 1:  # the class images on the other threads meanwhile (cv2 releases the GIL)
+        from ._kernels import _pool
+
+        jobs = [_pool(threads - 1).submit(_mix_rows, spec, out[s], mixed[s], spans[s]) for s in range(1, n_slots)]
+        _mix_rows(spec, out[0], mixed[0], spans[0])
+        for job in jobs:
+            job.result()
+    else:
+        for s in range(n_slots):
+            _mix_rows(spec, out[s], mixed[s], spans[s])
+    intensity, shares = _finish_numba(spec, mixed, bottom_types, slot_of, threads)
+    return intensity, shares, area
+
+
+def _aperture_rows(spec: SonarSpec, cells: _ApertureCells, options: SonarOptions, bottom_types: dict,
+                   threads: int, need_area: bool):
+    """:func:`_form_aperture_numba`'s kernel pass (``_aperture_kernels.aperture_echo_rows``): the rows
+    ``(n_slots, n_beams, n_bins)`` float32 (per-thread scratch, as :func:`_echo_rows_numba`'s), the
+    seabed area ``(n_bins, n_beams)`` (``None`` unless ``need_area``), which rows have echo
+    (bool ``(n_slots, n_beams)``) and the slot of each class (as :func:`_class_slots`)."""
     from . import _aperture_kernels as ak
 
     rays = cells.rays
@@ -1106,22 +1160,39 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
     bm = flat
     args = (bm(rays.range), bm(cells.nd), bm(cells.ndd), bm(cells.a), bm(cells.b), 0.5 * rays.elevation_step,
             bm(cells.refl), bm(rays.elevation), bm(n_sub), K, J, x0, dx, y, cells.alpha_db, cells.spreading, spec.bin_width, bm(slot),
-            bm(seabed_of_ray), dtheta, float(spec.range_min), B * q, H, V, full, q, B, bool(need_area))
-    split_run(lambda j0, j1: ak.aperture_echo_rows(*args, j0, j1, out, area), J, threads)
-    # the azimuth pattern mixes whole rows (beams); scale, threshold, shares and the image layout in one pass
-    mixed = _workspace(f"mixed{n_slots}", (n_slots, J, B), np.float32)
-    if threads > 1 and n_slots > 1:  # the class images on the other threads meanwhile (cv2 releases the GIL)
-        from ._kernels import _pool
+            bm(seabed_of_ray), dtheta, float(spec.range_min), B * q, H, V, full, q, B, bool(need_area),
+            max(1, int(n_sub.max(initial=0))))
+    live = np.empty((n_slots, J), np.bool_)
+    _chunked_run(lambda j0, j1: ak.aperture_echo_rows(*args, j0, j1, out, area, live), J, threads)
+    return out, (area if need_area else None), live, slot_of
 
-        jobs = [_pool(threads - 1).submit(_mix_beams, spec, out[s], mixed[s]) for s in range(1, n_slots)]
-        _mix_beams(spec, out[0], out=mixed[0])
-        for job in jobs:
-            job.result()
-    else:
-        for s in range(n_slots):
-            _mix_beams(spec, out[s], out=mixed[s])
-    intensity, shares = _finish_numba(spec, mixed, bottom_types, slot_of, threads)
-    return intensity, shares, (area if need_area else None)
+
+#: Beam chunks per thread of :func:`_chunked_run`.
+_CHUNKS_PER_THREAD = 4
+
+
+def _chunked_run(fn, n: int, threads: int) -> None:
+    """``fn(a, b)`` over ``[0, n)`` in chunks that ``threads`` workers (this thread one of them)
+    take in turn as they finish the last: a thread slowed by another process, or by the noise
+    draws on the second core, takes fewer (``split_run``'s fixed halves waited for it). For
+    GIL-releasing kernels whose chunks write disjoint outputs."""
+    threads = max(1, min(int(threads), n // 64 or 1))
+    if threads == 1:
+        fn(0, n)
+        return
+    from ._kernels import _pool
+
+    step = -(-n // (threads * _CHUNKS_PER_THREAD))
+    starts = iter(range(0, n, step))  # next() on it is atomic under the GIL: each chunk goes to one worker
+
+    def work():
+        for a in starts:
+            fn(a, min(a + step, n))
+
+    jobs = [_pool(threads - 1).submit(work) for _ in range(threads - 1)]
+    work()
+    for job in jobs:
+        job.result()
 
 
 #: Sub-rays cast across each visibility discontinuity between two elevation samples.
