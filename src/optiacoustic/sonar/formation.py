@@ -426,8 +426,10 @@ def simulate_sonar(
     bottom_types = _bottom_types(scene)
     draws = None
     draw_args = (noise.draw, (spec.n_bins, spec.n_beams), list(bottom_types), as_rng(seed)) if noise is not False else None
-    # (not for a subclass with its own draw, which may not take ``_reuse``)
-    pooled = noise is not False and type(noise).draw in (ScattererNoise.draw, NoiseModel.draw)
+    # (not for a subclass with its own draw, which may not take ``_reuse``, or its own apply, which might
+    # return a draw: the buffers go back to the pool after it)
+    pooled = noise is not False and any(type(noise).draw is m.draw and type(noise).apply is m.apply
+                                        for m in (ScattererNoise, NoiseModel))
     if pooled:  # its variates in pooled buffers, handed back once the noise has read them (fresh ones fault)
         draw_args = (functools.partial(noise.draw, _reuse=True),) + draw_args[1:]
 
