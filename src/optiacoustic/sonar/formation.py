@@ -974,6 +974,15 @@ def _scan_hits_numpy(caster: RayCaster, spec: SonarSpec, pose: Pose):
     return body, r, nd, ndd, cos_inc, slope
 
 
+def _fill_rows(out: np.ndarray, row) -> np.ndarray:
+    """Every row of ``out`` ``(N, 3)`` set to ``row`` (cast to ``out``'s dtype), column by column: the
+    broadcast ``out[...] = row`` runs an inner loop of length 3 per row, 6x slower (0.45 ms for 65 536 rows)."""
+    row = np.asarray(row, out.dtype)
+    for c in range(out.shape[1]):
+        out[:, c] = row[c]
+    return out
+
+
 def _scan_hits_numba(caster: RayCaster, spec: SonarSpec, pose: Pose):
     """:func:`_scan_hits_numpy` with the grid built and Embree's float32 output read by kernels."""
     kn = kernels()
@@ -986,8 +995,7 @@ def _scan_hits_numba(caster: RayCaster, spec: SonarSpec, pose: Pose):
     # multi-MB arrays fault on every frame); body, range and cos(incidence) go into the frame's rays
     d32 = _workspace("scan_d32", (n, 3), np.float32)
     kn.ray_grid32(cp, sp, a_dir, rz, d32)
-    o32 = _workspace("scan_o32", (n, 3), np.float32)
-    o32[...] = np.asarray(pose.t, np.float32)
+    o32 = _fill_rows(_workspace("scan_o32", (n, 3), np.float32), pose.t)
     dist32 = _workspace("scan_dist32", (n,), np.float32)
     dist32.fill(min(np.float32(spec.range_max * 1.5), np.float32(1e30)))  # Embree writes its hits' distances here
     tfar, geom, prim, u, v, _ = caster.intersect_raw(o32, d32, dist32, normals=False)
@@ -1315,8 +1323,7 @@ def _refine_edges_numba(caster, spec, pose, body, r, slope, a, b) -> None:
     cp = np.cos(phi)
     d = pose.directions_to_world(np.stack(np.broadcast_arrays(cp * np.sin(th), cp * np.cos(th), np.sin(phi)), -1))
     d32 = np.ascontiguousarray(d.reshape(-1, 3), np.float32)
-    o32 = np.empty_like(d32)
-    o32[...] = np.asarray(pose.t, np.float32)
+    o32 = _fill_rows(np.empty_like(d32), pose.t)
     dist32 = np.full(len(d32), min(np.float32(spec.range_max * 1.5), np.float32(1e30)), np.float32)
     tfar, h_body, _, _, _, _ = caster.intersect_raw(o32, d32, dist32, normals=False)
     kn.edge_split(kk, jj, h_body, tfar, body, r, slope, step, S, J, a, b)
