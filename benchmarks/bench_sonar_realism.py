@@ -16,9 +16,10 @@ DESCRIPTION = (
     "from cell areas, pulse- and beam-filtered complex fields, receiver noise before the device TVG). "
     "Issue 10's target: ratio <= 1.5. One numba pass per beam forms the aperture model's sub-cells (never "
     "stored), their echo with the seabed split and the seabed area per cell; the beams are mixed in that "
-    "pass's rows layout and finished by the thesis path's kernel. The noise's inner loops (counts, complex "
-    "normals with a cos/sin table, the |f|^2 x mean / expected x TVG tail) run in numba kernels, its separable "
-    "filters in cv2.sepFilter2D (float32)."
+    "pass's rows layout and finished by the thesis path's kernel. The noise runs in two numba passes split by "
+    "rows over the threads: per cell its random words (Philox4x32-10 of the cell index, no array of draws), "
+    "Poisson count, power and complex normal (exp, log and cos/sin without libm calls, so the loops vectorise), "
+    "then the field's and the mean's separable filters and the |f|^2 x mean / expected x TVG image in one pass."
 )
 
 

@@ -173,15 +173,89 @@ def test_poisson_inversion_is_scipys_quantile_and_poisson(monkeypatch):
     assert abs(n.var() - 0.7) < 0.02
 
 
+# Random123's published known-answer vectors of Philox4x32-10 (counter, key, output)
+PHILOX_KAT = [
+    ((0, 0, 0, 0), (0, 0), (0x6627E8D5, 0xE169C58D, 0xBC57AC4C, 0x9B00DBD8)),
+    ((0xFFFFFFFF,) * 4, (0xFFFFFFFF,) * 2, (0x408F276D, 0x41C83B0E, 0xA20BC7C6, 0x6D5451FD)),
+    ((0x243F6A88, 0x85A308D3, 0x13198A2E, 0x03707344), (0xA4093822, 0x299F31D0),
+     (0xD16CFE09, 0x94FDCCEB, 0x5001E420, 0x24126EA1)),
+]
+
+
+@pytest.mark.parametrize("ctr,key,want", PHILOX_KAT)
+def test_philox_known_answers(ctr, key, want):
+    from optiacoustic.sonar._numba_kernels import philox_block
+
+    out = np.zeros(4, np.uint32)
+    philox_block(*ctr, *key, out)
+    assert out.tolist() == list(want)
+
+
+def test_noise_words_agree_and_are_uniform(monkeypatch):
+    """The words of the scatterer noise (Philox of the cell index): numba and numpy give the same
+    words; each word's uniform passes KS, and the three words of a cell are uncorrelated."""
+    key = np.array([12345, 678910], np.uint32)
+    cells = np.arange(200_000)
+    a, b = _both(monkeypatch, lambda: N.cell_words(key, cells))
+    assert a.dtype == np.uint32 and a.shape == (3, cells.size)
+    assert np.array_equal(a, b)
+    assert np.array_equal(N.cell_words(key, cells[::7]), a[:, ::7])  # a cell's words depend on it alone
+    u = N._uniforms(a)
+    for k in range(3):
+        assert stats.kstest(u[k], "uniform").pvalue > 1e-3
+    c = np.corrcoef(u)
+    assert np.all(np.abs(c[np.triu_indices(3, 1)]) < 5 / np.sqrt(cells.size))
+    assert not np.array_equal(N.cell_words(key + 1, cells[:100]), a[:, :100])
+
+
+@pytest.mark.parametrize("n_r,n_b", [(1, 1), (3, 27), (7, 5), (9, 1)])
+def test_speckle_image_kernel_matches_cv2_filters(n_r, n_b):
+    """The fused one-look image pass against its reference: the field filtered by cv2.sepFilter2D
+    (zero borders), the mean by the squared kernels, |f|^2 x mean / expected x TVG (0 where the
+    filtered mean is not positive). Asymmetric kernels (cv2 correlates), images smaller than a
+    kernel's reach on one side, rows of no mean."""
+    from optiacoustic.sonar._numba_kernels import speckle_image
+    from optiacoustic.sonar.speckle import filter_complex, filter_real
+
+    rng = np.random.default_rng(n_r * 100 + n_b)
+    B, J = 40, 23
+    z = rng.standard_normal((B, J, 2)).astype(np.float32)
+    mean = rng.uniform(0.5, 2.0, (B, J)).astype(np.float32)
+    mean[10:14] = 0.0  # no echo and no background: expected 0 there when the kernel is short
+    h_r = rng.uniform(0.1, 1.0, n_r).astype(np.float32)
+    h_b = rng.uniform(0.1, 1.0, n_b).astype(np.float32)
+    tvg = rng.uniform(1.0, 3.0, B).astype(np.float32)
+    f = filter_complex(z, h_r, h_b)
+    expected = filter_real(mean, h_r**2, h_b**2)
+    ref = np.where(expected > 0, (f[..., 0] ** 2 + f[..., 1] ** 2) * mean / np.where(expected > 0, expected, 1)
+                   * tvg[:, None], 0.0)
+    out = np.full((B, J), np.nan, np.float32)
+    speckle_image(z, mean, h_r, h_b, tvg, 0, 17, out)  # two row ranges, as two threads take them
+    speckle_image(z, mean, h_r, h_b, tvg, 17, B, out)
+    np.testing.assert_allclose(out, ref, rtol=2e-5, atol=1e-6 * float(ref.max()))
+    assert np.array_equal(out == 0, ref == 0)
+
+
 def test_box_muller_normals(monkeypatch):
+    """Normals from random words: both paths agree, each part is N(0, 1) (KS), the parts are
+    uncorrelated, and the extreme words give the documented tail (radius sqrt(2 ln 2^33))."""
     rng = np.random.default_rng(8)
-    u1, u2 = rng.random((300, 200)), rng.random((300, 200), dtype=np.float32)
+    bits = rng.integers(0, 2**32, (3, 300, 200), dtype=np.uint32)
+    bits[1, 0, :4] = [0, 1, 2**32 - 1, 2**31]
+    bits[2, 0, :4] = [0, 2**30, 2**31, 3 * 2**30]  # phases 0, 1/4, 1/2, 3/4 of a turn
     scale = np.full((300, 200), 2.0, np.float32)
-    a, b = _both(monkeypatch, lambda: N._complex_normals(u1, u2, scale))
+    a, b = _both(monkeypatch, lambda: N._complex_normals(bits, scale))
     _close(a, b, rtol=1e-5)
     for c in (0, 1):
         assert stats.kstest(a[..., c].ravel() / 2.0, "norm").pvalue > 1e-3
     assert abs(np.corrcoef(a[..., 0].ravel(), a[..., 1].ravel())[0, 1]) < 0.02
+    r = np.hypot(a[0, :4, 0], a[0, :4, 1]) / 2.0
+    np.testing.assert_allclose(r[0], np.sqrt(2 * 33 * np.log(2)), rtol=1e-6)  # the largest radius
+    np.testing.assert_allclose(r[2], np.sqrt(-2 * np.log1p(-0.5 * 2.0**-32)), rtol=1e-3)  # the smallest
+    np.testing.assert_allclose(r[3], np.sqrt(-2 * np.log((2**31 + 0.5) / 2**32)), rtol=1e-6)
+    ang = np.arctan2(a[0, :4, 1], a[0, :4, 0])
+    np.testing.assert_allclose(np.cos(ang), [1, 0, -1, 0], atol=1e-6)
+    np.testing.assert_allclose(np.sin(ang), [0, 1, 0, -1], atol=1e-6)
 
 
 def test_import_does_not_load_numba():

@@ -497,24 +497,6 @@ def subdivide(body, rng, lo, hi, nd, ndd, a, b, refl, elevation, beam, bin_width
 
 
 @njit(cache=True, nogil=True)
-def speckle_tail(f, mean, expected, tvg, r0, r1, out):
-    """``ScattererNoise``'s image, rows ``r0..r1``: ``|f|^2 mean / expected x tvg`` (0 where
-    ``expected <= 0``), ``f`` ``(B, J, 2)`` the filtered complex field, ``mean`` and
-    ``expected`` ``(B, J)`` float32 (the image's mean and its twice-blurred copy), ``tvg`` ``(B,)``."""
-    J = mean.shape[1]
-    for i in range(r0, r1):
-        t = tvg[i]
-        for j in range(J):
-            e = expected[i, j]
-            if e > 0:
-                a = f[i, j, 0]
-                b = f[i, j, 1]
-                out[i, j] = (a * a + b * b) * (mean[i, j] / e) * t
-            else:
-                out[i, j] = 0.0
-
-
-@njit(cache=True, nogil=True)
 def subcell_area(body, is_seabed, rng, cos_inc, el_lo, el_hi, elevation, beam, dtheta, out):
     """Seabed area of each ray or sub-cell (``formation.cell_area``): ``r^2 cos(phi) dtheta
     (phi_hi - phi_lo) / max(cos_incidence, 0.05)`` where ``is_seabed[body]``, else 0."""
@@ -527,21 +509,24 @@ def subcell_area(body, is_seabed, rng, cos_inc, el_lo, el_hi, elevation, beam, d
             out[i] = 0.0
 
 
-@njit(cache=True, nogil=True)
-def box_muller(u1, u2, scale, out):
-    """Pairs of independent normals from uniforms (Box-Muller), times ``scale``: ``out[..., 0]``,
-    ``out[..., 1]`` = ``scale sqrt(-2 ln(1 - u1)) (cos, sin)(2 pi u2)``. ``u1`` float64 (so the
-    tail reaches 8.6 sigma), ``u2`` float32, ``scale`` float32 (B, J); ``out`` (B, J, 2) float32."""
-    B, J = u1.shape
-    two_pi = 2.0 * np.pi
+@njit(cache=True, nogil=True, error_model="numpy")
+def box_muller(bits, scale, out):
+    """Pairs of independent normals (Box-Muller) times ``scale``: ``out[..., 0]``, ``out[..., 1]`` =
+    ``scale sqrt(-2 ln x) (cos, sin)(2 pi u)`` with ``x = (b1 + 1/2) 2^-32``, ``u = b2 2^-32``
+    from the uint32 words ``bits[1]``, ``bits[2]`` ``(3, B, J)``; ``scale`` float32 (B, J),
+    ``out`` (B, J, 2) float32 (C-contiguous)."""
+    B, J = scale.shape
+    x = np.empty(J)
+    e = np.empty(J)
+    mant = np.empty(J)
+    r2 = np.empty(J, np.float32)
+    power = np.empty(J, np.float32)
     for i in range(B):
+        _radius2_row(bits[1, i], x, e, mant, r2)
+        sc = scale[i]
         for j in range(J):
-            # 1 - u1 in float64 keeps the tail; its logarithm and the trigonometry in float32
-            r = np.sqrt(np.float32(-2.0) * np.log(np.float32(1.0 - u1[i, j])))
-            ang = np.float32(two_pi) * u2[i, j]
-            s = scale[i, j] * r
-            out[i, j, 0] = np.cos(ang) * s
-            out[i, j, 1] = np.sin(ang) * s
+            power[j] = sc[j] * sc[j] * np.float32(2.0)
+        _normals_row(bits[2, i], r2, power, out[i].reshape(2 * J))
 
 
 @njit(cache=True, nogil=True)
@@ -567,76 +552,238 @@ def poisson_inverse(mu, u, mu_max, out):
         out.flat[i] = n
 
 
-@njit(cache=True, nogil=True)
-def scatterer_field(echo, back, area, density, u_count, u1, u2, mu_max, r0, r1, z, big, trig):
-    """``ScattererNoise``'s white complex field, rows ``r0..r1``: per cell the Poisson count ``n``
-    of mean ``mu = density area`` (by inversion of ``u_count``, as :func:`poisson_inverse`),
-    the power ``echo n / mu + back`` (``echo + back`` where ``mu <= MU_NO_SEABED``: no seabed) and a complex normal of
-    that power (as :func:`box_muller`). Cells with ``mu >= mu_max`` are flagged in ``big``
-    (their count is drawn by the caller) and get ``z = 0``. The phase's ``(cos, sin)`` by linear
-    interpolation in ``trig`` ``(T + 1, 2)`` float32, ``(cos, sin)(2 pi k / T)`` (within 3e-7 for
-    ``T = 4096``; the scalar libm calls cost more than the rest of the kernel)."""
-    J = echo.shape[1]
-    n_trig_i = trig.shape[0] - 1
-    n_trig = np.float32(n_trig_i)
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _philox(c0, c1, c2, c3, k0, k1):
+    """Philox4x32-10 (Salmon, Moraes, Dror and Shaw 2011, "Parallel random numbers: as easy as
+    1, 2, 3"): the four uint32 words of counter ``(c0, c1, c2, c3)`` under key ``(k0, k1)``, ten
+    rounds of two 32 x 32 -> 64-bit products (Random123's constants; its known-answer vectors
+    in tests/sonar/test_kernels.py). A counter-based generator: each cell's words are a pure
+    function of its index, so rows are drawn inside the kernels, on any thread, in any order,
+    with no array of draws (and the loops over cells vectorise: ``vpmuludq``)."""
+    M0 = np.uint64(0xD2511F53)
+    M1 = np.uint64(0xCD9E8D57)
+    W0 = np.uint32(0x9E3779B9)
+    W1 = np.uint32(0xBB67AE85)
+    for _ in range(10):
+        p0 = M0 * np.uint64(c0)
+        p1 = M1 * np.uint64(c2)
+        hi0 = np.uint32(p0 >> np.uint64(32))
+        lo0 = np.uint32(p0 & np.uint64(0xFFFFFFFF))
+        hi1 = np.uint32(p1 >> np.uint64(32))
+        lo1 = np.uint32(p1 & np.uint64(0xFFFFFFFF))
+        # (no uint32 casts of the xors: they stay below 2^32, and the casts cost 3x)
+        c0, c1, c2, c3 = hi1 ^ c1 ^ k0, lo1, hi0 ^ c3 ^ k1, lo0
+        k0 = np.uint32(k0 + W0)
+        k1 = np.uint32(k1 + W1)
+    return c0, c1, c2, c3
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def philox_block(c0, c1, c2, c3, k0, k1, out):
+    """``out[:] = Philox4x32-10((c0, c1, c2, c3), (k0, k1))`` (uint32 (4,)): the known-answer check."""
+    a, b, c, d = _philox(np.uint32(c0), np.uint32(c1), np.uint32(c2), np.uint32(c3), np.uint32(k0), np.uint32(k1))
+    out[0] = a
+    out[1] = b
+    out[2] = c
+    out[3] = d
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _cell_words_row(k0, k1, first, w0, w1, w2):
+    """The noise words of cells ``first .. first + len(w0)``: words 0..2 of Philox4x32-10 of counter
+    ``(cell, 0, 0, 0)`` under key ``(k0, k1)`` (uint32 rows ``w0``, ``w1``, ``w2``)."""
+    z = np.uint32(0)
+    for j in range(w0.size):
+        a, b, c, _ = _philox(np.uint32(first + j), z, z, z, k0, k1)
+        w0[j] = a
+        w1[j] = b
+        w2[j] = c
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def cell_words(k0, k1, cells, out):
+    """The noise words (:func:`_cell_words_row`) of the flat cell indices ``cells`` (int64) into
+    ``out`` (3, n) uint32."""
+    z = np.uint32(0)
+    for t in range(cells.size):
+        a, b, c, _ = _philox(np.uint32(cells[t]), z, z, z, k0, k1)
+        out[0, t] = a
+        out[1, t] = b
+        out[2, t] = c
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _uniform_bits_row(b, out):
+    """``(b + 1/2) 2^-32`` (float64, in ``(0, 1)``) of a row of uint32 random words: the midpoints of
+    the 2^32 equal cells of ``[0, 1)`` (the word through int32, whose conversion vectorises)."""
+    for j in range(b.size):
+        out[j] = (np.float64(np.int32(np.int64(b[j]) - 2147483648)) + 2147483648.5) * (2.0 ** -32)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _radius2_row(b, x, e, mant, out):
+    """``-2 ln x`` (float32), ``x = (b + 1/2) 2^-32``, of a row of uint32 words: the squared
+    Box-Muller radius, ``2 Exp(1)`` truncated at ``2 ln 2^33 = 45.7`` (6.76 sigma). ``ln x`` from
+    the exponent and mantissa of ``x`` (bit fields of the float64, through the int64 views of the
+    scratch rows ``x`` and ``mant``; ``e`` float64 scratch) and the atanh series of the mantissa
+    reduced to ``[sqrt(1/2), sqrt(2))`` to 5 terms (error < 4e-10): no libm call, so the loops
+    vectorise (the scalar ``log`` cost more than the rest of the field)."""
+    J = b.size
+    _uniform_bits_row(b, x)
+    xb = x.view(np.int64)
+    mb = mant.view(np.int64)
+    mask = np.int64((1 << 52) - 1)
+    one = np.int64(1023) << 52
+    for j in range(J):
+        w = xb[j]
+        e[j] = np.float64(np.int32(w >> 52)) - 1023.0
+        mb[j] = (w & mask) | one
+    for j in range(J):
+        m = mant[j]
+        hi = np.float64(m > 1.4142135623730951)
+        m = m * (1.0 - 0.5 * hi)
+        s = (m - 1.0) / (m + 1.0)
+        s2 = s * s
+        ln_m = 2.0 * s * (1.0 + s2 * (1.0 / 3 + s2 * (1.0 / 5 + s2 * (1.0 / 7 + s2 * (1.0 / 9)))))
+        out[j] = np.float32(-2.0 * ((e[j] + hi) * 0.6931471805599453 + ln_m))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _normals_row(b, r2, power, out):
+    """Complex normals of power ``power`` (float32 row): ``out[2j], out[2j + 1] =
+    sqrt(power r2 / 2) (cos, sin)(2 pi u)``, ``u = b 2^-32`` the phase word, ``r2`` from
+    :func:`_radius2_row` (so each part is a normal of variance ``power / 2``). ``(cos, sin)``
+    from the nearest quarter turn and Taylor series on ``[-pi/4, pi/4]`` to degree 10 / 11
+    (error < 2e-9 before float32 rounding), by arithmetic selects: the loop vectorises."""
     half = np.float32(0.5)
+    one = np.float32(1.0)
+    two = np.float32(2.0)
+    for j in range(b.size):
+        w = np.float32(np.int32(np.int64(b[j]) - 2147483648)) * np.float32(2.0 ** -30) + two  # 4u, [0, 4]
+        q = np.floor(w + half)  # nearest quarter turn, 0..4
+        r = (w - q) * np.float32(np.pi / 2)
+        r2_ = r * r
+        sn = r * (one + r2_ * (np.float32(-1.0 / 6) + r2_ * (np.float32(1.0 / 120) + r2_ * (np.float32(-1.0 / 5040)
+                                                                                          + r2_ * np.float32(1.0 / 362880)))))
+        cs = one + r2_ * (np.float32(-0.5) + r2_ * (np.float32(1.0 / 24) + r2_ * (np.float32(-1.0 / 720) + r2_ * (
+            np.float32(1.0 / 40320) + r2_ * np.float32(-1.0 / 3628800)))))
+        # rotate by q quarter turns: odd q swaps (cos, sin) -> (-sin, cos); signs from q mod 4
+        h = q * half
+        odd = q - two * np.floor(h)
+        a = cs + odd * (sn - cs)
+        c = sn + odd * (cs - sn)
+        h1 = (q + one) * half
+        sign_c = one - two * (np.floor(h1) - two * np.floor(h1 * half))
+        sign_s = one - two * (np.floor(h) - two * np.floor(h * half))
+        s = np.float32(np.sqrt(np.float64(power[j] * half * r2[j])))
+        out[2 * j] = a * sign_c * s
+        out[2 * j + 1] = c * sign_s * s
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath={"contract"})
+def _exp_neg_row(m, mu_clamp, p, scale):
+    """``exp(-min(max(m, 0), mu_clamp)) = P(r) 2^-k`` of a row (float64, within 2 ulp; ``mu_clamp``
+    <= 40): ``k = round(m / ln 2)``, ``P`` the Taylor series of ``exp(-r)`` to degree 13 on
+    ``|r| <= ln 2 / 2`` (truncation < 5e-18) into ``p``, ``2^-k`` built as float64 bits into
+    ``scale`` (float64, written through its int64 view). No libm call: the loop vectorises."""
+    sb = scale.view(np.int64)
+    for j in range(m.size):
+        mc = min(max(m[j], 0.0), mu_clamp)
+        k = np.int32(mc * 1.4426950408889634 + 0.5)
+        x = (k * 6.93147180369123816490e-01 - mc) + k * 1.90821492927058770002e-10  # -r, ln 2 in two parts
+        p[j] = 1.0 + x * (1.0 + x * (1.0 / 2 + x * (1.0 / 6 + x * (1.0 / 24 + x * (1.0 / 120 + x * (1.0 / 720 + x * (
+            1.0 / 5040 + x * (1.0 / 40320 + x * (1.0 / 362880 + x * (1.0 / 3628800 + x * (1.0 / 39916800 + x * (
+                1.0 / 479001600 + x * (1.0 / 6227020800)))))))))))))
+        sb[j] = (np.int64(1023) - k) << 52
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def scatterer_field(intensity, gain, back, area, density, k0, k1, mu_max, r0, r1, z, big, mean):
+    """``ScattererNoise``'s white complex field, rows ``r0..r1``: per cell the Poisson count ``n``
+    of mean ``mu = density area`` (the least ``n`` with ``P(N <= n) >= u``, ``u = (b0 + 1/2)
+    2^-32``: :func:`poisson_inverse`'s inversion), the power ``echo n / mu + back`` with
+    ``echo = intensity gain`` (float32; ``echo + back`` where ``mu <= MU_NO_SEABED``: no seabed)
+    and a complex normal of that power from the words ``b1``, ``b2`` (:func:`box_muller`);
+    ``mean = echo + back``. The words ``b0, b1, b2`` of each cell come from Philox4x32-10 under
+    the key ``(k0, k1)`` (:func:`_cell_words_row`), drawn row by row here. Cells with
+    ``mu >= mu_max`` (<= 40) are flagged in ``big`` (their count is drawn by the caller) and
+    get ``z = 0``.
+
+    Row by row in loops without libm calls or branches on the data, which vectorise:
+    ``exp(-mu)`` (:func:`_exp_neg_row`), the first four steps of the inversion (counts 0..3:
+    all but a few cells of a resolution-cell-sized mean), the radius (:func:`_radius2_row`)
+    and the normals (:func:`_normals_row`); a scalar loop finishes the rare counts above 3.
+    """
+    J = intensity.shape[1]
+    m_row = np.empty(J)
     p0 = np.empty(J)
-    rad = np.empty(J, np.float32)
-    need = np.empty(J, np.int64)
+    scale = np.empty(J)
+    n_row = np.empty(J, np.int32)
+    u_row = np.empty(J)
+    x = np.empty(J)
+    e = np.empty(J)
+    mant = np.empty(J)
+    r2 = np.empty(J, np.float32)
+    power = np.empty(J, np.float32)
+    fix = np.empty(J, np.int64)
+    w0 = np.empty(J, np.uint32)
+    w1 = np.empty(J, np.uint32)
+    w2 = np.empty(J, np.uint32)
     for i in range(r0, r1):
+        _cell_words_row(k0, k1, i * J, w0, w1, w2)
         bk = back[i]
-        # the row's exp(-mu) and Box-Muller radii in loops of their own: libm calls in the main
-        # loop spill its registers (the same numbers, measured faster). exp(-mu) only where the
-        # count's inversion reads it: not where mu <= 0, nor where the uniform lies below a lower
-        # bound of exp(-mu) (1 - mu + mu^2/2 - mu^3/6, less a margin far above its rounding, for
-        # mu < 1): the count is 0 there whatever the exact value, so p0 = 1 gives the same count
-        n_need = 0
+        a_row = area[i]
         for j in range(J):
-            m = density * area[i, j]
-            lb = 1.0 - m * (1.0 - m * (0.5 - m * (1.0 / 6.0))) - 1e-12
-            p0[j] = 1.0
-            need[n_need] = j
-            n_need += (m > MU_NO_SEABED) & ((m >= 1.0) | (u_count[i, j] > lb))
-        for t in range(n_need):
-            j = need[t]
-            p0[j] = np.exp(-(density * area[i, j]))
-        for j in range(J):
-            rad[j] = np.sqrt(np.float32(-2.0) * np.log(np.float32(1.0 - u1[i, j])))
-        for j in range(J):
-            m = density * area[i, j]
-            big[i, j] = False
-            if m > MU_NO_SEABED:
-                if m >= mu_max:
-                    big[i, j] = True
-                    z[i, j, 0] = 0.0
-                    z[i, j, 1] = 0.0
-                    continue
-                p = p0[j]
-                uu = u_count[i, j]
-                # the first two steps of the inversion without branches (counts 0 and 1: most
-                # cells), then the loop from count 1 where the uniform lies above P(N <= 1)
-                p1 = p * m
-                c = p + p1
-                n = np.int64(uu > p) + np.int64(uu > c)
-                if n == 2:
-                    n = 1
-                    p = p1
-                while uu > c and n < 1000:
-                    n += 1
-                    p *= m / n
-                    c += p
-                power = echo[i, j] * np.float32(n / m) + bk
-            else:
-                power = echo[i, j] + bk
-            r = rad[j]
-            x = u2[i, j] * n_trig
-            k = min(int(x), n_trig_i - 1)
-            f = x - np.float32(k)
-            co = trig[k, 0] + f * (trig[k + 1, 0] - trig[k, 0])
-            sn = trig[k, 1] + f * (trig[k + 1, 1] - trig[k, 1])
-            s = np.sqrt(power * half) * r
-            z[i, j, 0] = co * s
-            z[i, j, 1] = sn * s
+            m_row[j] = density * a_row[j]
+        _exp_neg_row(m_row, 40.0, p0, scale)
+        _uniform_bits_row(w0, u_row)
+        i_row = intensity[i]
+        fours = np.int32(0)
+        for j in range(J):  # counts 0..3 by comparisons with the first four cumulative probabilities
+            m = min(max(m_row[j], 0.0), 40.0)
+            p = p0[j] * scale[j]
+            p0[j] = p
+            uu = u_row[j]
+            t1 = p * m
+            c1 = p + t1
+            t2 = t1 * (m / 2.0)
+            c2 = c1 + t2
+            c3 = c2 + t2 * (m / 3.0)
+            n = np.int32(uu > p) + np.int32(uu > c1) + np.int32(uu > c2) + np.int32(uu > c3)
+            n_row[j] = n
+            fours += np.int32(n == 4)
+        n_fix = 0
+        for j in range(J if fours > 0 else 0):  # most rows have no count above 3: no scan
+            m = m_row[j]
+            fix[n_fix] = j
+            n_fix += (n_row[j] == 4) & (m > MU_NO_SEABED) & (m < mu_max)
+        for t in range(n_fix):  # counts above 3: the inversion from the start
+            j = fix[t]
+            m = m_row[j]
+            uu = u_row[j]
+            p = p0[j]
+            c = p
+            n = 0
+            while uu > c and n < 1000:
+                n += 1
+                p *= m / n
+                c += p
+            n_row[j] = n
+        b_row = big[i]
+        mean_row = mean[i]
+        one = np.float32(1.0)
+        for j in range(J):  # the power; none where the count is left to the caller
+            m = m_row[j]
+            sea = m > MU_NO_SEABED
+            bg = sea & (m >= mu_max)
+            seaf = np.float32(sea)
+            ratio = np.float32(n_row[j] / (m if sea else 1.0)) * seaf + (one - seaf)
+            echo = i_row[j] * gain
+            power[j] = (echo * ratio + bk) * (one - np.float32(bg))
+            mean_row[j] = echo + bk
+            b_row[j] = bg
+        _radius2_row(w1, x, e, mant, r2)
+        _normals_row(w2, r2, power, z[i].reshape(2 * J))
 
 
 @njit(cache=True, nogil=True)
@@ -897,3 +1044,77 @@ def shadow_active(body, is_floor, cp, sp, a, rz, r, active, t):
             t[n] = r[i]
             n += 1
     return n
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath={"contract"})
+def _taps(dst, src, w, step, n):
+    """``dst[q] += sum_k w[k] src[q + step k]``, ``q < n``: four taps per sweep over ``dst``, so that
+    the sums stay in registers (one load and store of ``dst`` per four multiply-adds)."""
+    K = w.size
+    d = dst[:n]
+    k = 0
+    while k + 4 <= K:  # (slices, not offset indices: an index that might be negative stops vectorisation)
+        w0, w1, w2, w3 = w[k], w[k + 1], w[k + 2], w[k + 3]
+        s0 = src[step * k: step * k + n]
+        s1 = src[step * (k + 1): step * (k + 1) + n]
+        s2 = src[step * (k + 2): step * (k + 2) + n]
+        s3 = src[step * (k + 3): step * (k + 3) + n]
+        for q in range(n):
+            d[q] += w0 * s0[q] + w1 * s1[q] + w2 * s2[q] + w3 * s3[q]
+        k += 4
+    while k < K:
+        w0 = w[k]
+        s0 = src[step * k: step * k + n]
+        for q in range(n):
+            d[q] += w0 * s0[q]
+        k += 1
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath={"contract"})
+def speckle_image(z, mean, h_r, h_b, tvg, r0, r1, out):
+    """``ScattererNoise``'s image in one pass, rows ``r0..r1``: the field ``z`` ``(B, J, 2)`` float32
+    filtered by ``h_r`` along rows (range) and ``h_b`` along beams, ``f`` (``speckle.filter_complex``),
+    the mean ``(B, J)`` filtered by the squared kernels, ``expected`` (``speckle.filter_real``), and
+    ``out = |f|^2 mean / expected x tvg`` (0 where ``expected <= 0``). Zero
+    borders as ``cv2.BORDER_CONSTANT``; kernels of odd length, centred (any shape: no symmetry
+    assumed). Per output row the range taps first (a weighted sum of ``len(h_r)`` input rows),
+    then the beam taps along the zero-padded row (:func:`_taps`), all in float32 with fused
+    multiply-adds (cv2's sums in another order): neither ``f`` nor ``expected`` is stored, and
+    the rows are independent, so that threads can take row ranges."""
+    B, J = mean.shape
+    Kr = h_r.size
+    Kb = h_b.size
+    Dr = Kr // 2
+    Db = Kb // 2
+    h_b2 = h_b * h_b
+    tz = np.zeros(2 * (J + 2 * Db), np.float32)  # the range-filtered field row, zero-padded by Db beams
+    tm = np.zeros(J + 2 * Db, np.float32)  # the range-filtered mean row, zero-padded
+    fz = np.empty(2 * J, np.float32)
+    fm = np.empty(J, np.float32)
+    zf = z.reshape(B * 2 * J)
+    mf = mean.reshape(B * J)
+    for i in range(r0, r1):
+        k0 = max(0, Dr - i)  # the range taps whose rows exist (zero rows beyond the image)
+        k1 = min(Kr, B + Dr - i)
+        w = h_r[k0:k1]
+        w2 = w * w
+        tzi = tz[2 * Db: 2 * Db + 2 * J]
+        tmi = tm[Db: Db + J]
+        tzi[:] = 0.0
+        tmi[:] = 0.0
+        first = i + k0 - Dr
+        _taps(tzi, zf[first * 2 * J:], w, 2 * J, 2 * J)
+        _taps(tmi, mf[first * J:], w2, J, J)
+        fz[:] = 0.0
+        fm[:] = 0.0
+        _taps(fz, tz, h_b, 2, 2 * J)
+        _taps(fm, tm, h_b2, 1, J)
+        t = tvg[i]
+        mr = mean[i]
+        o = out[i]
+        for j in range(J):
+            e = fm[j]
+            a = fz[2 * j]
+            b = fz[2 * j + 1]
+            v = (a * a + b * b) * (mr[j] / (e if e > 0 else np.float32(1.0))) * t
+            o[j] = v if e > 0 else np.float32(0.0)

@@ -18,7 +18,6 @@ reverberation and speckle only redistribute it (docs/physics.md).
 from __future__ import annotations
 
 import functools
-import threading
 from dataclasses import dataclass
 from typing import Optional
 
@@ -370,23 +369,15 @@ class ScattererNoise:
                 raise ValueError(f"ScattererNoise.bottom_type: unknown {self.bottom_type!r}; expected one of {sorted(BOTTOM_TYPES)}")
 
     def draw(self, shape: tuple, bottom_types, rng: np.random.Generator, *, _reuse: bool = False):
-        """The uniforms of the complex normals and of the counts (drawn while the scene is
-        scanned), and the generator for counts of large mean (after the scan).
+        """The key of the frame's noise words, and the generator for counts of large mean.
 
-        ``_reuse`` (``simulate_sonar``): the uniforms go into buffers taken from a pool (the same
-        numbers: ``Generator.random(out=...)``), which the caller hands back by
-        :func:`release_draws` once :meth:`apply` has read them (fresh 7.5 MB per frame fault)."""
-        shape = tuple(shape)
-        if _reuse:
-            u1, u2, u_count = _take_draw_buffers(shape)
-            rng.random(shape, out=u1)
-            rng.random(shape, dtype=np.float32, out=u2)
-            rng.random(shape, out=u_count)
-        else:
-            u1 = rng.random(shape)
-            u2 = rng.random(shape, dtype=np.float32)
-            u_count = rng.random(shape)
-        return (u1, u2, u_count), rng
+        Returns ``(key, rng)``: ``key`` (2,) uint32, one draw of ``rng``. Each cell's three
+        random words (its count's uniform, its Box-Muller radius and phase) are Philox4x32-10
+        of the cell's index under this key (:func:`cell_words`; docs/physics.md, "Random words
+        of the scatterer noise"): the compiled path draws them row by row inside its kernel, so
+        no array of draws is made. ``_reuse`` is accepted for ``simulate_sonar`` and changes
+        nothing (:func:`release_draws` keeps nothing)."""
+        return rng.integers(0, 2**32, size=2, dtype=np.uint32), rng
 
     def kernels(self, spec):
         """Amplitude kernels along range (the pulse) and across beams (two-way ``F^2``)."""
@@ -407,7 +398,7 @@ class ScattererNoise:
         from .speckle import filter_complex
 
         I = np.asarray(intensity, np.float32)
-        (u1, u2, u_count), rng = draws if draws is not None else self.draw(I.shape, (), np.random.default_rng(rng))
+        key, rng = draws if draws is not None else self.draw(I.shape, (), np.random.default_rng(rng))
         h_r, h_b = self.kernels(spec)
         g = self.gain
         alpha = absorption_db_per_m(spec.frequency, options.water) if options.propagation == "spreading" else 0.0
@@ -417,9 +408,32 @@ class ScattererNoise:
         # the compiled path reuses per-thread scratch for the echo and the mean (fresh pages fault on
         # every frame): neither outlives this call
         fast = use_numba()
-        echo = np.multiply(I, np.float32(10.0 ** (g.gain_db / 10.0)),
-                           out=_workspace("scatterer_echo", I.shape, np.float32) if fast else None)
-        if self.bottom_type is not None:
+        gain = np.float32(10.0 ** (g.gain_db / 10.0))
+        mean = None
+        if (fast and self.bottom_type is None and cell_area is not None and np.isfinite(self.density)
+                and not np.isfinite(self.clusters_per_m2) and len(_look_weights(self.looks)) == 1):
+            # counts, power, complex normals and the mean image in one pass
+            z = _workspace("scatterer_z", I.shape + (2,), np.float32)  # reused: no page faults per frame
+            big = _workspace("scatterer_big", I.shape, np.bool_)
+            mean = _workspace("scatterer_mean", I.shape, np.float32)
+            area = np.ascontiguousarray(cell_area, np.float32)
+            kn = kernels()
+            k0, k1 = np.uint32(key[0]), np.uint32(key[1])
+            split_run(lambda r0, r1: kn.scatterer_field(I, gain, back[:, 0], area, float(self.density), k0, k1,
+                                                        _POISSON_INVERSION_MAX, r0, r1, z, big, mean), I.shape[0], threads)
+            if big.any():  # the rare cells of large mean: counts from the generator, as the numpy path
+                mu = self.density * area[big].astype(np.float64)
+                ratio = (rng.poisson(mu) / mu).astype(np.float32)
+                z[big] = _complex_normals(cell_words(key, np.flatnonzero(big))[:, None],
+                                          np.sqrt((I[big] * gain * ratio + back[:, 0][np.nonzero(big)[0]])
+                                                  * np.float32(0.5))[None])[0]
+            power = None
+        else:
+            echo = np.multiply(I, gain, out=_workspace("scatterer_echo", I.shape, np.float32) if fast else None)
+            bits = cell_words(key, np.arange(I.size)).reshape((3,) + I.shape)
+        if mean is not None:  # done above
+            pass
+        elif self.bottom_type is not None:
             from .distributions import bottom_model
 
             x = bottom_model(self.bottom_type, "mixture").sample(I.shape, rng, dtype=np.float32)
@@ -427,21 +441,6 @@ class ScattererNoise:
             h_r, h_b = np.ones(1), np.ones(1)
         elif cell_area is None or not (np.isfinite(self.density) or np.isfinite(self.clusters_per_m2)):
             power = echo + back
-        elif (use_numba() and np.isfinite(self.density) and not np.isfinite(self.clusters_per_m2)
-              and len(_look_weights(self.looks)) == 1):  # counts, power and complex normals in one pass
-            z = _workspace("scatterer_z", I.shape + (2,), np.float32)  # reused: no page faults per frame
-            big = _workspace("scatterer_big", I.shape, np.bool_)
-            area = np.ascontiguousarray(cell_area, np.float32)
-            kn = kernels()
-            trig = _trig_table()
-            split_run(lambda r0, r1: kn.scatterer_field(echo, back[:, 0], area, float(self.density), u_count, u1, u2,
-                                                        _POISSON_INVERSION_MAX, r0, r1, z, big, trig), I.shape[0], threads)
-            if big.any():  # the rare cells of large mean: counts from the generator, as the numpy path
-                mu = self.density * area[big].astype(np.float64)
-                ratio = (rng.poisson(mu) / mu).astype(np.float32)
-                z[big] = _complex_normals(u1[big][None], u2[big][None],
-                                          np.sqrt((echo[big] * ratio + back[:, 0][np.nonzero(big)[0]]) * np.float32(0.5))[None])[0]
-            power = None
         else:
             area = np.asarray(cell_area, np.float64)
             if np.isfinite(self.clusters_per_m2):
@@ -452,7 +451,7 @@ class ScattererNoise:
             else:  # plain Poisson counts, by inversion of the uniforms drawn during the scan
                 mu = self.density * np.asarray(cell_area, np.float32).astype(np.float64)
                 seabed = mu > MU_NO_SEABED  # below it: the area's rounding, no seabed
-                n = _poisson_counts(np.where(seabed, mu, 0.0), u_count, rng).astype(np.float32)
+                n = _poisson_counts(np.where(seabed, mu, 0.0), _uniforms(bits[0]), rng).astype(np.float32)
                 with np.errstate(invalid="ignore", divide="ignore"):
                     ratio = np.where(seabed, n / np.where(seabed, mu, 1.0), 1.0).astype(np.float32)
             # no seabed where the expected count of scatterers (or of clusters) is the area's rounding
@@ -464,23 +463,17 @@ class ScattererNoise:
         # (all float32; the filters are separable, cv2.sepFilter2D with zero borders)
         from .speckle import filter_real, look_weights
 
-        mean = np.add(echo, back, out=_workspace("scatterer_mean", I.shape, np.float32) if fast else None)
+        if mean is None:
+            mean = np.add(echo, back, out=_workspace("scatterer_mean", I.shape, np.float32) if fast else None)
         weights = look_weights(self.looks)
-        if use_numba() and len(weights) == 1:  # one look: |f|^2 x mean / expected x TVG in one pass
-            from ._kernels import _pool
-            from ._kernels import workspace as _workspace
-
-            # the twice-blurred mean on a second thread while this one filters the field (cv2 releases the GIL)
-            args = (mean, np.asarray(h_r, np.float32) ** 2, np.asarray(h_b, np.float32) ** 2)
-            ws = _workspace("scatterer_expected", I.shape, np.float32)
-            job = _pool(1).submit(filter_real, *args, out=ws) if threads > 1 else None
-            zk = z if power is None else _complex_normals(u1, u2, np.sqrt(power * np.float32(0.5)))
-            f = filter_complex(zk, h_r, h_b, out=_workspace("scatterer_f", I.shape + (2,), np.float32))
-            expected = job.result() if job is not None else filter_real(*args, out=ws)
+        if use_numba() and len(weights) == 1:  # one look: the filters and |f|^2 x mean / expected x TVG in one pass
+            zk = z if power is None else _complex_normals(bits, np.sqrt(power * np.float32(0.5)))
             out = np.empty(I.shape, np.float32)
             tvg = np.ascontiguousarray(_tvg_column(g, spec)[:, 0])
+            hr32 = np.ascontiguousarray(h_r, np.float32)
+            hb32 = np.ascontiguousarray(h_b, np.float32)
             kn = kernels()
-            split_run(lambda r0, r1: kn.speckle_tail(f, mean, expected, tvg, r0, r1, out), I.shape[0], threads)
+            split_run(lambda r0, r1: kn.speckle_image(zk, mean, hr32, hb32, tvg, r0, r1, out), I.shape[0], threads)
             return out
         expected = filter_real(mean, np.asarray(h_r, np.float32) ** 2, np.asarray(h_b, np.float32) ** 2)
         # per-cell factor: the image's own mean over the twice-blurred mean, times the device's TVG
@@ -490,7 +483,7 @@ class ScattererNoise:
         out = None
         for k, w in enumerate(weights):
             if k == 0:  # the first look from the uniforms drawn during the scan (or the kernel's field)
-                zk = z if power is None else _complex_normals(u1, u2, np.sqrt(power * np.float32(0.5)))
+                zk = z if power is None else _complex_normals(bits, np.sqrt(power * np.float32(0.5)))
             else:
                 zk = rng.standard_normal(I.shape + (2,), dtype=np.float32) * np.sqrt(power * np.float32(0.5))[..., None]
             f = filter_complex(zk, h_r, h_b)
@@ -503,37 +496,10 @@ class ScattererNoise:
         return out
 
 
-_DRAW_POOL: dict = {}
-_DRAW_POOL_LOCK = threading.Lock()
-
-
-def _take_draw_buffers(shape: tuple):
-    """``(u1 float64, u2 float32, u_count float64)`` buffers of ``shape`` from the pool (or fresh);
-    a buffer set is held by one frame at a time (thread-safe)."""
-    with _DRAW_POOL_LOCK:
-        free = _DRAW_POOL.get(shape)
-        if free:
-            return free.pop()
-    return np.empty(shape), np.empty(shape, np.float32), np.empty(shape)
-
-
 def release_draws(draws) -> None:
-    """Hand the buffers of ``ScattererNoise.draw(..., _reuse=True)`` back to the pool (at most two
-    sets per shape are kept); the caller must not read ``draws`` afterwards."""
-    (u1, u2, u_count), _ = draws
-    with _DRAW_POOL_LOCK:
-        free = _DRAW_POOL.setdefault(u1.shape, [])
-        if len(free) < 2:
-            free.append((u1, u2, u_count))
-
-
-@functools.lru_cache(maxsize=1)
-def _trig_table(n: int = 4096) -> np.ndarray:
-    """``(cos, sin)(2 pi k / n)``, ``k = 0..n``, ``(n + 1, 2)`` float32: the numba kernels' phase table."""
-    t = 2.0 * np.pi * np.arange(n + 1) / n
-    tab = np.ascontiguousarray(np.stack([np.cos(t), np.sin(t)], 1), np.float32)
-    tab.setflags(write=False)
-    return tab
+    """Hand back the words of ``ScattererNoise.draw(..., _reuse=True)``; the caller must not read
+    ``draws`` afterwards. (The words are fresh arrays: nothing is pooled; kept for ``simulate_sonar``.)"""
+    return None
 
 
 def _tvg_column(gain, spec) -> np.ndarray:
@@ -573,21 +539,63 @@ def _poisson_counts(mu: np.ndarray, u: np.ndarray, rng: np.random.Generator) -> 
     return n
 
 
-def _complex_normals(u1: np.ndarray, u2: np.ndarray, scale: np.ndarray) -> np.ndarray:
+_PHILOX_M = (0xD2511F53, 0xCD9E8D57)
+_PHILOX_W = (0x9E3779B9, 0xBB67AE85)
+
+
+def _philox_numpy(cells: np.ndarray, key) -> tuple:
+    """Philox4x32-10 of counters ``(cells, 0, 0, 0)`` under ``key``: four uint32 arrays (numpy
+    reference of the kernels' generator)."""
+    c0 = np.asarray(cells).astype(np.uint64) & np.uint64(0xFFFFFFFF)
+    c1 = np.zeros_like(c0)
+    c2 = np.zeros_like(c0)
+    c3 = np.zeros_like(c0)
+    k0, k1 = np.uint64(int(key[0])), np.uint64(int(key[1]))
+    mask = np.uint64(0xFFFFFFFF)
+    for _ in range(10):
+        p0 = np.uint64(_PHILOX_M[0]) * c0
+        p1 = np.uint64(_PHILOX_M[1]) * c2
+        c0, c1, c2, c3 = (p1 >> np.uint64(32)) ^ c1 ^ k0, p1 & mask, (p0 >> np.uint64(32)) ^ c3 ^ k1, p0 & mask
+        k0 = (k0 + np.uint64(_PHILOX_W[0])) & mask
+        k1 = (k1 + np.uint64(_PHILOX_W[1])) & mask
+    return tuple(c.astype(np.uint32) for c in (c0, c1, c2, c3))
+
+
+def cell_words(key, cells: np.ndarray) -> np.ndarray:
+    """The three noise words ``(3, n)`` uint32 of the flat cell indices ``cells``: words 0..2 of
+    Philox4x32-10 of the counter ``(cell, 0, 0, 0)`` under ``key`` (2,) uint32 (word 0: the
+    count's uniform, 1: the Box-Muller radius, 2: the phase)."""
+    from ._kernels import kernels, use_numba
+
+    cells = np.ascontiguousarray(cells, np.int64).reshape(-1)
+    if use_numba():
+        out = np.empty((3, cells.size), np.uint32)
+        kernels().cell_words(np.uint32(key[0]), np.uint32(key[1]), cells, out)
+        return out
+    return np.stack(_philox_numpy(cells, key)[:3])
+
+
+def _uniforms(words: np.ndarray) -> np.ndarray:
+    """``(b + 1/2) 2^-32`` (float64): the uniform in ``(0, 1)`` of uint32 random words."""
+    return (words.astype(np.float64) + 0.5) * 2.0**-32
+
+
+def _complex_normals(bits: np.ndarray, scale: np.ndarray) -> np.ndarray:
     """``(n_bins, n_beams, 2)`` float32 pairs of independent normals times ``scale`` (Box-Muller from
-    ``u1`` float64 and ``u2`` float32 uniforms): two ``Generator.random`` draws cost less than
-    two ``standard_normal`` ones."""
+    the random words ``bits[1]`` (radius, ``x = (b1 + 1/2) 2^-32``) and ``bits[2]`` (phase,
+    ``u = b2 2^-32``) of ``bits`` ``(3, n_bins, n_beams)`` uint32):
+    ``scale sqrt(-2 ln x) (cos, sin)(2 pi u)``."""
     from ._kernels import kernels, use_numba
 
     scale = np.ascontiguousarray(scale, np.float32)
     if use_numba():
         out = np.empty(scale.shape + (2,), np.float32)
-        kernels().box_muller(u1, u2, scale, out)
+        kernels().box_muller(np.ascontiguousarray(bits), scale, out)
         return out
-    r = np.sqrt(np.float32(-2.0) * np.log((1.0 - u1).astype(np.float32)))
-    ang = np.float32(2.0 * np.pi) * u2
+    r = np.sqrt(-2.0 * np.log(_uniforms(bits[1])))
+    ang = (2.0 * np.pi * 2.0**-32) * bits[2].astype(np.float64)
     s = scale * r
-    return np.stack([np.cos(ang) * s, np.sin(ang) * s], -1)
+    return np.stack([np.cos(ang) * s, np.sin(ang) * s], -1).astype(np.float32)
 
 
 @functools.lru_cache(maxsize=32)
