@@ -1521,8 +1521,9 @@ def _shadow_mask_numba(scene, caster, spec, pose, rays: SonarRays, elevation_min
 
     lo, hi = ws("lo")[:n], ws("hi")[:n]
     min_half = 0.5 * spec.bin_width * 1e-3
-    # one cell mask per part (at most caster.threads parts), each part's taken in the order the parts start
-    parts = ws("parts", (max(1, caster.threads), spec.n_bins, spec.n_beams), np.bool_)
+    # one cell mask per part (split_run makes at most `threads` parts); each part takes the next one
+    threads = max(1, caster.threads)  # read once: the parts are sized for it
+    parts = ws("parts", (threads, spec.n_bins, spec.n_beams), np.bool_)
     part_no = itertools.count()
 
     def follow(p0, p1):
@@ -1551,7 +1552,7 @@ def _shadow_mask_numba(scene, caster, spec, pose, rays: SonarRays, elevation_min
 
     beam_of = _index_grids(spec)[0]
     elevation_min = np.ascontiguousarray(elevation_min)
-    split_run(follow, n, caster.threads)
+    split_run(follow, n, threads)
     used = next(part_no)
     # the mask is the frame's: a fresh array, never the scratch
     return parts[0].copy() if used == 1 else np.logical_or.reduce(parts[:used], axis=0)
