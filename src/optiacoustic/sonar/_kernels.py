@@ -15,7 +15,7 @@ import numpy as np
 
 from .. import _kernel_switch as _switch
 
-__all__ = ["use_numba", "kernels", "truth_kernels", "split_run", "workspace"]
+__all__ = ["use_numba", "kernels", "truth_kernels", "split_run", "workspace", "pooled", "give_back"]
 
 
 def use_numba() -> bool:
@@ -78,3 +78,34 @@ def workspace(name: str, shape: tuple, dtype) -> np.ndarray:
     if arr is None or arr.shape != shape or arr.dtype != dtype:
         arr = cache[name] = np.empty(shape, dtype)
     return arr
+
+
+# Buffers that one frame holds from one thread to another (the noise variates, drawn on the background
+# thread and read on the caller's): a per-thread workspace would be overwritten by the next frame drawn
+# there before this one has read it, so they are taken from a shared pool and handed back explicitly.
+_POOLED: dict = {}
+_POOLED_LOCK = threading.Lock()
+_POOLED_KEEP = 8  # free buffers kept per (shape, dtype): a few frames in flight at once
+
+
+def pooled(shape: tuple, dtype) -> np.ndarray:
+    """An uninitialised array of ``shape`` and ``dtype`` from the pool (or fresh); it belongs to the
+    caller until :func:`give_back` (thread-safe). For scratch only, never for what a frame returns."""
+    key = (tuple(shape), np.dtype(dtype).str)
+    with _POOLED_LOCK:
+        free = _POOLED.get(key)
+        if free:
+            return free.pop()
+    return np.empty(key[0], key[1])
+
+
+def give_back(*arrays) -> None:
+    """Return arrays taken by :func:`pooled` (``None`` entries are skipped); the caller must not use
+    them afterwards: the next :func:`pooled` of their shape may hand them to another frame."""
+    with _POOLED_LOCK:
+        for a in arrays:
+            if a is None:
+                continue
+            free = _POOLED.setdefault((a.shape, a.dtype.str), [])
+            if len(free) < _POOLED_KEEP and not any(b is a for b in free):
+                free.append(a)

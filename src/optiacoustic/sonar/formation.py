@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import itertools
 import weakref
 from dataclasses import dataclass
 from typing import Literal
@@ -219,6 +220,14 @@ def _index_grids(spec: SonarSpec):
     return beam, elev
 
 
+@functools.lru_cache(maxsize=16)
+def _elevation_grid(spec: SonarSpec) -> np.ndarray:
+    """Elevation (rad) of every ray, flattened ``(K * J,)`` like :func:`_index_grids` (read-only, cached)."""
+    elev = spec.elevations[_index_grids(spec)[1]]
+    elev.setflags(write=False)
+    return elev
+
+
 def _world_ray_grid(spec: SonarSpec, R: np.ndarray):
     """World-frame ray directions ``d`` and their elevation derivatives ``d'``, ``(K * J, 3)``.
 
@@ -401,11 +410,9 @@ def simulate_sonar(
     options = options or SonarOptions()
     if not isinstance(options, SonarOptions):
         raise TypeError(f"options: expected SonarOptions, got {type(options).__name__}")
-    from .noise import ScattererNoise, release_draws
+    from .noise import NoiseModel, ScattererNoise, release_draws, release_noise_draws
 
     if noise is not False:
-        from .noise import NoiseModel
-
         if noise is None:
             noise = NoiseModel()
         elif not isinstance(noise, (NoiseModel, ScattererNoise)):
@@ -419,9 +426,11 @@ def simulate_sonar(
     bottom_types = _bottom_types(scene)
     draws = None
     draw_args = (noise.draw, (spec.n_bins, spec.n_beams), list(bottom_types), as_rng(seed)) if noise is not False else None
-    # (not for a subclass with its own draw, which may not take ``_reuse``)
-    pooled = noise is not False and isinstance(noise, ScattererNoise) and type(noise).draw is ScattererNoise.draw
-    if pooled:  # its uniforms in pooled buffers, handed back once the noise has read them
+    # (not for a subclass with its own draw, which may not take ``_reuse``, or its own apply, which might
+    # return a draw: the buffers go back to the pool after it)
+    pooled = noise is not False and any(type(noise).draw is m.draw and type(noise).apply is m.apply
+                                        for m in (ScattererNoise, NoiseModel))
+    if pooled:  # its variates in pooled buffers, handed back once the noise has read them (fresh ones fault)
         draw_args = (functools.partial(noise.draw, _reuse=True),) + draw_args[1:]
 
     def start_draws():
@@ -466,8 +475,8 @@ def simulate_sonar(
     else:
         image = noise.apply(intensity, spec=spec, seabed_share=shares, options=options, draws=draws.result(),
                             threads=caster.threads)
-    if pooled:
-        release_draws(draws.result())
+    if pooled:  # the image is a fresh array: nothing the frame keeps refers to the draws
+        (release_noise_draws if isinstance(noise, NoiseModel) else release_draws)(draws.result())
     intensity.setflags(write=False)
     image.setflags(write=False)
     gt = SonarGroundTruth(
@@ -590,8 +599,9 @@ def _echo_numba(spec: SonarSpec, rays: SonarRays, slot: np.ndarray, n_slots: int
 
 
 def _bucket(beam, lo_m, hi_m, energy, slot, range_min, scale, n_cells, n_beams):
-    """``_numba_kernels.bucket_by_beam`` into fresh arrays: ``(records, starts)``."""
-    rec = np.empty((beam.size, 4))
+    """``_numba_kernels.bucket_by_beam``: ``(records, starts)``, the records a per-thread scratch (2 MB
+    a frame: fresh pages fault) that the next call on this thread overwrites."""
+    rec = _workspace("bucket_records", (beam.size, 4), np.float64)
     starts = np.empty(n_beams + 1, np.int64)
     kernels().bucket_by_beam(beam, lo_m, hi_m, energy, slot, range_min, scale, n_cells, n_beams, rec, starts)
     return rec, starts
@@ -644,6 +654,13 @@ def _class_slots(bottom_types: dict, rays: SonarRays, weight=None):
     ``weight`` (N,): how many times each ray counts (the aperture model's sub-cells per ray).
     Returns ``(slot per ray (N,) int8, n_slots, {class: slot})``.
     """
+    if weight is None and use_numba():
+        # the two kernel passes of the aperture path, every ray counted once, into per-thread scratch (the
+        # fancy indexing and bincount below cost 0.5-0.8 ms and three fresh grid-sized temporaries a frame)
+        ones = _workspace("class_weight", (rays.body.size,), np.int64)
+        ones.fill(1)  # (a writable array: the aperture path's compiled signature, no second one)
+        return _class_slots_numba(bottom_types, rays, ones,
+                                  ray_cls=_workspace("class_of_ray", (rays.body.size,), np.int64))
     body = rays.body.reshape(-1)
     names, cls = _class_table(bottom_types, body)
     lit = rays.energy.reshape(-1) > 0
@@ -680,15 +697,16 @@ def _slot_table(names: list, counts: np.ndarray):
     return np.array([slot_of[n] for n in names], np.int8), k, slot_of
 
 
-def _class_slots_numba(bottom_types: dict, rays: SonarRays, weight: np.ndarray):
+def _class_slots_numba(bottom_types: dict, rays: SonarRays, weight: np.ndarray, ray_cls=None):
     """:func:`_class_slots` with ``weight`` by two kernel passes (the aperture model's path; the same
-    slots: integer counts, the first largest class takes slot 0)."""
+    slots: integer counts, the first largest class takes slot 0). ``ray_cls``: ``(N,)`` int64 scratch
+    for every ray's class (default a fresh array)."""
     from . import _aperture_kernels as ak
 
     body = np.ascontiguousarray(rays.body).reshape(-1)
     names, cls = _class_table(bottom_types, body)
     counts = np.zeros(len(names), np.int64)
-    ray_cls = np.empty(body.size, np.int64)
+    ray_cls = np.empty(body.size, np.int64) if ray_cls is None else ray_cls
     ak.class_counts(body, np.ascontiguousarray(rays.energy).reshape(-1), np.asarray(weight, np.int64), cls, counts,
                     ray_cls)
     table, k, slot_of = _slot_table(names, counts)
@@ -867,8 +885,13 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     hit = body >= 0
     # angular extent of each ray's elevation cell below (a) and above (b) the ray
     step = spec.elevation_step
-    a = np.full(K * J, 0.5 * step)
-    b = np.full(K * J, 0.5 * step)
+    if fast:  # scratch of this frame (the rays keep elevation - a and elevation + b): per-thread, reused
+        a, b = _workspace("scan_a", (K * J,), np.float64), _workspace("scan_b", (K * J,), np.float64)
+        a.fill(0.5 * step)
+        b.fill(0.5 * step)
+    else:
+        a = np.full(K * J, 0.5 * step)
+        b = np.full(K * J, 0.5 * step)
     _refine_edges(caster, spec, pose, body, r, slope, a, b)
 
     refl = np.array([bd.material.reflectivity for bd in scene.bodies] + [0.0])
@@ -880,7 +903,7 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
         if fast:  # one kernel pass (no float64 power and where-copies over the grid)
             from .propagation import absorption_db_per_m
 
-            gain = np.empty(K * J)
+            gain = _workspace("scan_gain", (K * J,), np.float64)  # read by footprints only
             k_abs = -0.2 * np.log(10.0) * float(absorption_db_per_m(spec.frequency, options.water))
             kernels().spreading_gain(body, r, k_abs, gain)
         else:
@@ -905,7 +928,7 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
             pad = np.maximum(0.0, 1e-4 * spec.bin_width - (hi - lo)) * 0.5
         lo, hi = np.where(hit, lo - pad, np.nan), np.where(hit, hi + pad, np.nan)
         energy = np.where(hit, energy, 0.0)
-    elev = spec.elevations[elev_grid]
+    elev = _elevation_grid(spec)  # read-only and shared by the frames of a spec, as beam_index
     shape = (K, J)
     rays = SonarRays(
         range=r.reshape(shape),
@@ -945,6 +968,15 @@ def _scan_hits_numpy(caster: RayCaster, spec: SonarSpec, pose: Pose):
     return body, r, nd, ndd, cos_inc, slope
 
 
+def _fill_rows(out: np.ndarray, row) -> np.ndarray:
+    """Every row of ``out`` ``(N, 3)`` set to ``row`` (cast to ``out``'s dtype), column by column: the
+    broadcast ``out[...] = row`` runs an inner loop of length 3 per row, 6x slower (0.45 ms for 65 536 rows)."""
+    row = np.asarray(row, out.dtype)
+    for c in range(out.shape[1]):
+        out[:, c] = row[c]
+    return out
+
+
 def _scan_hits_numba(caster: RayCaster, spec: SonarSpec, pose: Pose):
     """:func:`_scan_hits_numpy` with the grid built and Embree's float32 output read by kernels."""
     kn = kernels()
@@ -953,14 +985,17 @@ def _scan_hits_numba(caster: RayCaster, spec: SonarSpec, pose: Pose):
     a_dir = np.sin(th)[:, None] * R[:, 0] + np.cos(th)[:, None] * R[:, 1]  # (J, 3), see _world_ray_grid
     cp, sp, rz = np.cos(ph), np.sin(ph), np.ascontiguousarray(R[:, 2])
     n = spec.elevation_samples * spec.n_beams
-    d32 = np.empty((n, 3), np.float32)
+    # the rays, and n.d, n.d' and the slope, are scratch of this frame (per-thread, reused: fresh
+    # multi-MB arrays fault on every frame); body, range and cos(incidence) go into the frame's rays
+    d32 = _workspace("scan_d32", (n, 3), np.float32)
     kn.ray_grid32(cp, sp, a_dir, rz, d32)
-    o32 = np.empty_like(d32)
-    o32[...] = np.asarray(pose.t, np.float32)
-    dist32 = np.full(n, min(np.float32(spec.range_max * 1.5), np.float32(1e30)), np.float32)
+    o32 = _fill_rows(_workspace("scan_o32", (n, 3), np.float32), pose.t)
+    dist32 = _workspace("scan_dist32", (n,), np.float32)
+    dist32.fill(min(np.float32(spec.range_max * 1.5), np.float32(1e30)))  # Embree writes its hits' distances here
     tfar, geom, prim, u, v, _ = caster.intersect_raw(o32, d32, dist32, normals=False)
     body = np.empty(n, np.int32)
-    r, nd, ndd, cos_inc, slope = (np.empty(n) for _ in range(5))
+    r, cos_inc = np.empty(n), np.empty(n)
+    nd, ndd, slope = (_workspace(f"scan_{name}", (n,), np.float64) for name in ("nd", "ndd", "slope"))
     cn, off, ng = caster.corner_normals, caster.triangle_offset, np.zeros((0, 3), np.float32)
     split_run(lambda i0, i1: kn.scan_rays(tfar, geom, prim, u, v, ng, cn, off, True, cp, sp, a_dir, rz, i0, i1,
                                           body, r, nd, ndd, cos_inc, slope), n, caster.threads)
@@ -1270,7 +1305,7 @@ def _refine_edges_numba(caster, spec, pose, body, r, slope, a, b) -> None:
     K, J = spec.elevation_samples, spec.n_beams
     step = spec.elevation_step
     kn = kernels()
-    kk, jj = np.empty((K - 1) * J, np.int64), np.empty((K - 1) * J, np.int64)
+    kk, jj = _workspace("edge_kk", ((K - 1) * J,), np.int64), _workspace("edge_jj", ((K - 1) * J,), np.int64)
     m = kn.edge_pairs(body, r, slope, K, J, step, 0.5 * spec.bin_width, kk, jj)
     if m == 0:
         return
@@ -1282,8 +1317,7 @@ def _refine_edges_numba(caster, spec, pose, body, r, slope, a, b) -> None:
     cp = np.cos(phi)
     d = pose.directions_to_world(np.stack(np.broadcast_arrays(cp * np.sin(th), cp * np.cos(th), np.sin(phi)), -1))
     d32 = np.ascontiguousarray(d.reshape(-1, 3), np.float32)
-    o32 = np.empty_like(d32)
-    o32[...] = np.asarray(pose.t, np.float32)
+    o32 = _fill_rows(np.empty_like(d32), pose.t)
     dist32 = np.full(len(d32), min(np.float32(spec.range_max * 1.5), np.float32(1e30)), np.float32)
     tfar, h_body, _, _, _, _ = caster.intersect_raw(o32, d32, dist32, normals=False)
     kn.edge_split(kk, jj, h_body, tfar, body, r, slope, step, S, J, a, b)
@@ -1465,22 +1499,32 @@ def _shadow_mask_numba(scene, caster, spec, pose, rays: SonarRays, elevation_min
     R = pose.R
     a_dir = np.sin(spec.azimuths)[:, None] * R[:, 0] + np.cos(spec.azimuths)[:, None] * R[:, 1]  # (J, 3)
     cp, sp, rz = np.cos(spec.elevations), np.sin(spec.elevations), np.ascontiguousarray(R[:, 2])
-    active, t = np.empty(first_body.size, np.int64), np.empty(first_body.size)
+    # the continuing rays' bookkeeping is scratch of this call: per-thread arrays as long as the grid,
+    # reused (fresh ones fault on every frame); only the mask it returns is fresh
+    N = first_body.size
+    ws = lambda name, shape=(N,), dtype=np.float64: _workspace(f"shadow_{name}", shape, dtype)  # noqa: E731
+    active, t = ws("active", dtype=np.int64), ws("t")
     n = kn.shadow_active(first_body, is_floor, cp, sp, a_dir, rz, np.ascontiguousarray(rays.range, float).reshape(-1),
                          active, t)
     if n == 0:
         return np.zeros((spec.n_bins, spec.n_beams), bool)
     active, t = active[:n], t[:n]
-    d_act, dd_act = np.empty((n, 3)), np.empty((n, 3))
+    d_act, dd_act = ws("d", (N, 3))[:n], ws("dd", (N, 3))[:n]
     body_act = first_body[active]
-    hid_r = np.full(n, np.inf)
-    hid_n = np.zeros((n, 3))
+    hid_r = ws("hidden_r")[:n]
+    hid_r.fill(np.inf)
+    hid_n = ws("hidden_n", (N, 3))[:n]
+    hid_n.fill(0.0)
     eps = 1e-4 * max(spec.bin_width, 1e-3)
     origin = np.asarray(pose.t, float)
     far = min(np.float32(spec.range_max * 1.5), np.float32(1e30))
 
-    lo, hi = np.empty(n), np.empty(n)
+    lo, hi = ws("lo")[:n], ws("hi")[:n]
     min_half = 0.5 * spec.bin_width * 1e-3
+    # one cell mask per part (split_run makes at most `threads` parts); each part takes the next one
+    threads = max(1, caster.threads)  # read once: the parts are sized for it
+    parts = ws("parts", (threads, spec.n_bins, spec.n_beams), np.bool_)
+    part_no = itertools.count()
 
     def follow(p0, p1):
         # the rays p0..p1 through every round on this thread (each ray's rounds depend on it alone,
@@ -1500,17 +1544,18 @@ def _shadow_mask_numba(scene, caster, spec, pose, rays: SonarRays, elevation_min
         kn.shadow_boxes(hid_r[p0:p1], hid_n[p0:p1], d_act[p0:p1], dd_act[p0:p1], spec.elevation_step, min_half,
                         lo[p0:p1], hi[p0:p1])
         sel = np.isfinite(hid_r[p0:p1])
-        out = np.zeros((spec.n_bins, spec.n_beams), bool)
+        out = parts[next(part_no)]  # a part's shadow cells; the union of the parts' is the mask
+        out.fill(False)
         if sel.any():
             kn.shadow_cells(beam_of[active[p0:p1][sel]], lo[p0:p1][sel], hi[p0:p1][sel], float(spec.range_min),
                             1.0 / spec.bin_width, spec.n_bins, elevation_min, out)
-        outs.append(out)  # a part's shadow cells; the union of the parts' is the mask
 
-    outs: list = []
     beam_of = _index_grids(spec)[0]
     elevation_min = np.ascontiguousarray(elevation_min)
-    split_run(follow, n, caster.threads)
-    return functools.reduce(np.logical_or, outs)
+    split_run(follow, n, threads)
+    used = next(part_no)
+    # the mask is the frame's: a fresh array, never the scratch
+    return parts[0].copy() if used == 1 else np.logical_or.reduce(parts[:used], axis=0)
 
 
 def _read_only_shares(out: np.ndarray, names: list) -> dict:

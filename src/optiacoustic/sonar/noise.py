@@ -115,17 +115,21 @@ class NoiseModel:
             return self.target_speckle or self.noise_floor_db is not None
         return not self._gaussian_bottom() or not self.target_speckle
 
-    def draw(self, shape: tuple, bottom_types, rng: np.random.Generator) -> "NoiseDraws":
+    def draw(self, shape: tuple, bottom_types, rng: np.random.Generator, *, _reuse: bool = False) -> "NoiseDraws":
         """Draw every random variate the image needs; independent of the echo itself.
 
         ``simulate_sonar`` runs this in a background thread while it scans the scene.
         The draws come in a fixed order (per bottom type its mixture component ``u`` or,
         for Weibull and K, its amplitude ``x``; then ``E``, then the phases), so a seed
-        gives the same image.
+        gives the same image. ``_reuse`` (``simulate_sonar``): the uniforms, ``E`` and the
+        phases go into buffers of ``sonar._kernels.pooled`` (the same numbers: ``out=``), which
+        the caller hands back (:func:`release_noise_draws`) once :meth:`apply` has read them.
         """
+        from ._kernels import pooled
         from .distributions import bottom_model
 
         shape = tuple(shape)
+        buf = (lambda: pooled(shape, np.float32)) if _reuse else (lambda: None)  # noqa: E731
         u, x = {}, {}
         if self.reverberation is not None:
             for b in bottom_types:
@@ -134,14 +138,18 @@ class NoiseModel:
                 model = bottom_model(self.bottom_type or b, self.reverberation)
                 if self._gaussian_bottom():
                     w, _ = _mixture_table(model)
-                    u[b] = rng.random(shape, dtype=np.float32) if len(w) > 1 else None
+                    u[b] = rng.random(shape, dtype=np.float32, out=buf()) if len(w) > 1 else None
                 else:
                     x[b] = model.sample(shape, rng, dtype=np.float32)
-        e = rng.standard_exponential(shape, dtype=np.float32)
+        e = rng.standard_exponential(shape, dtype=np.float32, out=buf())
         phase = None
         if self.reverberation is not None and not self._gaussian_bottom() and not self.target_speckle:
-            phase = rng.random(shape, dtype=np.float32) * np.float32(2 * np.pi)
-        psi = rng.random(shape, dtype=np.float32) * np.float32(2 * np.pi) if self._needs_psi() else None
+            phase = rng.random(shape, dtype=np.float32, out=buf())
+            phase *= np.float32(2 * np.pi)
+        psi = None
+        if self._needs_psi():
+            psi = rng.random(shape, dtype=np.float32, out=buf())
+            psi *= np.float32(2 * np.pi)
         return NoiseDraws(e, u, x, phase, psi)
 
     def apply(self, intensity: np.ndarray, *, spec, seabed_share: dict, rng: np.random.Generator | None = None,
@@ -282,6 +290,14 @@ def _mixture_table(model):
     if hasattr(model, "weights"):
         return np.asarray(model.weights, float), np.asarray(model.lams, float)
     return np.ones(1), np.array([float(model.lam)])
+
+
+def release_noise_draws(draws: "NoiseDraws") -> None:
+    """Hand the buffers of ``NoiseModel.draw(..., _reuse=True)`` back to the pool; the caller must
+    not read ``draws`` afterwards (the amplitudes ``x`` are fresh arrays and are left alone)."""
+    from ._kernels import give_back
+
+    give_back(draws.e, *draws.u.values(), draws.phase, draws.psi)
 
 
 @dataclass(frozen=True, eq=False)
