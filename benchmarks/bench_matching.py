@@ -9,7 +9,7 @@ TITLE = "Automatic opti-acoustic matching"
 DESCRIPTION = ("`matching.match` on one simulated pair of `thesis_scene1` (BlueView P900-90 750 x 512 polar "
                "image, 600 x 400 camera, thesis water, default sonar noise), target <= 1 s per pair; against "
                "simulating that pair (`simulate_rig`: both sensors) and against its stages (CFAR sonar features, "
-               "the arc search, the seabed-contact search; for the first design, corners and the epipolar gate); and the two-view "
+               "the arc search, the seabed-contact search, the face-plane model; for the first design, corners and the epipolar gate); and the two-view "
                "matching with a second pair after a known motion.")
 
 
@@ -54,6 +54,21 @@ def run() -> list[dict]:
     grad = gradient_image(o.image)
     t_contact = median_ms(lambda: search_contacts(rig, plane, sf.ranges, sf.azimuths, lo[sf.bins, sf.beams],
                                                   hi[sf.bins, sf.beams], grad), repeat=7, warmup=1)
+    from optiacoustic.matching.contact import crease_positions, echo_start_ranges
+    from optiacoustic.matching.face_plane import face_labels, face_planes
+
+    ch = search_arcs(rig, sf.ranges, sf.azimuths, lo[sf.bins, sf.beams], hi[sf.bins, sf.beams], grad)
+    r_on = np.minimum(echo_start_ranges(s.image, s.ranges, sf.bins, sf.beams), sf.ranges)
+
+    def plane_stage():
+        labels = face_labels(grad)
+        uv = np.rint(np.nan_to_num(ch.pixels)).astype(int)
+        face = np.where(ch.found, labels[np.clip(uv[:, 1], 0, labels.shape[0] - 1),
+                                         np.clip(uv[:, 0], 0, labels.shape[1] - 1)], 0)
+        C, ok = crease_positions(rig, ch.top_pixels, r_on)
+        return face_planes(rig, plane, sf.ranges, sf.azimuths, face, C, ok, np.nan_to_num(ch.elevations), labels)
+
+    t_plane = median_ms(plane_stage, repeat=7, warmup=1)
     m = match(s, o.image, rig, min_score=0.0)
     note = f"{len(sf)} sonar features, {len(m)} matches (arc search)"
     from optiacoustic.experiments.matching import moved_view
@@ -78,6 +93,9 @@ def run() -> list[dict]:
              ratio=t_arc / t_match, note="400 elevation samples per arc"),
         dict(name="seabed-contact (foot) search, all arcs", value=t_contact, unit="ms", reference="match",
              ratio=t_contact / t_match, note="400 elevations x 16 segment samples per arc"),
+        dict(name="face-plane model (face labels + plane fits + arc-plane points), all arcs", value=t_plane,
+             unit="ms", reference="match", ratio=t_plane / t_match,
+             note="connected components of edge-free pixels; a RANSAC over crease pairs per face window"),
         dict(name="match / simulate the pair", value=t_match, unit="ms", reference="simulate_rig (both sensors)",
              ratio=t_match / t_sim, note=f"simulate_rig {t_sim:.0f} ms"),
         dict(name="camera corners (OpenCV)", value=t_cam, unit="ms", reference="match (arc search)",

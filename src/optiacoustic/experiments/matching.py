@@ -344,6 +344,73 @@ def _arc_profiles_figure(path, sonar, optical, rig, m, n_rows: int = 6):
     return out
 
 
+def _candidate_truth(m, sonar, optical, rig) -> dict:
+    """Which of each one-view match's candidates (arc search, crease, face plane) is right (evaluation only)."""
+    from ..matching import truth
+
+    bw, aw = float(np.median(np.diff(sonar.ranges))), float(np.median(np.diff(sonar.azimuths)))
+    out = {}
+    for name in ("arc", "crease", "plane"):
+        has = np.zeros(len(m), bool)
+        ok = np.zeros(len(m), bool)
+        if m and f"{name}_u" in m.features:
+            px = np.column_stack([m.features[f"{name}_u"], m.features[f"{name}_v"]])
+            has = np.all(np.isfinite(px), axis=1)
+            if has.any():
+                ok[has] = truth.correct(rig, optical.depth, px[has], m.ranges[has], m.azimuths[has], bin_width=bw,
+                                        beam_width=aw)
+        out[f"has_{name}"], out[f"ok_{name}"] = has, ok
+    out["source"] = np.asarray(m.features.get("face_source", np.zeros(len(m), int)), int) if m else np.zeros(0, int)
+    return out
+
+
+def _face_plane_figure(path, scene_name, sonar, optical, rig, m, cand, pooled):
+    """The face-plane model on one scene (faces, candidates, right or wrong) and its candidates' precision pooled."""
+    import matplotlib.pyplot as plt
+
+    from .._atomic import savefig
+    from ..matching.arc_search import gradient_image
+    from ..matching.face_plane import face_labels
+    from ..matching.figures import _camera_display
+
+    fig, ax = plt.subplots(1, 2, figsize=(13, 4.6), gridspec_kw=dict(width_ratios=[1.6, 1]))
+    img = _camera_display(optical.image)
+    labels = face_labels(gradient_image(optical.image))
+    edges = labels == 0
+    shown = img.copy()
+    shown[edges] = 0.5 * shown[edges]
+    ax[0].imshow(shown)
+    f = m.features
+    styles = (("arc", "o", "run's middle"), ("crease", "^", "below the crease"), ("plane", "s", "on the face plane"))
+    for name, marker, label in styles:
+        u, v = np.asarray(f[f"{name}_u"], float), np.asarray(f[f"{name}_v"], float)
+        has, ok = cand[f"has_{name}"], cand[f"ok_{name}"]
+        ax[0].scatter(u[has & ok], v[has & ok], marker=marker, s=22, facecolors="none", edgecolors="#3cb44b",
+                      linewidths=1.1, label=f"{label}: right")
+        ax[0].scatter(u[has & ~ok], v[has & ~ok], marker=marker, s=22, facecolors="none", edgecolors="#e6194b",
+                      linewidths=1.1, label=f"{label}: wrong")
+    ax[0].scatter(m.pixels[:, 0], m.pixels[:, 1], marker="+", s=14, color="k", linewidths=0.8,
+                  label="chosen (most probable)")
+    ax[0].set_title(f"{scene_name}: candidates of each sonar feature (edges darkened; faces = regions between them)",
+                    fontsize=8)
+    ax[0].legend(fontsize=6, loc="lower left", ncol=3)
+    ax[0].set_axis_off()
+    names = ["run's middle", "below the crease", "on the face plane", "chosen (most probable)", "any of the three"]
+    vals = [pooled["arc"], pooled["crease"], pooled["plane"], pooled["chosen"], pooled["any"]]
+    ax[1].barh(np.arange(5), vals, color=["#4363d8", "#f58231", "#911eb4", "#000000", "#aaaaaa"])
+    for i, (v_, n_) in enumerate(zip(vals, pooled["n"])):
+        ax[1].text(min(v_ + 0.01, 0.85), i, f"{v_:.2f} of {n_}", va="center", fontsize=8)
+    ax[1].set_yticks(np.arange(5), names, fontsize=8)
+    ax[1].set_xlim(0, 1)
+    ax[1].invert_yaxis()
+    ax[1].set_xlabel("fraction right (where the candidate exists)")
+    ax[1].set_title(f"one view, {pooled['n_scenes']} scenes, thesis water", fontsize=9)
+    fig.tight_layout()
+    out = savefig(fig, path, dpi=100)
+    plt.close(fig)
+    return out
+
+
 def _operating_point(evals, target: float = 0.95) -> dict:
     """The lowest score threshold whose precision is >= ``target`` (every distinct score tried), and the AUC."""
     n_vis = sum(e["n_visible"] for e in evals)
@@ -416,7 +483,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     from ..matching import MatchOptions
     from ..optical import BlindCameraWarning
 
-    evals, evals_corners, per_scene, evals_two, sub_pairs = [], [], [], [], []
+    evals, evals_corners, per_scene, evals_two, sub_pairs, cands = [], [], [], [], [], []
     n_sub = 1 if quick else 8
     first = profile = None
     profile_name = ""
@@ -437,6 +504,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
             first = (sc.name, s, o, m, e["correct"])
         if profile is None and sc.name.startswith("random") and m:
             profile, profile_name = (s, o, rig, m), sc.name
+        cands.append(_candidate_truth(m, s, o, rig))
     prec, rec, npt, n_vis, thresholds = _pr(evals)
     b_prec, b_rec, b_n = _baseline(evals)
     c_prec, c_rec, _, c_vis, _ = _pr(evals_corners, [0.0])
@@ -469,6 +537,25 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
         f_ar = _arc_profiles_figure(out_dir / "matching_arcs.png", *profile)
         figures.append((f_ar, f"Along-arc profiles of matches on {profile_name} (evaluation only: reads the depth "
                               "map): where the correct pixels lie against the edge-free runs the matcher chose."))
+    cat = {k: np.concatenate([c[k] for c in cands]) for k in cands[0]} if cands else {}
+    face_plane_numbers = {}
+    if cat and cat["source"].size:
+        ok_chosen = np.concatenate([e["ok"] for e in evals])
+        pooled = dict(n=[int(cat["has_arc"].sum()), int(cat["has_crease"].sum()), int(cat["has_plane"].sum()),
+                         int(ok_chosen.size), int(ok_chosen.size)], n_scenes=len(all_scenes))
+        for name in ("arc", "crease", "plane"):
+            h = cat[f"has_{name}"]
+            pooled[name] = float(cat[f"ok_{name}"][h].mean()) if h.any() else 0.0
+        pooled["chosen"] = float(ok_chosen.mean())
+        pooled["any"] = float(np.mean(cat["ok_arc"] | cat["ok_crease"] | cat["ok_plane"]))
+        face_plane_numbers = dict(pooled, source_counts=np.bincount(cat["source"], minlength=3).tolist())
+        if profile is not None:
+            s_p, o_p, rig_p, m_p = profile
+            f_fp = _face_plane_figure(out_dir / "matching_face_plane.png", profile_name, s_p, o_p, rig_p, m_p,
+                                      _candidate_truth(m_p, s_p, o_p, rig_p), pooled)
+            figures.append((f_fp, f"The face-plane model on {profile_name} (evaluation only: right or wrong by the "
+                                  "depth map): each sonar feature's three candidate pixels, and how often each is "
+                                  f"right over the {len(all_scenes)} scenes."))
 
     # 2. Turbidity and sonar noise (on a subset of scenes).
     sub = all_scenes[:n_sub]
@@ -616,7 +703,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
         corners_precision_all_assigned=float(c_prec[0]), corners_recall_all_assigned=float(c_rec[0]),
         baseline_precision=b_prec, baseline_recall=b_rec, baseline_n=b_n, precision_ratio_to_baseline=ratio,
         median_error_auto_m=med_auto, median_error_true_matches_m=med_true,
-        two_view=two_view, three_bins_three_beams=loose,
+        two_view=two_view, three_bins_three_beams=loose, face_plane=face_plane_numbers,
         turbidity=[dict(zip(["water", "n_visible", "precision_cut", "recall_cut", "precision_all", "recall_all",
                              "baseline_precision", "baseline_recall"], r_)) for r_ in turb],
         sonar_noise=[dict(zip(["noise_floor", "n_visible", "precision_cut", "recall_cut", "precision_all",
@@ -725,24 +812,31 @@ FACE_TRAINING = ((range(5000, 5048), "thesis"), (range(5000, 5024), "jerlov-1C")
 
 
 def calibrate_face_score(scenes=FACE_TRAINING, *, ridge: float = 1.0) -> dict:
-    """Refit ``matching.match.FACE_SCORE_MODEL`` and ``CREASE_SCORE_MODEL`` (the vertical-face evidence).
+    """Refit ``matching.match.FACE_SCORE_MODEL``, ``FACE_PLANE_SCORE_MODEL``, ``CREASE_SCORE_MODEL`` and ``PLANE_SCORE_MODEL``.
 
     Runs the matcher on the random scenes ``scenes`` (pairs of seeds and water, default sonar
-    noise; :data:`FACE_TRAINING`) and labels, by the depth-map truth, the arc search's pixel of every match and the point below
-    the crease where there is one; fits a logistic regression of each on
-    :func:`matching.match.face_score_features` and :func:`matching.match.crease_score_features`.
-    Refit after ``ARC_SCORE_MODEL``. Use seeds disjoint from the evaluation's.
+    noise; :data:`FACE_TRAINING`) and labels, by the depth-map truth, the arc search's pixel of every
+    match, the point below the crease and the point on the face's fitted plane where there are
+    ones; fits a logistic regression of each on :func:`matching.match.face_score_features` (all
+    matches), :func:`matching.match.face_plane_score_features` (the matches where the plane is
+    offered), :func:`matching.match.crease_score_features` and
+    :func:`matching.match.plane_score_features` (the features do not depend on which candidate the
+    current models choose). Refit after ``ARC_SCORE_MODEL``. Use seeds disjoint from the evaluation's.
 
     Returns
     -------
     dict
-        ``face`` and ``crease``: each ``weights`` (intercept first), ``mean``, ``std``, ``n``,
-        ``positive_rate``.
+        ``face``, ``face_plane``, ``crease`` and ``plane``: each ``weights`` (intercept first),
+        ``mean``, ``std``, ``n``, ``positive_rate``.
     """
     from ..matching import match, truth
-    from ..matching.match import crease_score_features, face_score_features
+    from ..matching.match import (crease_score_features, face_plane_score_features, face_score_features,
+                                  plane_score_features)
 
-    XF, yF, XC, yC = [], [], [], []
+    featurise = dict(face=face_score_features, face_plane=face_plane_score_features, crease=crease_score_features,
+                     plane=plane_score_features)
+    X = {k: [] for k in featurise}
+    y = {k: [] for k in featurise}
     for sd, water in ((sd, water) for seeds, water in scenes for sd in seeds):
         s, o, rig = simulate_pair(random_scene(int(sd)), water, "default", int(sd))
         m = match(s, o.image, rig, min_score=0.0)
@@ -750,18 +844,16 @@ def calibrate_face_score(scenes=FACE_TRAINING, *, ridge: float = 1.0) -> dict:
             continue
         bw, aw = float(np.median(np.diff(s.ranges))), float(np.median(np.diff(s.azimuths)))
         f = m.features
-        ok_arc = truth.correct(rig, o.depth, np.column_stack([f["arc_u"], f["arc_v"]]), m.ranges, m.azimuths,
-                               bin_width=bw, beam_width=aw)
-        XF.append(face_score_features(f))
-        yF.append(ok_arc.astype(float))
-        c = np.asarray(f["crease_found"], bool)
-        if c.any():
-            ok_c = truth.correct(rig, o.depth, np.column_stack([f["crease_u"], f["crease_v"]])[c], m.ranges[c],
-                                 m.azimuths[c], bin_width=bw, beam_width=aw)
-            XC.append(crease_score_features(f)[c])
-            yC.append(ok_c.astype(float))
-    return dict(face=_fit_logistic(np.concatenate(XF), np.concatenate(yF), ridge),
-                crease=_fit_logistic(np.concatenate(XC), np.concatenate(yC), ridge))
+        for key, prefix, c in (("face", "arc", np.ones(len(m), bool)),
+                               ("face_plane", "arc", np.asarray(f["plane_offered"], bool)),
+                               ("crease", "crease", np.asarray(f["crease_found"], bool)),
+                               ("plane", "plane", np.asarray(f["plane_found"], bool))):
+            if c.any():
+                ok = truth.correct(rig, o.depth, np.column_stack([f[f"{prefix}_u"], f[f"{prefix}_v"]])[c],
+                                   m.ranges[c], m.azimuths[c], bin_width=bw, beam_width=aw)
+                X[key].append(featurise[key](f)[c])
+                y[key].append(ok.astype(float))
+    return {k: _fit_logistic(np.concatenate(X[k]), np.concatenate(y[k]), ridge) for k in X if X[k]}
 
 
 def _fit_logistic(X, y, ridge):

@@ -44,7 +44,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ContactChoice", "CreaseChoice", "crease_points", "echo_start_ranges", "search_contacts"]
+__all__ = ["ContactChoice", "CreaseChoice", "crease_points", "crease_positions", "echo_start_ranges", "search_contacts"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -222,6 +222,28 @@ def echo_start_ranges(image, ranges, bins, beams, *, factor: float = 3.0) -> np.
     return r[start]
 
 
+def crease_positions(rig, top_pixels, onset_ranges):
+    """Sonar-frame points (m) at sonar range ``onset_ranges`` on the rays of ``top_pixels`` ``(N, 2)``.
+
+    The far root of ``|o + Z d| = r_on`` (``o`` the camera's centre, ``d`` the pixel's unit ray, both
+    in the sonar frame). Returns ``(C (N, 3), ok (N,))``; ``ok`` is False where the pixel is NaN or
+    the ray never reaches that range in front of the camera.
+    """
+    top = np.asarray(top_pixels, float).reshape(-1, 2)
+    r_on = np.asarray(onset_ranges, float).reshape(-1)
+    good = np.all(np.isfinite(top), axis=1)
+    rays = rig.camera.pixel_rays(np.where(good[:, None], top, 0.0))
+    rays = rays / np.linalg.norm(rays, axis=-1, keepdims=True)
+    o_s = rig.sonar_from_camera(np.zeros(3))
+    d_s = rig.sonar_from_camera(rays) - o_s
+    b = d_s @ o_s
+    disc = b ** 2 - (o_s @ o_s - r_on ** 2)
+    Z = -b + np.sqrt(np.maximum(disc, 0.0))
+    C = o_s + Z[:, None] * d_s
+    return C, good & (disc >= 0) & (Z > 0)
+
+
+
 def crease_points(rig, seabed, ranges, azimuths, onset_ranges, top_pixels, run_low, run_high) -> CreaseChoice:
     """The point at range ``r`` on the vertical face below the crease seen at ``top_pixels``.
 
@@ -254,16 +276,7 @@ def crease_points(rig, seabed, ranges, azimuths, onset_ranges, top_pixels, run_l
     if N == 0 or not seabed:
         return CreaseChoice(np.full((N, 2), np.nan), nan, nan, np.zeros(N, bool))
     r_on = np.minimum(np.asarray(onset_ranges, float).reshape(-1), r)
-    good = np.all(np.isfinite(top), axis=1)
-    rays = rig.camera.pixel_rays(np.where(good[:, None], top, 0.0))
-    rays = rays / np.linalg.norm(rays, axis=-1, keepdims=True)
-    o_s = rig.sonar_from_camera(np.zeros(3))
-    d_s = rig.sonar_from_camera(rays) - o_s
-    # The ray's point at sonar range r_on: |o_s + Z d_s| = r_on, the far root.
-    b = d_s @ o_s
-    disc = b ** 2 - (o_s @ o_s - r_on ** 2)
-    Z = -b + np.sqrt(np.maximum(disc, 0.0))
-    C = o_s + Z[:, None] * d_s
+    C, good = crease_positions(rig, top, r_on)
     n_up = np.asarray(seabed.normal, float)
     a = -(C @ n_up)  # how far the crease lies below the sonar along the vertical
     # X = C - t n with |X| = r: t^2 + 2 a t + r_on^2 - r^2 = 0, the non-negative root.
@@ -272,7 +285,7 @@ def crease_points(rig, seabed, ranges, azimuths, onset_ranges, top_pixels, run_l
     _, _, phi = spherical_from_sonar(X)
     Pc = rig.camera_from_sonar(X)
     px = rig.camera.project(Pc)
-    found = good & (disc >= 0) & (Z > 0) & (Pc[:, 2] > 0) & rig.camera.in_image(px) & \
+    found = good & (Pc[:, 2] > 0) & rig.camera.in_image(px) & \
         (phi >= np.asarray(run_low, float) - 1e-9) & (phi <= np.asarray(run_high, float) + 1e-9)
     return CreaseChoice(np.where(found[:, None], px, np.nan), np.where(found, phi, np.nan),
                         np.where(found, t, np.nan), found)

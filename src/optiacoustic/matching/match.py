@@ -100,7 +100,8 @@ class MatchOptions:
         ``"arc"`` (default): each sonar feature searches its own epipolar arc, inside the
         elevation interval of the seabed and shadow evidence, for the middle of the longest
         edge-free run of pixels (:mod:`.arc_search`), or takes the point below that face's
-        crease (:mod:`.contact`) where that is the more probable; ``"corners"``: OpenCV corners gated by
+        crease (:mod:`.contact`) or on the face's fitted plane (:mod:`.face_plane`) where that is
+        the more probable; ``"corners"``: OpenCV corners gated by
         the epipolar distance and assigned globally (the first design, kept for comparison).
     arc_threshold : float
         Gradient (gray levels per px) below which an arc pixel is edge-free.
@@ -111,6 +112,16 @@ class MatchOptions:
         experiment's scenes it removed most matches of the built-in scenes whose objects share
         the seabed's colour and, in Jerlov 1C-3C water, where all colours converge to the
         water's, recall fell from 0.72 to 0.38.
+    face_plane : bool
+        Offer each feature the point where its arc meets its face's fitted plane
+        (:mod:`.face_plane`) as a third candidate (off: the arc search's pixel or the point below
+        the crease only, the previous round's matcher).
+    face_plane_min_contrast : float
+        The plane is fitted only in images whose contrast (0.5-99.5 percentile range of the mean
+        channel over their sum) is at least this: in turbid water the crease between a box's front
+        and top faces washes out and the plane follows the top face's far edge. The training
+        scenes' images have 0.79-0.86 in thesis water and 0.53 in Jerlov 1C, where the plane cost
+        correct matches (302 -> 298 on scenes 5000-5023); 0.65 lies between.
     cfar, keypoints : detector options.
     """
 
@@ -126,6 +137,8 @@ class MatchOptions:
     method: str = "arc"
     arc_threshold: float = 3.0
     seabed_contrast: float = 0.0
+    face_plane: bool = True
+    face_plane_min_contrast: float = 0.65
     cfar: CfarOptions = field(default_factory=CfarOptions)
     keypoints: KeypointOptions = field(default_factory=KeypointOptions)
 
@@ -728,6 +741,19 @@ FACE_SCORE_MODEL = dict(
     std=(1.2825, 0.4603, 0.8294, 0.2583, 0.4277, 0.8, 0.4663),
 )
 
+#: :data:`FACE_SCORE_MODEL` where the face-plane candidate is offered (``MatchOptions.face_plane``
+#: and an image contrast of at least ``face_plane_min_contrast``): intercept and weights of the
+#: standardised :func:`face_plane_score_features` (those of :func:`face_score_features`, then for
+#: the point on the face's plane: found, log of 1 + its elevation distance from the arc search's in
+#: units of 0.25 deg, agreement within 0.5 deg). Fitted by
+#: ``experiments.matching.calibrate_face_score()`` on the matches of those scenes where the plane is
+#: offered (thesis water; 1079 matches, 49% correct).
+FACE_PLANE_SCORE_MODEL = dict(
+    weights=(-0.113, 1.178, 1.121, -0.952, -0.079, 0.08, -0.308, -0.129, 0.521, -0.513, 0.06),
+    mean=(-0.116, 0.4597, 0.7354, 0.1084, 0.7461, 0.8503, 0.3763, 0.7553, 0.9421, 0.3281),
+    std=(1.3063, 0.4984, 0.9248, 0.3109, 0.4353, 0.7315, 0.4845, 0.4299, 0.7965, 0.4695),
+)
+
 #: Logistic model of P(correct) of the point below the crease (:func:`.contact.crease_points`):
 #: intercept and weights of the standardised :func:`crease_score_features` (logit of the arc
 #: search's own score, log of 1 + the crease point's elevation distance from the arc search's in
@@ -763,6 +789,11 @@ def face_score_features(feats: dict) -> np.ndarray:
                             *_agreement(feats["crease_found"], feats["crease_dphi_deg"])])
 
 
+def face_plane_score_features(feats: dict) -> np.ndarray:
+    """:data:`FACE_PLANE_SCORE_MODEL`'s inputs ``(N, 10)``: :func:`face_score_features` and the plane point's agreement."""
+    return np.column_stack([face_score_features(feats), *_agreement(feats["plane_found"], feats["plane_dphi_deg"])])
+
+
 def crease_score_features(feats: dict) -> np.ndarray:
     """The crease score model's inputs ``(N, 9)`` (NaN-free; meaningful where ``crease_found``)."""
     d = np.nan_to_num(np.asarray(feats["crease_dphi_deg"], float))
@@ -770,6 +801,45 @@ def crease_score_features(feats: dict) -> np.ndarray:
                             np.asarray(feats["contact_found"], float), np.nan_to_num(feats["crease_position"]),
                             np.log1p(feats["echo_depth_bins"]), np.log(np.maximum(feats["run_px"], 1.0)),
                             np.log1p(np.nan_to_num(feats["top_edge"])),
+                            np.log(np.maximum(feats["image_contrast"], 1e-6))])
+
+
+#: Logistic model of P(correct) of the point on the face's fitted plane (:mod:`.face_plane`):
+#: intercept and weights of the standardised :func:`plane_score_features` (logit of the arc
+#: search's own score; log of 1 + the point's elevation distance from the arc search's, in units of
+#: 0.25 deg; the crease point found, and log of 1 + the plane point's distance from it; onset or
+#: peak; the point's pixel in the feature's face; log of 1 + the plane's inlier creases and their
+#: fraction; log of 1 + the feature's own crease's distance from the plane in cm; log of 1 + the
+#: inliers' extent along the edge in units of 5 cm; where the point sits in the
+#: run; its height as a fraction of the face's; log of 1 + how many bins the feature lies behind its
+#: echo's start; log of 1 + the gradient just above the run; log of the image's contrast). Fitted by
+#: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model (815
+#: plane points, all in thesis water where the plane is offered, 67% correct).
+PLANE_SCORE_MODEL = dict(
+    weights=(0.792, 0.743, 0.231, 0.462, -0.469, -0.259, 0.301, 0.464, 0.094, 0.126, -0.018, -0.017, 0.32,
+             -0.012, 0.446, -0.116),
+    mean=(0.2865, 1.2473, 0.8982, 0.5551, 0.4871, 0.9141, 1.4994, 0.9219, 0.2683, 1.5306, 0.4759, 0.5721,
+          1.0301, 2.3417, -0.2082),
+    std=(0.8773, 0.6777, 0.3024, 0.5928, 0.4998, 0.2802, 0.3423, 0.1351, 0.4074, 0.9188, 0.4173, 0.2646,
+         0.4171, 1.1355, 0.0263),
+)
+
+
+def plane_score_features(feats: dict) -> np.ndarray:
+    """The plane score model's inputs ``(N, 15)`` (NaN-free; meaningful where ``plane_found``)."""
+    d = np.nan_to_num(np.asarray(feats["plane_dphi_deg"], float))
+    cf = np.asarray(feats["crease_found"], bool)
+    dc = np.where(cf, np.nan_to_num(np.asarray(feats["plane_crease_dphi_deg"], float)), 0.0)
+    n_c = np.maximum(np.asarray(feats["plane_n_creases"], float), 1.0)
+    n_i = np.asarray(feats["plane_n_inliers"], float)
+    own = np.asarray(feats["plane_own_residual"], float)
+    pos = np.clip(np.nan_to_num(np.asarray(feats["plane_position"], float), nan=0.5), -1.0, 2.0)
+    hgt = np.clip(np.nan_to_num(np.asarray(feats["plane_height"], float), nan=0.5), -1.0, 2.0)
+    return np.column_stack([_logit(feats["arc_score"]), np.log1p(d / 0.25), cf.astype(float), np.log1p(dc / 0.25),
+                            feats["kind"], np.asarray(feats["plane_in_face"], float), np.log1p(n_i), n_i / n_c,
+                            np.where(np.isfinite(own), np.log1p(np.nan_to_num(own) / 0.01), 0.0),
+                            np.log1p(np.nan_to_num(np.asarray(feats["plane_spread"], float)) / 0.05), pos, hgt,
+                            np.log1p(feats["echo_depth_bins"]), np.log1p(np.nan_to_num(feats["top_edge"])),
                             np.log(np.maximum(feats["image_contrast"], 1e-6))])
 
 
@@ -801,13 +871,15 @@ def _elevation_intervals(sf, img_s, r_bins, th_beams, rig, opt):
 def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Matches:
     """Every sonar feature takes a pixel of the longest edge-free run of its arc (:mod:`.arc_search`).
 
-    The run's middle (or 70% up for onsets), or the point below the face's crease
-    (:func:`.contact.crease_points`) where its calibrated probability is the higher.
+    The run's middle (or 70% up for onsets), the point below the face's crease
+    (:func:`.contact.crease_points`) or the point where the arc meets the plane fitted to all the
+    face's creases (:func:`.face_plane.face_planes`), whichever has the highest calibrated probability.
     """
     from ..geometry.projection import camera_from_sonar
     from .arc_search import gradient_image, search_arcs, stretched
     from .camera_features import to_gray8
-    from .contact import crease_points, echo_start_ranges, search_contacts
+    from .contact import crease_points, crease_positions, echo_start_ranges, search_contacts
+    from .face_plane import face_labels, face_planes
 
     if np.ptp(to_gray8(cam_img)) == 0:
         return _empty("no camera features: the image is blank (or too turbid to show anything)", sf)
@@ -859,13 +931,42 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     feats["image_contrast"] = np.full(rows.size, (hi_i - lo_i) / max(hi_i + lo_i, 1e-12))
     feats["arc_u"], feats["arc_v"] = px_arc[:, 0], px_arc[:, 1]
     feats["crease_u"], feats["crease_v"] = cr.pixels[:, 0], cr.pixels[:, 1]
-    p_arc = _logistic(face_score_features(feats), FACE_SCORE_MODEL)
+    # The face-plane model (:mod:`.face_plane`): the vertical plane through all creases of the face.
+    labels = face_labels(grad, opt.arc_threshold)
+    H, W = labels.shape
+    face = labels[np.clip(np.rint(px_arc[:, 1]).astype(int), 0, H - 1),
+                  np.clip(np.rint(px_arc[:, 0]).astype(int), 0, W - 1)]  # the face the arc search chose
+    C, c_ok = crease_positions(rig, ch.top_pixels[rows], np.minimum(r_on, sf.ranges[rows]))
+    offered = opt.face_plane & (feats["image_contrast"] >= opt.face_plane_min_contrast)
+    feats["plane_offered"] = offered
+    c_ok &= offered
+    fp = face_planes(rig, seabed, sf.ranges[rows], sf.azimuths[rows], face, C, c_ok, ch.elevations[rows], labels)
+    feats["plane_u"], feats["plane_v"] = fp.pixels[:, 0], fp.pixels[:, 1]
+    feats["plane_found"] = fp.found
+    feats["plane_dphi_deg"] = np.where(fp.found, np.rad2deg(np.abs(np.nan_to_num(fp.elevations)
+                                                                  - ch.elevations[rows])), np.nan)
+    feats["plane_crease_dphi_deg"] = np.where(fp.found & cr.found, np.rad2deg(np.abs(
+        np.nan_to_num(fp.elevations) - np.nan_to_num(cr.elevations))), np.nan)
+    feats["plane_n_creases"], feats["plane_n_inliers"] = fp.n_creases, fp.n_inliers
+    feats["plane_spread"], feats["plane_own_residual"] = fp.spread, fp.own_residual
+    feats["plane_height"], feats["plane_in_face"] = fp.height, fp.in_face
+    with np.errstate(invalid="ignore", divide="ignore"):
+        feats["plane_position"] = np.where(fp.found, (fp.elevations - ch.run_low[rows])
+                                           / np.maximum(ch.run_high[rows] - ch.run_low[rows], 1e-9), np.nan)
+    # Where the plane is offered, the arc search's pixel is scored knowing whether the plane
+    # point agrees with it; elsewhere exactly as before the face-plane model.
+    p_arc = np.where(offered, _logistic(face_plane_score_features(feats), FACE_PLANE_SCORE_MODEL),
+                     _logistic(face_score_features(feats), FACE_SCORE_MODEL))
     p_crease = np.where(cr.found, _logistic(crease_score_features(feats), CREASE_SCORE_MODEL), 0.0)
-    use = cr.found & (p_crease > p_arc)
-    feats["face_source"] = use.astype(int)  # 0: the arc search's pixel, 1: the point below the crease
-    feats["elevation"] = np.where(use, cr.elevations, ch.elevations[rows])
-    px = np.where(use[:, None], cr.pixels, px_arc)
-    score = np.where(use, p_crease, p_arc)
+    p_plane = np.where(fp.found, _logistic(plane_score_features(feats), PLANE_SCORE_MODEL), 0.0)
+    # 0: the arc search's pixel, 1: the point below the crease, 2: the point on the face's plane.
+    probs = np.column_stack([p_arc, p_crease, p_plane])
+    source = np.argmax(probs, axis=1)
+    feats["face_source"] = source
+    feats["elevation"] = np.choose(source, [ch.elevations[rows], np.nan_to_num(cr.elevations),
+                                            np.nan_to_num(fp.elevations)])
+    px = np.choose(source[:, None], [px_arc, np.nan_to_num(cr.pixels), np.nan_to_num(fp.pixels)])
+    score = probs[np.arange(rows.size), source]
     s_px = noise.sigma_pixel or 0.5
     s_r = np.full(rows.size, noise.sigma_range) if noise.sigma_range else sf.sigma_range[rows]
     s_a = np.full(rows.size, noise.sigma_azimuth) if noise.sigma_azimuth else sf.sigma_azimuth[rows]

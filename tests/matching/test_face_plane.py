@@ -1,0 +1,132 @@
+"""The face-plane model (:mod:`optiacoustic.matching.face_plane`): analytic cases and seeded scenes."""
+
+import numpy as np
+import pytest
+
+from optiacoustic.frames import sonar_from_spherical, spherical_from_sonar
+from optiacoustic.matching.acoustic import SeabedPlane
+from optiacoustic.matching.face_plane import arc_plane_elevations, face_labels, face_planes, fit_line_2d
+
+
+def _rig():
+    from optiacoustic.experiments.matching import _rig_for
+
+    return _rig_for((0.0, -6.0, 2.0), (0.0, 0.0, 0.0))
+
+
+def _seabed(sonar_pose):
+    """The world's z = 0 plane in the sonar frame (normal up), from the pose alone."""
+    R, t = sonar_pose.R, sonar_pose.t  # P_world = R P_sonar + t
+    return SeabedPlane(normal=R.T @ np.array([0.0, 0.0, 1.0]), offset=float(-t[2]), rms=0.0, n_beams=100)
+
+
+def test_fit_line_2d_recovers_a_line_through_outliers():
+    rng = np.random.default_rng(11)
+    a_true, d_true = np.deg2rad(35.0), 4.2
+    nv = np.array([np.cos(a_true), np.sin(a_true)])
+    t = rng.uniform(-0.6, 0.6, 14)
+    q = d_true * nv + t[:, None] * np.array([-nv[1], nv[0]]) + rng.normal(0.0, 0.004, (14, 1)) * nv
+    q[:5] += rng.uniform(0.1, 0.5, (5, 1)) * nv  # 5 of 14 creases from another echo, 0.1-0.5 m off
+    n_fit, d_fit, inl, spread = fit_line_2d(q, inlier_m=0.02)
+    if n_fit @ nv < 0:
+        n_fit, d_fit = -n_fit, -d_fit
+    assert np.degrees(np.arccos(np.clip(n_fit @ nv, -1, 1))) < 1.5
+    assert abs(d_fit - d_true) < 0.01
+    assert not inl[:5].any() and inl[5:].all()
+    assert spread > 0.5
+    # Points that span nothing across: the fallback normal through their median.
+    n_fb, d_fb, _, sp_fb = fit_line_2d(q[5:6], fallback_normal=(0.0, 2.0))
+    np.testing.assert_allclose(n_fb, [0.0, 1.0])
+    assert d_fb == pytest.approx(q[5, 1]) and sp_fb == 0.0
+    assert fit_line_2d(np.zeros((0, 2))) is None
+
+
+def test_arc_plane_elevations_identity():
+    rng = np.random.default_rng(5)
+    r, th, ph = rng.uniform(3, 9, 50), rng.uniform(-0.7, 0.7, 50), rng.uniform(-0.17, 0.17, 50)
+    X = sonar_from_spherical(r, th, ph)
+    # Vertical faces seen by a sonar tilted 15-25 deg down (the case the model is for): in the
+    # sonar frame their normal's z is 0.25-0.4 in size, and the arc's other root on the plane
+    # lies mirrored about that tilt, outside the aperture.
+    az = rng.uniform(-np.pi, np.pi, 50)
+    n = np.column_stack([np.cos(az), np.sin(az), rng.choice([-1, 1], 50) * rng.uniform(0.25, 0.4, 50)])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    d = np.sum(n * X, axis=1)
+    got = arc_plane_elevations(r, th, n, d, ph + rng.uniform(-0.01, 0.01, 50))
+    np.testing.assert_allclose(got, ph, atol=1e-9)
+    # A plane beyond the arc's reach: NaN.
+    assert np.isnan(arc_plane_elevations(r[:1], th[:1], n[:1], [r[0] * 2], [0.0])).all()
+
+
+def test_face_planes_recover_a_known_vertical_face():
+    """Creases on a face's top edge (some wrong by decimetres) fix the plane; each arc meets it where the face is."""
+    rig, sp = _rig()
+    bed = _seabed(sp)
+    to_sonar = lambda P: (P - sp.t) @ sp.R  # noqa: E731  (world -> sonar frame)
+    rng = np.random.default_rng(21)
+    # A vertical face through (0, 0.4, .) at 25 deg yaw, its top edge 0.7 m above the seabed.
+    yaw = np.deg2rad(25.0)
+    along = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    normal_w = np.array([-np.sin(yaw), np.cos(yaw), 0.0])
+    base = np.array([0.0, 0.4, 0.0])
+    n = 16
+    s = np.sort(rng.uniform(-0.5, 0.5, n))
+    height = rng.uniform(0.05, 0.65, n)
+    X_w = base + s[:, None] * along + height[:, None] * [0.0, 0.0, 1.0]
+    C_w = base + s[:, None] * along + 0.7 * np.array([0.0, 0.0, 1.0])
+    C_w += rng.normal(0.0, 0.008, (n, 1)) * normal_w  # crease error ~ 1/3 bin
+    bad = np.array([1, 6, 11])
+    C_w[bad] += rng.uniform(0.15, 0.4, (3, 1)) * normal_w  # another object's onset
+    X_s, C_s = to_sonar(X_w), to_sonar(C_w)
+    r, th, ph = spherical_from_sonar(X_s)
+    labels = np.ones((rig.camera.height, rig.camera.width), np.int32)
+    fp = face_planes(rig, bed, r, th, np.ones(n, int), C_s, np.ones(n, bool), ph + 0.02, labels)
+    assert fp.found.all() and fp.in_face.all()
+    # The fitted plane is the face: its normal within 2 deg of the true one (sonar frame) and every
+    # feature's elevation within 0.25 deg (a bin at this geometry is ~0.4 deg along the face).
+    n_true = sp.R.T @ normal_w
+    cosang = np.abs(fp.normals @ n_true)
+    assert np.degrees(np.arccos(np.clip(cosang.min(), -1, 1))) < 2.0
+    assert np.max(np.abs(np.degrees(fp.elevations - ph))) < 0.25
+    # The point's true range is the feature's within a bin (2.54 cm) everywhere.
+    np.testing.assert_allclose(np.linalg.norm(sonar_from_spherical(r, th, fp.elevations), axis=1), r, atol=1e-9)
+    X_fit = sonar_from_spherical(r, th, fp.elevations)
+    assert np.max(np.abs((X_fit - X_s) @ n_true)) < 0.0254
+    assert (fp.n_inliers >= 3).all() and (fp.n_inliers <= fp.n_creases).all()  # local windows of 3 deg
+    assert np.all(np.abs(fp.height - height / 0.7) < 0.2)
+    # No seabed or no face: nothing.
+    none = face_planes(rig, bed, r, th, np.zeros(n, int), C_s, np.ones(n, bool), ph, labels)
+    assert not none.found.any()
+
+
+def test_face_labels_split_faces_at_edges():
+    g = np.zeros((40, 60), np.float32)
+    g[:, 30] = 10.0  # a vertical edge
+    lab = face_labels(g, 3.0)
+    assert lab[:, 30].max() == 0 and lab[5, 5] != lab[5, 50] and lab[5, 5] > 0 and lab[30, 50] == lab[5, 50]
+
+
+def test_face_plane_raises_precision_on_seeded_scenes():
+    """Seeded random scenes (not used to fit anything): the plane candidate adds correct matches.
+
+    On the held-out scenes 6000-6047 all matches' precision is 0.58 with the plane and 0.53
+    without it (scene-to-scene spread ~0.15); the bounds leave room for six scenes' spread.
+    """
+    from optiacoustic.experiments.matching import random_scene, simulate_pair
+    from optiacoustic.matching import MatchOptions, match, truth
+
+    n_ok = {True: 0, False: 0}
+    n_all = {True: 0, False: 0}
+    for sd in range(203, 209):
+        s, o, rig = simulate_pair(random_scene(sd), "thesis", "default", sd)
+        bw, aw = float(np.median(np.diff(s.ranges))), float(np.median(np.diff(s.azimuths)))
+        for use in (True, False):
+            m = match(s, o.image, rig, min_score=0.0, options=MatchOptions(face_plane=use))
+            ok = truth.correct(rig, o.depth, m.pixels, m.ranges, m.azimuths, bin_width=bw, beam_width=aw)
+            n_ok[use] += int(ok.sum())
+            n_all[use] += len(m)
+    p_plane, p_before = n_ok[True] / n_all[True], n_ok[False] / n_all[False]
+    print(f"precision with the plane {p_plane:.3f}, without {p_before:.3f} ({n_all[True]} matches)")
+    assert n_all[True] == n_all[False]  # the plane changes which pixel, not which features
+    assert p_plane >= 0.40
+    assert p_plane > p_before
