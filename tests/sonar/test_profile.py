@@ -166,3 +166,14 @@ def test_simulate_with_a_profile_and_the_shipped_presets():
         simulate_sonar(scene, spec, prof.seabed_pose, profile="aris")
     with pytest.raises(KeyError, match="unknown sensor profile"):
         SensorProfile.preset("nope")
+
+
+def test_a_frame_without_speckle_cells_is_refused_with_the_reason():
+    """The window starts just before the seabed's onset: the 'background' read there is seabed,
+    no cell is 10 dB over it, and the texture cannot be fitted; a clear error, not numpy's."""
+    spec = dataclasses.replace(SPEC, n_bins=400, range_min=1.0, fov_elevation=np.deg2rad(20.0))
+    scene = Scene([Body("seabed", Plane(size=(60, 60)), material=Material(reflectivity=1.0))])
+    frame = simulate_sonar(scene, spec, seabed_pose(0.3, np.deg2rad(10.0), 0.0), seed=3,
+                           noise=ScattererNoise(gain=GAIN, **NOISE), options=SonarOptions(beam_model="aperture", propagation="spreading"))
+    with pytest.raises(ValueError, match=r"fit_profile: 0 speckle cells .* background"):
+        fit_profile(frame, refine_density=False)

@@ -397,6 +397,12 @@ def _fit_geometry(stats, spec, alpha, azimuths=None, pulse_bins=None):
     hi = [0.99 * spec.range_max, np.deg2rad(85), np.deg2rad(45), np.log(np.deg2rad(60)), 200, 6, 200, 200]
     if not has_onset:  # roll cannot be seen without an onset: hold it at 0
         lo[2], hi[2] = -1e-6, 1e-6
+        # nor the elevation width: the profile of a seabed inside the main lobe is explained by
+        # any width (a stated sigma of hundreds of degrees), and which one the starts reached
+        # changed with a 0.07 dB offset of the data (on the ARIS sample: 18.3 deg at height
+        # 0.75 m, or 2.6 deg at 0.10 m); hold the device's nominal width
+        lbw_nom = float(np.log(np.clip(spec.fov_elevation, np.deg2rad(0.6), np.deg2rad(59.0))))
+        lo[3], hi[3] = lbw_nom - 1e-6, lbw_nom + 1e-6
     best = None
     cheap[0] = True
     for pitch0 in np.deg2rad([8, 20, 40]):
@@ -462,6 +468,10 @@ def _fit_geometry(stats, spec, alpha, azimuths=None, pulse_bins=None):
     except np.linalg.LinAlgError:
         sd = np.full(x.size, np.inf)
     sd = np.maximum(sd, sd_jk)
+    # a parameter the profile does not depend on (e.g. a volume reverberation 100 dB under the
+    # noise) has a zero Jacobian column, which pinv turns into a zero variance: undetermined
+    col = np.sqrt(np.sum(np.asarray(J, float) ** 2, axis=0))
+    sd = np.where(col <= 1e-9 * max(float(np.max(col)), 1e-300), np.inf, sd)
     s2 = float(np.mean((model(x) - data_db) ** 2))  # reported: rms misfit in dB
     return x, sd, has_onset, model(x), r, float(np.sqrt(s2))
 
@@ -646,12 +656,20 @@ def fit_profile(frames, *, region=None, encoding: str | None = None, device: str
         stats = None
     if stats is None:
         stats = frame_statistics([_values(f, encoding) for f in frames], f0.ranges, f0.azimuths, region=region)
+    if stats.normalised.size < 100:  # the texture fit needs speckle cells (realism.frame_statistics)
+        raise ValueError(
+            f"fit_profile: {stats.normalised.size} speckle cells in the frames: the texture is taken where the local mean is "
+            f"10 dB over the background ({stats.background_level:.3g}, read before the seabed's onset at {stats.onset_r10:.3g} m)"
+            + (" inside the given region" if region is not None else "")
+            + "; the frames' window must hold echo-free water before the seabed's echo and speckled seabed after it")
     alpha = _tvg_water_absorption(spec)
     res0, _ = _range_resolution_bins(stats)
     x, sd, has_onset, _, _, rms_db = _fit_geometry(stats, spec, alpha, azimuths=f0.azimuths, pulse_bins=res0)
     h, pitch, roll, lbw, a_db, kexp, n_db, v_db = x
     if not has_onset:
-        notes.append("no seabed onset in the frames: height, pitch, roll and the elevation width are weakly determined")
+        notes.append("no seabed onset in the frames: roll held at 0 and the elevation width at the device's nominal "
+                     f"{np.rad2deg(spec.fov_elevation):.3g} deg (their stated sigmas are what they would be if fitted); "
+                     "height and pitch weakly determined")
     sp = _fit_speckle(stats, spec, h, np.random.default_rng(0))
     el = BeamPattern.from_beamwidth(float(np.exp(lbw)), spec.frequency, spec.sound_speed)
     az = BeamPattern.from_beamwidth(sp["bw"], spec.frequency, spec.sound_speed)
