@@ -20,6 +20,28 @@ _MIN_COS_FOOTPRINT = 0.02  # same clamp as formation._MIN_COS_FOOTPRINT
 _AREA_BLOCK = 16  # beams whose area rows are written to the image layout together
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _box_deposit(f_lo, f_hi, range_min, scale, n, value, k, d_p0, d_p1, d_v):
+    """Row ``k`` of the deposit lists: a box of ``value`` spread uniformly over the footprint
+    ``[f_lo, f_hi]`` (m) on cells of ``1 / scale`` m from ``range_min``, clipped to ``[0, n]``,
+    as the four signed density steps at its two ends (cells ``p0``, ``p0 + 1``, ``p1``, ``p1 + 1``)."""
+    x0 = (f_lo - range_min) * scale
+    x1 = (f_hi - range_min) * scale
+    dens = value / (x1 - x0)
+    x0 = min(max(x0, 0.0), n)
+    x1 = min(max(x1, 0.0), n)
+    p0 = int(x0)
+    f0 = x0 - p0
+    p1 = int(x1)
+    f1 = x1 - p1
+    d_p0[k] = p0
+    d_p1[k] = p1
+    d_v[k, 0] = dens - dens * f0
+    d_v[k, 1] = dens * f0
+    d_v[k, 2] = dens * f1 - dens
+    d_v[k, 3] = -dens * f1
+
+
 @njit(cache=True, nogil=True)
 def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K, J,
                        table_x0, table_dx, table_y, alpha_db, spreading, bin_width,
@@ -187,21 +209,7 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
             e = c_e[ic]
             if not e > 0:  # as bucket_by_beam: footprint in fine cells, density, clipped
                 continue
-            x0 = (c_lo[ic] - range_min) * scale
-            x1 = (c_hi[ic] - range_min) * scale
-            dens = e / (x1 - x0)
-            x0 = min(max(x0, 0.0), n_cells)
-            x1 = min(max(x1, 0.0), n_cells)
-            p0 = int(x0)
-            f0 = x0 - p0
-            p1 = int(x1)
-            f1 = x1 - p1
-            d_p0[nd_] = p0
-            d_p1[nd_] = p1
-            d_v[nd_, 0] = dens - dens * f0
-            d_v[nd_, 1] = dens * f0
-            d_v[nd_, 2] = dens * f1 - dens
-            d_v[nd_, 3] = -dens * f1
+            _box_deposit(c_lo[ic], c_hi[ic], range_min, scale, n_cells, e, nd_, d_p0, d_p1, d_v)
             d_s[nd_] = c_s[ic]
             nd_ += 1
         for idd in range(nd_):
@@ -238,21 +246,7 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                 el_hi = el + 0.5 * delta
                 ar = r_mid * r_mid * cv * dth * (el_hi - el_lo) / max(c_c[ic], 0.05)
                 if ar > 0:
-                    x0 = (c_lo[ic] - range_min) * a_scale
-                    x1 = (c_hi[ic] - range_min) * a_scale
-                    dens = ar / (x1 - x0)
-                    x0 = min(max(x0, 0.0), n_bins)
-                    x1 = min(max(x1, 0.0), n_bins)
-                    p0 = int(x0)
-                    f0 = x0 - p0
-                    p1 = int(x1)
-                    f1 = x1 - p1
-                    d_p0[na] = p0
-                    d_p1[na] = p1
-                    d_v[na, 0] = dens - dens * f0
-                    d_v[na, 1] = dens * f0
-                    d_v[na, 2] = dens * f1 - dens
-                    d_v[na, 3] = -dens * f1
+                    _box_deposit(c_lo[ic], c_hi[ic], range_min, a_scale, n_bins, ar, na, d_p0, d_p1, d_v)
                     na += 1
             # one cell per bin (echo_rows with D = 0); cells past the end are not read
             for ia in range(na):
