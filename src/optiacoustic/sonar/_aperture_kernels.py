@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-_MIN_COS_FOOTPRINT = 0.02  # same clamp as formation._MIN_COS_FOOTPRINT
+from ._numba_kernels import subcell_footprint, table_weight
 _AREA_BLOCK = 16  # beams whose area rows are written to the image layout together
 
 
@@ -77,7 +77,6 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     """
     S = out.shape[0]
     D = (H.shape[1] - 1) // 2
-    nt = 2 * D + 1
     # fine-cell deposits per slot; cells n_cells, n_cells + 1 take the deposits past the end
     # (cut: never read, zeroed with the rest)
     dep = np.zeros((S, n_cells + 2))
@@ -91,7 +90,6 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     a_dep = np.zeros(n_bins + 2)  # the area's deposits, one cell per bin
     a_lo = n_bins + 2
     a_hi = -1
-    n_tab = table_y.size
     pad_w = 1e-4 * bin_width
     k_abs = -0.2 * np.log(10.0) * alpha_db
     scale = q / bin_width
@@ -164,28 +162,9 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                 if kk > 0:
                     t = -a[i] + (kk + 0.5) * delta
                     ct, st = ct * cd - st * sd, st * cd + ct * sd
-                p_mid = (x * ct + y * st) * sgn
-                p_dif = (y * ct - x * st) * sgn
-                c_mid = max(p_mid, _MIN_COS_FOOTPRINT)
-                p_a = max(p_mid * ch - p_dif * sh, _MIN_COS_FOOTPRINT)
-                p_b = max(p_mid * ch + p_dif * sh, _MIN_COS_FOOTPRINT)
-                r_mid = base / c_mid
-                r_a = base / p_a
-                r_b = base / p_b
-                flo, fhi = min(r_a, r_b), max(r_a, r_b)
-                pad = max(0.0, pad_w - (fhi - flo)) * 0.5
-                f_lo = flo - pad
-                f_hi = fhi + pad
+                r_mid, c_mid, f_lo, f_hi = subcell_footprint(x, y, ct, st, ch, sh, sgn, base, pad_w)
                 el = elevation[i] + t
-                pos = (el - table_x0) / table_dx
-                if pos <= 0.0:
-                    w = table_y[0]
-                elif pos >= n_tab - 1:
-                    w = table_y[n_tab - 1]
-                else:
-                    jj = int(pos)
-                    f = pos - jj
-                    w = table_y[jj] + f * (table_y[jj + 1] - table_y[jj])
+                w = table_weight(el, table_x0, table_dx, table_y)
                 c_r[nc] = r_mid
                 c_lo[nc] = f_lo
                 c_hi[nc] = f_hi

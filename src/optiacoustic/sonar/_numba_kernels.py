@@ -16,6 +16,41 @@ from .speckle import MU_NO_SEABED
 _MIN_COS_FOOTPRINT = 0.02  # same clamp as formation._MIN_COS_FOOTPRINT
 
 
+@njit(cache=True, nogil=True, inline="always")
+def subcell_footprint(x, y, ct, st, ch, sh, sgn, base, pad_w):
+    """One sub-cell of a ray's cell (``subdivide`` and the fused aperture pass): with
+    ``x = n.d``, ``y = n.d'`` of the ray, ``(ct, st)`` the cos/sin of the sub-cell's centre
+    offset, ``(ch, sh)`` of half its extent, ``sgn`` the sign of ``x`` and ``base = r |x|``,
+    returns ``(r_mid, c_mid, f_lo, f_hi)``: the range at its centre, the clamped cosine of
+    incidence there, and its range footprint padded to at least ``pad_w`` (m)."""
+    p_mid = (x * ct + y * st) * sgn
+    p_dif = (y * ct - x * st) * sgn
+    c_mid = max(p_mid, _MIN_COS_FOOTPRINT)
+    p_a = max(p_mid * ch - p_dif * sh, _MIN_COS_FOOTPRINT)
+    p_b = max(p_mid * ch + p_dif * sh, _MIN_COS_FOOTPRINT)
+    r_mid = base / c_mid
+    r_a = base / p_a
+    r_b = base / p_b
+    flo, fhi = min(r_a, r_b), max(r_a, r_b)
+    pad = max(0.0, pad_w - (fhi - flo)) * 0.5
+    return r_mid, c_mid, flo - pad, fhi + pad
+
+
+@njit(cache=True, nogil=True, inline="always")
+def table_weight(x, x0, dx, y):
+    """Linear interpolation in the uniform table ``y`` (from ``x0`` in steps ``dx``), clamped at
+    its ends as ``np.interp``: the two-way elevation pattern's weight at elevation ``x``."""
+    n = y.size
+    pos = (x - x0) / dx
+    if pos <= 0.0:
+        return y[0]
+    if pos >= n - 1:
+        return y[n - 1]
+    j = int(pos)
+    f = pos - j
+    return y[j] + f * (y[j + 1] - y[j])
+
+
 @njit(cache=True, nogil=True)
 def ray_grid32(cp, sp, a, rz, out):
     """World unit directions of the (K, J) ray grid, ``cos(phi_k) a_j + sin(phi_k) R_z``, into ``out`` (K*J, 3) float32."""
@@ -431,7 +466,6 @@ def subdivide(body, rng, lo, hi, nd, ndd, a, b, refl, elevation, beam, bin_width
     (the sum of ``n_sub`` before ``i0``): disjoint parts run on several threads.
     """
     N = body.size if i1 < 0 else i1
-    n_tab = table_y.size
     pad_w = 1e-4 * bin_width
     k_abs = -0.2 * np.log(10.0) * alpha_db
     m = m0
@@ -460,26 +494,9 @@ def subdivide(body, rng, lo, hi, nd, ndd, a, b, refl, elevation, beam, bin_width
             if k > 0:  # rotate by delta: cos/sin of t + k delta without two trigonometric calls each
                 t = -a[i] + (k + 0.5) * delta
                 ct, st = ct * cd - st * sd, st * cd + ct * sd
-            p_mid = (x * ct + y * st) * sgn
-            p_dif = (y * ct - x * st) * sgn
-            c_mid = max(p_mid, _MIN_COS_FOOTPRINT)
-            p_a = max(p_mid * ch - p_dif * sh, _MIN_COS_FOOTPRINT)
-            p_b = max(p_mid * ch + p_dif * sh, _MIN_COS_FOOTPRINT)
-            r_mid = base / c_mid
-            r_a = base / p_a
-            r_b = base / p_b
-            flo, fhi = min(r_a, r_b), max(r_a, r_b)
-            pad = max(0.0, pad_w - (fhi - flo)) * 0.5
+            r_mid, c_mid, f_lo, f_hi = subcell_footprint(x, y, ct, st, ch, sh, sgn, base, pad_w)
             el = elevation[i] + t
-            pos = (el - table_x0) / table_dx
-            if pos <= 0.0:
-                w = table_y[0]
-            elif pos >= n_tab - 1:
-                w = table_y[n_tab - 1]
-            else:
-                j = int(pos)
-                f = pos - j
-                w = table_y[j] + f * (table_y[j + 1] - table_y[j])
+            w = table_weight(el, table_x0, table_dx, table_y)
             e = refl[i] * c_mid * delta * w
             if spreading:
                 e *= np.exp(k_abs * (r_mid - 1.0)) / (r_mid * r_mid)
@@ -487,8 +504,8 @@ def subdivide(body, rng, lo, hi, nd, ndd, a, b, refl, elevation, beam, bin_width
             o_e[m] = e
             o_body[m] = body[i]
             o_c[m] = c_mid
-            o_lo[m] = flo - pad
-            o_hi[m] = fhi + pad
+            o_lo[m] = f_lo
+            o_hi[m] = f_hi
             o_beam[m] = beam[i]
             o_el[m] = el
             o_el_lo[m] = el - 0.5 * delta

@@ -435,7 +435,6 @@ def _fit_geometry(stats, spec, alpha, azimuths=None, pulse_bins=None):
         pass
     # (a polish on relative residuals of the linear profiles, unbiased for pure speckle, was
     # tried: on the real Oculus ping its asymmetry lifted the background by 30 dB; the dB fit stays)
-    n_r = r.size
 
     def resid_cols(x, cols=slice(None)):
         res = (model(x)[:, cols] - data_db[:, cols]).ravel()
@@ -534,7 +533,7 @@ def _fit_speckle(stats, spec, height, rng):
     from scipy.ndimage import uniform_filter
     from scipy.optimize import least_squares
 
-    from .speckle import analytic_autocorrelation, beam_kernel, correlation_length, gaussian_pulse_kernel, gk_moments, speckle_statistics
+    from .speckle import analytic_autocorrelation, beam_kernel, correlation_length, gaussian_pulse_kernel, speckle_statistics
 
     lags = np.arange(13)
     L_b = stats.corr_length_beam
