@@ -161,6 +161,7 @@ class Problem:
 
     def __init__(self, K, blocks, n_planes, R_ref, inner_iterations=10):
         self.K = K
+        self._K = np.asarray(K, float)
         self.blocks = [b for b in blocks if b.n > 0]
         self.k = int(n_planes)
         self.R_ref = np.asarray(R_ref, float)
@@ -176,6 +177,8 @@ class Problem:
         self._unpack_key = self._unpacked = None
         self.warm_start = True
         self._branches_fixed = False
+        self.kernels = _use_kernels()  # the compiled per-point path (:mod:`._kernels`), else numpy's
+        self._chan = {}
 
     # ---------------------------------------------------------------- parameters
     def unpack(self, theta):
@@ -188,7 +191,43 @@ class Problem:
         return self._unpacked
 
     # ---------------------------------------------------------------- per-point model
+    def _channels(self, block: Block):
+        """The block's channels as the kernels' arrays ``(kinds, moving, A, b, sigma)`` (cached)."""
+        c = self._chan.get(id(block))
+        if c is None:
+            chs = block.channels
+            c = (np.array([0 if ch.kind == "camera" else 1 for ch in chs], np.int64),
+                 np.array([ch.moving for ch in chs], np.bool_),
+                 np.ascontiguousarray([ch.A for ch in chs], float), np.ascontiguousarray([ch.b for ch in chs], float),
+                 np.ascontiguousarray(block.sigma, float))
+            self._chan[id(block)] = c
+        return c
+
     def _residual(self, block: Block, p, m, Rv, cv, w, want_theta=False, meas=None, plane=None):
+        """Whitened residuals ``(N, 2C)`` with ``J_p (N, 2C, n_p)`` and optionally ``J_theta``
+        (:func:`._kernels.residuals`, or the numpy reference :meth:`_residual_numpy`)."""
+        if not self.kernels:
+            return self._residual_numpy(block, p, m, Rv, cv, w, want_theta, meas, plane)
+        from . import _kernels as Kn
+
+        meas = block.meas if meas is None else meas
+        plane = block.plane if plane is None else plane
+        p = np.ascontiguousarray(p, float)
+        N, n_p = p.shape
+        C = len(block.channels)
+        kinds, moving, A, b, sig = self._channels(block)
+        e = np.empty((N, 2 * C))
+        Jp = np.empty((N, 2 * C, n_p))
+        Jt = np.empty((N, 2 * C, self.n_theta)) if want_theta else np.empty((1, 1, 1))
+        Jl = self._left_jacobian(w) if want_theta else np.eye(3)
+        M = _plane_rows(m, N)
+        pl = np.zeros(N, np.int64) if (plane is None or m is None) else np.ascontiguousarray(plane, np.int64)
+        Kn.residuals(p, M, pl, m is not None, kinds, moving, A, b, sig, np.ascontiguousarray(meas, float),
+                     np.ascontiguousarray(Rv, float), np.ascontiguousarray(cv, float), self._K, bool(want_theta),
+                     np.ascontiguousarray(Jl, float), e, Jp, Jt)
+        return e, Jp, (Jt if want_theta else None)
+
+    def _residual_numpy(self, block: Block, p, m, Rv, cv, w, want_theta=False, meas=None, plane=None):
         """Whitened residuals ``(N, 2C)`` with ``J_p (N, 2C, n_p)`` and optionally ``J_theta``.
 
         ``meas`` and ``plane`` default to the block's (they are passed when the points are
@@ -274,6 +313,25 @@ class Problem:
         return self._jl
 
     def _lm(self, block, p, m, Rv, cv, w, meas, e=None, Jp=None):
+        """Per-point Levenberg-Marquardt from ``p``; returns ``(p, cost)`` (:func:`._kernels.lm`,
+        or the numpy reference :meth:`_lm_numpy`)."""
+        if not self.kernels:
+            return self._lm_numpy(block, p, m, Rv, cv, w, meas, e, Jp)
+        from . import _kernels as Kn
+
+        P = np.array(p, float, order="C")
+        N = P.shape[0]
+        kinds, moving, A, b, sig = self._channels(block)
+        cost = np.empty(N)
+        have = e is not None
+        E0 = np.ascontiguousarray(e, float) if have else np.empty((1, 1))
+        J0 = np.ascontiguousarray(Jp, float) if have else np.empty((1, 1, 1))
+        Kn.lm(P, _plane_rows(m, N), m is not None, kinds, moving, A, b, sig, np.ascontiguousarray(meas, float),
+              np.ascontiguousarray(Rv, float), np.ascontiguousarray(cv, float), self._K, self.inner,
+              float(self.inner_rtol), have, E0, J0, cost)
+        return P, cost
+
+    def _lm_numpy(self, block, p, m, Rv, cv, w, meas, e=None, Jp=None):
         """Vectorised per-point Levenberg-Marquardt from ``p``; returns ``(p, cost)``.
 
         A point leaves the iteration once it has converged (Gauss-Newton predicts a negligible
@@ -465,6 +523,19 @@ class Problem:
         _, e, _, _ = self.solve_points(block, theta, plane=plane)
         c = np.sum(e * e, axis=1)
         return np.where(np.isfinite(c), c, np.inf)
+
+
+def _use_kernels() -> bool:
+    from .._kernel_switch import use_numba
+
+    return use_numba()
+
+
+def _plane_rows(m, N):
+    """Each point's plane ``(N, 3)`` for the kernels (zeros for free points)."""
+    if m is None:
+        return np.zeros((N, 3))
+    return np.ascontiguousarray(np.broadcast_to(m, (N, 3)), float)
 
 
 def _cross(a, b):
