@@ -411,7 +411,7 @@ class Problem:
             warm = p0 = self._predict(block, warm, theta)
             if want_theta:  # where the prediction is already the optimum, one evaluation
                 e, Jp, Jt = self._residual(block, p0, m, Rv, cv, w, True, plane=plane)
-                run = ~_converged(e, Jp, max(1e-10, self.inner_rtol))
+                run = ~self._converged(e, Jp, max(1e-10, self.inner_rtol))
                 if run.any():  # the others: their own iterations, from there
                     p0 = p0.copy()
                     sub = (None if m is None else m[run]), block.meas[run]
@@ -442,6 +442,16 @@ class Problem:
             self._warm[id(block)] = p
         return p, e, Jp, Jt
 
+    def _converged(self, e, Jp, rtol):
+        """:func:`_converged` (its kernel when selected)."""
+        if not self.kernels:
+            return _converged(e, Jp, rtol)
+        from . import _kernels as Kn
+
+        out = np.empty(e.shape[0], np.bool_)
+        Kn.converged(e, Jp, float(rtol), out)
+        return out
+
     def _predict(self, block, warm, theta):
         """``warm`` moved to first order to ``theta``: ``p + dp/dtheta (theta - theta_0)``, with
         ``dp/dtheta = -H_pp^{-1} H_ptheta`` (the optimum's sensitivity, implicit function
@@ -459,13 +469,12 @@ class Problem:
             return self._cache
         es, Js = [], []
         for b in self.blocks:
-            _, e, Jp, Jt = self.solve_points(b, theta, want_theta=True)
-            H = np.einsum("nri,nrj->nij", Jp, Jp)
-            tr = 1e-12 * np.trace(H, axis1=1, axis2=2) + 1e-300
-            G = np.einsum("nri,nrj->nij", Jp, Jt)
-            Y = _solve_small(H, G, np.repeat(tr[:, None], H.shape[1], 1), bad=np.nan)  # (such J: zeroed below)
-            with np.errstate(invalid="ignore", over="ignore"):
-                Jred = Jt - np.einsum("nri,nit->nrt", Jp, Y)
+            fused = self._evaluate_fused(b, theta) if self.kernels else None
+            if fused is not None:
+                e, Y, Jred = fused
+            else:
+                _, e, Jp, Jt = self.solve_points(b, theta, want_theta=True)
+                Y, Jred = self._project(Jp, Jt)
             p = self._warm.get(id(b))
             if p is not None:  # the sensitivity of this solution, for the next evaluation's start
                 self._sens[id(b)] = (p, np.array(theta, float), Y)
@@ -477,6 +486,54 @@ class Problem:
         J = np.where(np.isfinite(J), J, 0.0)
         self._cache_key, self._cache = key, (e, J)
         return e, J
+
+    def _evaluate_fused(self, block, theta):
+        """``solve_points(block, theta, want_theta=True)`` and :meth:`_project` in one kernel
+        call (:func:`._kernels.evaluate`) when the points start where the last evaluation left
+        them (the warm path); returns ``(e, Y, Jred)``, or None when they do not."""
+        warm = self._warm.get(id(block)) if self.warm_start else None
+        if warm is None or not (self._branches_fixed or not block.multi_start):
+            return None
+        from . import _kernels as Kn
+
+        Rv, cv, planes = self.unpack(theta)
+        w = np.asarray(theta, float)[:3]
+        m = planes[block.plane] if block.model == "plane" else None
+        P = np.array(self._predict(block, warm, theta), float, order="C")
+        N, n_p = P.shape
+        C = len(block.channels)
+        kinds, moving, A, b, sig = self._channels(block)
+        e = np.empty((N, 2 * C))
+        Jp = np.empty((N, 2 * C, n_p))
+        Jt = np.empty((N, 2 * C, self.n_theta))
+        Y = np.empty((N, n_p, self.n_theta))
+        Jred = np.empty((N, 2 * C, self.n_theta))
+        pl = np.ascontiguousarray(block.plane, np.int64) if m is not None else np.zeros(N, np.int64)
+        Kn.evaluate(P, _plane_rows(m, N), pl, m is not None, kinds, moving, A, b, sig,
+                    np.ascontiguousarray(block.meas, float), np.ascontiguousarray(Rv, float),
+                    np.ascontiguousarray(cv, float), self._K, np.ascontiguousarray(self._left_jacobian(w), float),
+                    self.inner, float(self.inner_rtol), float(max(1e-10, self.inner_rtol)), e, Jp, Jt, Y, Jred)
+        if np.all(np.isfinite(P)):
+            self._warm[id(block)] = P
+        return e, Y, Jred
+
+    def _project(self, Jp, Jt):
+        """``Y = H_pp^{-1} H_ptheta`` (trace-regularised; NaN rows where singular, their ``J``
+        zeroed by the caller) and the Kaufman Jacobian ``J_theta - J_p Y``, per point."""
+        if self.kernels:
+            from . import _kernels as Kn
+
+            Y = np.empty((Jp.shape[0], Jp.shape[2], Jt.shape[2]))
+            Jred = np.empty(Jt.shape)
+            Kn.project(Jp, Jt, Y, Jred)
+            return Y, Jred
+        H = np.einsum("nri,nrj->nij", Jp, Jp)
+        tr = 1e-12 * np.trace(H, axis1=1, axis2=2) + 1e-300
+        G = np.einsum("nri,nrj->nij", Jp, Jt)
+        Y = _solve_small(H, G, np.repeat(tr[:, None], H.shape[1], 1), bad=np.nan)
+        with np.errstate(invalid="ignore", over="ignore"):
+            Jred = Jt - np.einsum("nri,nit->nrt", Jp, Y)
+        return Y, Jred
 
     def residuals(self, theta):
         return self._evaluate(theta)[0]
@@ -535,7 +592,8 @@ def _plane_rows(m, N):
     """Each point's plane ``(N, 3)`` for the kernels (zeros for free points)."""
     if m is None:
         return np.zeros((N, 3))
-    return np.ascontiguousarray(np.broadcast_to(m, (N, 3)), float)
+    m = np.asarray(m, float)
+    return m if m.shape == (N, 3) and m.flags.c_contiguous else np.ascontiguousarray(np.broadcast_to(m, (N, 3)))
 
 
 def _cross(a, b):

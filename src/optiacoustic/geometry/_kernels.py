@@ -124,131 +124,246 @@ def residuals(P, M, plane, plane_model, kinds, moving, A, b, sig, meas, Rv, cv, 
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _solve_damped(H, g, lam, dp):
-    """``dp = -(H + lam diag(D))^{-1} g`` with ``D = max(diag(H), 1e-300 + 1e-12 max diag(H))``;
-    0 where the system is singular or not finite (``_bundle._solve_small``: the closed form
-    for two unknowns, elimination with partial pivoting for three)."""
-    n = g.shape[0]
-    dmax = H[0, 0]
-    for i in range(1, n):
-        dmax = max(dmax, H[i, i])
-    floor = 1e-300 + 1e-12 * dmax
-    if n == 2:
-        a = H[0, 0] + lam * max(H[0, 0], floor)
-        c = H[1, 1] + lam * max(H[1, 1], floor)
-        bb = H[0, 1]
-        inv = 1.0 / (a * c - bb * bb)
-        x0 = (c * g[0] - bb * g[1]) * inv
-        x1 = (a * g[1] - bb * g[0]) * inv
-        if np.isfinite(x0) and np.isfinite(x1):
-            dp[0], dp[1] = -x0, -x1
+def _lm_point(p, m, plane_model, kinds, moving, A, b, sig, meas, Rv, cv, K, inner, inner_rtol, e, J,
+              et, Jpt, JX, Jt1, Jl, H, g, d, gm, x, dp, pt):
+    """Levenberg-Marquardt of one point from ``p`` (in place), ``e, J`` holding its residuals
+    and their Jacobian there (updated); returns its final cost. ``Problem._lm_numpy`` for one
+    point: the same damping, tests and stops. The other arrays are scratch."""
+    R, n_p = J.shape
+    c0 = 0.0
+    for r in range(R):
+        c0 += e[r] * e[r]
+    if not np.isfinite(c0):
+        c0 = np.inf
+    lam = 1e-6
+    for _ in range(inner):
+        _normal(J, e, H, g)
+        # damping lam * D, D = max(diag(H), 1e-300 + 1e-12 max diag(H)); a singular or
+        # non-finite system gives no step (``_bundle._solve_small``'s ``bad=0``)
+        dmax = H[0, 0]
+        for i in range(1, n_p):
+            dmax = max(dmax, H[i, i])
+        for i in range(n_p):
+            d[i] = lam * max(H[i, i], 1e-300 + 1e-12 * dmax)
+            gm[i, 0] = g[i]
+        fin = _solve_diag(H, d, gm, x)
+        for i in range(n_p):
+            dp[i] = -x[i, 0] if fin else -0.0
+        pred = 0.0
+        for i in range(n_p):
+            pred += g[i] * dp[i]
+        pred = -pred
+        if pred <= 1e-10 * c0 + 1e-16:  # Gauss-Newton predicts nothing: take the step, stop
+            for i in range(n_p):
+                p[i] += dp[i]
+            break
+        if pred <= inner_rtol * c0:  # near enough: stop without the step
+            break
+        for i in range(n_p):
+            pt[i] = p[i] + dp[i]
+        _point(pt, m, plane_model, kinds, moving, A, b, sig, meas, Rv, cv, K, False, Jl, 0, et, Jpt, JX, Jt1)
+        ct = 0.0
+        for r in range(R):
+            ct += et[r] * et[r]
+        ok = np.isfinite(ct) and ct <= c0
+        gain = c0 - ct if ok else 0.0
+        if ok:
+            p[:] = pt
+            e[:] = et
+            J[:, :] = Jpt
+            c0 = ct
+            lam = max(lam * 0.1, 1e-12)
         else:
-            dp[0], dp[1] = -0.0, -0.0
-        return
-    W = np.empty((3, 4))
-    for i in range(3):
-        for j in range(3):
-            W[i, j] = H[i, j]
-        W[i, i] += lam * max(H[i, i], floor)
-        W[i, 3] = g[i]
-    for c in range(3):
-        piv = c
-        for r in range(c + 1, 3):
-            if abs(W[r, c]) > abs(W[piv, c]):
-                piv = r
-        if piv != c:
-            for j in range(4):
-                W[c, j], W[piv, j] = W[piv, j], W[c, j]
-        for r in range(c + 1, 3):
-            f = W[r, c] / W[c, c]
-            for j in range(c + 1, 4):
-                W[r, j] -= f * W[c, j]
-    ok = True
-    for i in range(2, -1, -1):
-        s = W[i, 3]
-        for j in range(i + 1, 3):
-            s -= W[i, j] * dp[j]
-        dp[i] = s / W[i, i]
-        ok = ok and np.isfinite(dp[i])
-    for i in range(3):
-        dp[i] = -dp[i] if ok else -0.0
+            lam = min(lam * 10.0, 1e12)
+        step = 0.0
+        pmax = 0.0
+        for i in range(n_p):
+            step = max(step, abs(dp[i]))
+            pmax = max(pmax, abs(p[i]))
+        if step <= 1e-9 * (1 + pmax) or (ok and gain <= 1e-12 * c0 + 1e-24) or lam >= 1e8:
+            break
+    return c0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def lm(P, M, plane_model, kinds, moving, A, b, sig, meas, Rv, cv, K, inner, inner_rtol, have_e, E0, J0, cost):
     """Per-point Levenberg-Marquardt from ``P (N, n_p)``, in place; ``cost (N,)`` receives each
-    point's final cost. ``Problem._lm_numpy`` one point at a time: the same damping, tests
-    and stops. ``have_e``: ``E0 (N, 2C)``, ``J0 (N, 2C, n_p)`` hold the residuals and their
-    Jacobian at ``P`` (else they are computed)."""
+    point's final cost (``Problem._lm_numpy``). ``have_e``: ``E0 (N, 2C)``, ``J0 (N, 2C, n_p)``
+    hold the residuals and their Jacobian at ``P`` (else they are computed)."""
     N, n_p = P.shape
     R = kinds.shape[0] * 2
-    e = np.empty(R)
-    J = np.empty((R, n_p))
-    et = np.empty(R)
-    Jpt = np.empty((R, n_p))
-    JX = np.empty((R, 3))
-    Jt = np.empty((R, 1))
-    Jl = np.empty((3, 3))
-    H = np.empty((n_p, n_p))
-    g = np.empty(n_p)
-    dp = np.empty(n_p)
-    pt = np.empty(n_p)
+    e, J, et, Jpt = np.empty(R), np.empty((R, n_p)), np.empty(R), np.empty((R, n_p))
+    JX, Jt1, Jl = np.empty((R, 3)), np.empty((R, 1)), np.empty((3, 3))
+    H, g, d = np.empty((n_p, n_p)), np.empty(n_p), np.empty(n_p)
+    gm, x, dp, pt = np.empty((n_p, 1)), np.empty((n_p, 1)), np.empty(n_p), np.empty(n_p)
     for n in range(N):
-        p = P[n]
         if have_e:
             e[:] = E0[n]
             J[:, :] = J0[n]
         else:
-            _point(p, M[n], plane_model, kinds, moving, A, b, sig, meas[n], Rv, cv, K, False, Jl, 0, e, J, JX, Jt)
-        c0 = 0.0
+            _point(P[n], M[n], plane_model, kinds, moving, A, b, sig, meas[n], Rv, cv, K, False, Jl, 0, e, J, JX, Jt1)
+        cost[n] = _lm_point(P[n], M[n], plane_model, kinds, moving, A, b, sig, meas[n], Rv, cv, K, inner, inner_rtol,
+                            e, J, et, Jpt, JX, Jt1, Jl, H, g, d, gm, x, dp, pt)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _solve_diag(H, d, B, X):
+    """``X = (H + diag(d))^{-1} B`` for one small system (``H (n, n)``, ``B (n, k)``); returns
+    whether it is finite. Two unknowns by ``_bundle._solve_small``'s closed form, three by
+    elimination with partial pivoting."""
+    n, k = B.shape
+    ok = True
+    if n == 2:
+        a, c, bb = H[0, 0] + d[0], H[1, 1] + d[1], H[0, 1]
+        inv = 1.0 / (a * c - bb * bb)
+        for j in range(k):
+            X[0, j] = (c * B[0, j] - bb * B[1, j]) * inv
+            X[1, j] = (a * B[1, j] - bb * B[0, j]) * inv
+            ok = ok and np.isfinite(X[0, j]) and np.isfinite(X[1, j])
+        return ok
+    W = np.empty((n, n + k))
+    for i in range(n):
+        for j in range(n):
+            W[i, j] = H[i, j]
+        W[i, i] += d[i]
+        for j in range(k):
+            W[i, n + j] = B[i, j]
+    for c in range(n):
+        piv = c
+        for r in range(c + 1, n):
+            if abs(W[r, c]) > abs(W[piv, c]):
+                piv = r
+        if piv != c:
+            for j in range(n + k):
+                W[c, j], W[piv, j] = W[piv, j], W[c, j]
+        for r in range(c + 1, n):
+            f = W[r, c] / W[c, c]
+            for j in range(c + 1, n + k):
+                W[r, j] -= f * W[c, j]
+    for j in range(k):
+        for i in range(n - 1, -1, -1):
+            s = W[i, n + j]
+            for q in range(i + 1, n):
+                s -= W[i, q] * X[q, j]
+            X[i, j] = s / W[i, i]
+            ok = ok and np.isfinite(X[i, j])
+    return ok
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _normal(J, e, H, g):
+    """``H = J^T J`` and ``g = J^T e`` of one point."""
+    R, n_p = J.shape
+    for i in range(n_p):
+        gi = 0.0
         for r in range(R):
-            c0 += e[r] * e[r]
-        if not np.isfinite(c0):
-            c0 = np.inf
-        lam = 1e-6
-        for _ in range(inner):
-            for i in range(n_p):
-                gi = 0.0
-                for r in range(R):
-                    gi += J[r, i] * e[r]
-                g[i] = gi
-                for j in range(n_p):
-                    h = 0.0
-                    for r in range(R):
-                        h += J[r, i] * J[r, j]
-                    H[i, j] = h
-            _solve_damped(H, g, lam, dp)
-            pred = 0.0
-            for i in range(n_p):
-                pred += g[i] * dp[i]
-            pred = -pred
-            if pred <= 1e-10 * c0 + 1e-16:  # Gauss-Newton predicts nothing: take the step, stop
-                for i in range(n_p):
-                    p[i] += dp[i]
-                break
-            if pred <= inner_rtol * c0:  # near enough: stop without the step
-                break
-            for i in range(n_p):
-                pt[i] = p[i] + dp[i]
-            _point(pt, M[n], plane_model, kinds, moving, A, b, sig, meas[n], Rv, cv, K, False, Jl, 0, et, Jpt, JX, Jt)
-            ct = 0.0
+            gi += J[r, i] * e[r]
+        g[i] = gi
+        for j in range(n_p):
+            h = 0.0
             for r in range(R):
-                ct += et[r] * et[r]
-            ok = np.isfinite(ct) and ct <= c0
-            gain = c0 - ct if ok else 0.0
-            if ok:
-                p[:] = pt
-                e[:] = et
-                J[:, :] = Jpt
-                c0 = ct
-                lam = max(lam * 0.1, 1e-12)
-            else:
-                lam = min(lam * 10.0, 1e12)
-            step = 0.0
-            pmax = 0.0
+                h += J[r, i] * J[r, j]
+            H[i, j] = h
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _converged_point(e, J, rtol, H, g, d, gm, x):
+    """``_bundle._converged`` for one point: whether Gauss-Newton (trace-regularised normal
+    equations) predicts a gain of at most ``rtol`` of its cost."""
+    R, n_p = J.shape
+    _normal(J, e, H, g)
+    cost = 0.0
+    for r in range(R):
+        cost += e[r] * e[r]
+    tr = 0.0
+    fin = True
+    for i in range(n_p):
+        tr += H[i, i]
+        gm[i, 0] = g[i]
+        fin = fin and np.isfinite(g[i])
+    for i in range(n_p):
+        d[i] = 1e-12 * tr + 1e-300
+    pred = 0.0
+    if _solve_diag(H, d, gm, x):
+        for i in range(n_p):
+            pred += g[i] * x[i, 0]
+    return np.isfinite(cost) and fin and pred <= rtol * cost + 1e-16
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def converged(e, Jp, rtol, out):
+    """``_bundle._converged`` for every point, into ``out (N,)``."""
+    N, R, n_p = Jp.shape
+    H, g, d = np.empty((n_p, n_p)), np.empty(n_p), np.empty(n_p)
+    gm, x = np.empty((n_p, 1)), np.empty((n_p, 1))
+    for n in range(N):
+        out[n] = _converged_point(e[n], Jp[n], rtol, H, g, d, gm, x)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _project_point(J, Jt, Y, Jred, H, G, d):
+    """One point's ``Y = (H + (1e-12 tr(H) + 1e-300) I)^{-1} J_p^T J_theta`` (``H = J_p^T
+    J_p``; NaN where singular) and ``Jred = J_theta - J_p Y``."""
+    R, n_p = J.shape
+    T = Jt.shape[1]
+    tr = 0.0
+    for i in range(n_p):
+        for j in range(n_p):
+            h = 0.0
+            for r in range(R):
+                h += J[r, i] * J[r, j]
+            H[i, j] = h
+        tr += H[i, i]
+        for t in range(T):
+            s = 0.0
+            for r in range(R):
+                s += J[r, i] * Jt[r, t]
+            G[i, t] = s
+    for i in range(n_p):
+        d[i] = 1e-12 * tr + 1e-300
+    if not _solve_diag(H, d, G, Y):
+        Y[:, :] = np.nan
+    for r in range(R):
+        for t in range(T):
+            s = 0.0
             for i in range(n_p):
-                step = max(step, abs(dp[i]))
-                pmax = max(pmax, abs(p[i]))
-            if step <= 1e-9 * (1 + pmax) or (ok and gain <= 1e-12 * c0 + 1e-24) or lam >= 1e8:
-                break
-        cost[n] = c0
+                s += J[r, i] * Y[i, t]
+            Jred[r, t] = Jt[r, t] - s
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def project(Jp, Jt, Y, Jred):
+    """The Kaufman Jacobian of variable projection for every point: ``Y (N, n_p, n_theta)``
+    and ``Jred (N, 2C, n_theta)`` of :func:`_project_point`."""
+    N, R, n_p = Jp.shape
+    H, G, d = np.empty((n_p, n_p)), np.empty((n_p, Jt.shape[2])), np.empty(n_p)
+    for n in range(N):
+        _project_point(Jp[n], Jt[n], Y[n], Jred[n], H, G, d)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def evaluate(P, M, plane, plane_model, kinds, moving, A, b, sig, meas, Rv, cv, K, Jl, inner, inner_rtol, conv_rtol,
+             e, Jp, Jt, Y, Jred):
+    """One evaluation of the reduced problem for a block whose points start at ``P`` (in
+    place): every point's residuals and Jacobians at ``theta``; a point whose Gauss-Newton
+    step promises more than ``conv_rtol`` of its cost runs its own Levenberg-Marquardt from
+    there and is evaluated again; then :func:`_project_point`. ``Problem.solve_points``'s warm
+    path followed by ``Problem._project``, one point at a time."""
+    N, n_p = P.shape
+    R = kinds.shape[0] * 2
+    et, Jpt, JX, Jt1 = np.empty(R), np.empty((R, n_p)), np.empty((R, 3)), np.empty((R, 1))
+    H, g, d = np.empty((n_p, n_p)), np.empty(n_p), np.empty(n_p)
+    gm, x, dp, pt = np.empty((n_p, 1)), np.empty((n_p, 1)), np.empty(n_p), np.empty(n_p)
+    G = np.empty((n_p, Jt.shape[2]))
+    for n in range(N):
+        col = 6 + 3 * plane[n]
+        Jt[n, :, :] = 0.0
+        _point(P[n], M[n], plane_model, kinds, moving, A, b, sig, meas[n], Rv, cv, K, True, Jl, col, e[n], Jp[n], JX,
+               Jt[n])
+        if not _converged_point(e[n], Jp[n], conv_rtol, H, g, d, gm, x):
+            _lm_point(P[n], M[n], plane_model, kinds, moving, A, b, sig, meas[n], Rv, cv, K, inner, inner_rtol,
+                      e[n], Jp[n], et, Jpt, JX, Jt1, Jl, H, g, d, gm, x, dp, pt)
+            Jt[n, :, :] = 0.0
+            _point(P[n], M[n], plane_model, kinds, moving, A, b, sig, meas[n], Rv, cv, K, True, Jl, col, e[n], Jp[n],
+                   JX, Jt[n])
+        _project_point(Jp[n], Jt[n], Y[n], Jred[n], H, G, d)
