@@ -27,6 +27,12 @@ information matrix, i.e. the marginal covariance of ``(w, c, m_1..m_k)``.
 Each evaluation starts every point where the last one left it, moved to first order with
 ``theta`` (``dp/dtheta = -H_pp^{-1} H_ptheta``, which the Kaufman Jacobian needs anyway); a
 point whose Gauss-Newton step promises nothing then costs one residual evaluation.
+
+The per-point work (residuals, Jacobians, the per-point solve, the projection) runs in the
+numba kernels of :mod:`._kernels`, imported on a problem's first evaluation; with
+``OAS_KERNELS=numpy`` (:mod:`optiacoustic._kernel_switch`) it runs in the numpy reference
+methods here (``_residual_numpy``, ``_lm_numpy``, :func:`_converged`), which the tests compare
+with the kernels. A problem reads the switch when it is built (``Problem.kernels``).
 """
 
 from __future__ import annotations
