@@ -367,3 +367,87 @@ def evaluate(P, M, plane, plane_model, kinds, moving, A, b, sig, meas, Rv, cv, K
             _point(P[n], M[n], plane_model, kinds, moving, A, b, sig, meas[n], Rv, cv, K, True, Jl, col, e[n], Jp[n],
                    JX, Jt[n])
         _project_point(Jp[n], Jt[n], Y[n], Jred[n], H, G, d)
+
+
+# --------------------------------------------------------------------------- sonar scale searches
+# ``motion._golden`` of ``motion._plane_scale``'s and ``motion._essential_scale``'s chi-square
+# of one sonar match's elevation, one match at a time (40 steps of a dozen numpy calls each on
+# 50 numbers were most of their time).
+_GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _wrap(x):
+    return (x + _PI) % _TWO_PI - _PI
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _chi_plane(phi, r1, th1, r2, th2, sr, sa, Rs, a, b, n_s, nst):
+    """``motion._plane_scale``'s ``chi`` of one match at elevation ``phi``."""
+    cp, sp = np.cos(phi), np.sin(phi)
+    P0, P1, P2 = r1 * cp * np.sin(th1), r1 * cp * np.cos(th1), r1 * sp
+    do = P0 * n_s[0] + P1 * n_s[1] + P2 * n_s[2] - nst
+    Q0 = P0 * Rs[0, 0] + P1 * Rs[0, 1] + P2 * Rs[0, 2] + a[0] + do * b[0]
+    Q1 = P0 * Rs[1, 0] + P1 * Rs[1, 1] + P2 * Rs[1, 2] + a[1] + do * b[1]
+    Q2 = P0 * Rs[2, 0] + P1 * Rs[2, 1] + P2 * Rs[2, 2] + a[2] + do * b[2]
+    if not do > 0:
+        return np.inf
+    rq = np.sqrt(Q0 * Q0 + Q1 * Q1 + Q2 * Q2)
+    return ((rq - r2) / sr) ** 2 + (_wrap(np.arctan2(Q0, Q1) - th2) / sa) ** 2
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _chi_essential(phi, r1, th1, r2, th2, sr, sa, Rs, a, b, bb, sign):
+    """``motion._essential_scale``'s ``chi`` of one match at elevation ``phi``, and its scale."""
+    cp, sp = np.cos(phi), np.sin(phi)
+    P0, P1, P2 = r1 * cp * np.sin(th1), r1 * cp * np.cos(th1), r1 * sp
+    c0 = P0 * Rs[0, 0] + P1 * Rs[0, 1] + P2 * Rs[0, 2] + a[0]
+    c1 = P0 * Rs[1, 0] + P1 * Rs[1, 1] + P2 * Rs[1, 2] + a[1]
+    c2 = P0 * Rs[2, 0] + P1 * Rs[2, 1] + P2 * Rs[2, 2] + a[2]
+    bc = c0 * b[0] + c1 * b[1] + c2 * b[2]
+    disc = bc**2 - bb * ((c0 * c0 + c1 * c1 + c2 * c2) - r2**2)
+    s = (-bc + sign * np.sqrt(max(disc, 0.0))) / bb
+    if not s > 0:
+        return np.inf, s
+    Q0, Q1, Q2 = c0 + s * b[0], c1 + s * b[1], c2 + s * b[2]
+    rq = np.sqrt(Q0 * Q0 + Q1 * Q1 + Q2 * Q2)
+    return ((rq - r2) / sr) ** 2 + (_wrap(np.arctan2(Q0, Q1) - th2) / sa) ** 2, s
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def golden_scale(essential, lo, hi, iters, r1, th1, r2, th2, sr, sa, Rs, a, b, n_s, nst, bb, sign, phi, chi):
+    """Golden-section minimisation of every match's chi-square over ``[lo, hi]`` (``motion._golden``,
+    the same steps), into ``phi`` and ``chi``: ``motion._plane_scale``'s (``essential`` False:
+    ``n_s``, ``nst``) or ``motion._essential_scale``'s branch ``sign`` (``bb = b . b``)."""
+    g = _GOLDEN
+    for m in range(lo.shape[0]):
+        A, Bh = lo[m], hi[m]
+        c, e = Bh - g * (Bh - A), A + g * (Bh - A)
+        if essential:
+            fc = _chi_essential(c, r1[m], th1[m], r2[m], th2[m], sr, sa, Rs, a, b, bb, sign)[0]
+            fe = _chi_essential(e, r1[m], th1[m], r2[m], th2[m], sr, sa, Rs, a, b, bb, sign)[0]
+        else:
+            fc = _chi_plane(c, r1[m], th1[m], r2[m], th2[m], sr, sa, Rs, a, b, n_s, nst)
+            fe = _chi_plane(e, r1[m], th1[m], r2[m], th2[m], sr, sa, Rs, a, b, n_s, nst)
+        for _ in range(iters):
+            left = fc < fe  # the minimum is in [a, e]
+            if left:
+                Bh = e
+                x = Bh - g * (Bh - A)
+            else:
+                A = c
+                x = A + g * (Bh - A)
+            if essential:
+                fx = _chi_essential(x, r1[m], th1[m], r2[m], th2[m], sr, sa, Rs, a, b, bb, sign)[0]
+            else:
+                fx = _chi_plane(x, r1[m], th1[m], r2[m], th2[m], sr, sa, Rs, a, b, n_s, nst)
+            if left:
+                e, fe, c, fc = c, fc, x, fx
+            else:
+                c, fc, e, fe = e, fe, x, fx
+        x = 0.5 * (A + Bh)
+        phi[m] = x
+        if essential:
+            chi[m] = _chi_essential(x, r1[m], th1[m], r2[m], th2[m], sr, sa, Rs, a, b, bb, sign)[0]
+        else:
+            chi[m] = _chi_plane(x, r1[m], th1[m], r2[m], th2[m], sr, sa, Rs, a, b, n_s, nst)
