@@ -24,7 +24,7 @@ _PI = np.pi
 _TWO_PI = 2 * np.pi
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _point(p, m, plane_model, kinds, moving, A, b, sig, meas, Rv, cv, K, want_theta, Jl, col, e, Jp, JX, Jt):
     """Residuals ``e (2C,)``, ``J_p (2C, n_p)`` and (``want_theta``) ``J_theta`` rows
     ``Jt (2C, n_theta)`` (written where non-zero: the caller zeroes it) of one point;
@@ -110,6 +110,36 @@ def _point(p, m, plane_model, kinds, moving, A, b, sig, meas, Rv, cv, K, want_th
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _copy(src, dst):
+    """``dst[:] = src`` (1-D) as a loop: numba's slice assignment costs seconds of compilation."""
+    for i in range(src.shape[0]):
+        dst[i] = src[i]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _copy2(src, dst):
+    """``dst[:, :] = src`` (2-D) as a loop."""
+    for i in range(src.shape[0]):
+        for j in range(src.shape[1]):
+            dst[i, j] = src[i, j]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _fill2(dst, v):
+    """``dst[:, :] = v`` (2-D) as a loop."""
+    for i in range(dst.shape[0]):
+        for j in range(dst.shape[1]):
+            dst[i, j] = v
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _no_theta(kinds):
+    """``(False, 0)`` as run-time values: :func:`_point` called with the literals ``False`` or
+    ``True`` would be compiled once more for each (numba specialises on literal arguments)."""
+    return kinds.shape[0] < 0, kinds.shape[0] * 0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def residuals(P, M, plane, plane_model, kinds, moving, A, b, sig, meas, Rv, cv, K, want_theta, Jl, e, Jp, Jt):
     """Every point's residuals ``e (N, 2C)``, ``J_p (N, 2C, n_p)`` and (``want_theta``)
     ``J_theta (N, 2C, n_theta)`` (zeroed here): ``Problem._residual_numpy`` per point.
@@ -118,18 +148,19 @@ def residuals(P, M, plane, plane_model, kinds, moving, A, b, sig, meas, Rv, cv, 
     JX = np.empty((e.shape[1], 3))
     for n in range(N):
         if want_theta:
-            Jt[n, :, :] = 0.0
+            _fill2(Jt[n], 0.0)
         _point(P[n], M[n], plane_model, kinds, moving, A, b, sig, meas[n], Rv, cv, K, want_theta, Jl,
                6 + 3 * plane[n], e[n], Jp[n], JX, Jt[n])
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _lm_point(p, m, plane_model, kinds, moving, A, b, sig, meas, Rv, cv, K, inner, inner_rtol, e, J,
               et, Jpt, JX, Jt1, Jl, H, g, d, gm, x, dp, pt):
     """Levenberg-Marquardt of one point from ``p`` (in place), ``e, J`` holding its residuals
     and their Jacobian there (updated); returns its final cost. ``Problem._lm_numpy`` for one
     point: the same damping, tests and stops. The other arrays are scratch."""
     R, n_p = J.shape
+    no, zero = _no_theta(kinds)
     c0 = 0.0
     for r in range(R):
         c0 += e[r] * e[r]
@@ -161,16 +192,16 @@ def _lm_point(p, m, plane_model, kinds, moving, A, b, sig, meas, Rv, cv, K, inne
             break
         for i in range(n_p):
             pt[i] = p[i] + dp[i]
-        _point(pt, m, plane_model, kinds, moving, A, b, sig, meas, Rv, cv, K, False, Jl, 0, et, Jpt, JX, Jt1)
+        _point(pt, m, plane_model, kinds, moving, A, b, sig, meas, Rv, cv, K, no, Jl, zero, et, Jpt, JX, Jt1)
         ct = 0.0
         for r in range(R):
             ct += et[r] * et[r]
         ok = np.isfinite(ct) and ct <= c0
         gain = c0 - ct if ok else 0.0
         if ok:
-            p[:] = pt
-            e[:] = et
-            J[:, :] = Jpt
+            _copy(pt, p)
+            _copy(et, e)
+            _copy2(Jpt, J)
             c0 = ct
             lam = max(lam * 0.1, 1e-12)
         else:
@@ -196,17 +227,18 @@ def lm(P, M, plane_model, kinds, moving, A, b, sig, meas, Rv, cv, K, inner, inne
     JX, Jt1, Jl = np.empty((R, 3)), np.empty((R, 1)), np.empty((3, 3))
     H, g, d = np.empty((n_p, n_p)), np.empty(n_p), np.empty(n_p)
     gm, x, dp, pt = np.empty((n_p, 1)), np.empty((n_p, 1)), np.empty(n_p), np.empty(n_p)
+    no, zero = _no_theta(kinds)
     for n in range(N):
         if have_e:
-            e[:] = E0[n]
-            J[:, :] = J0[n]
+            _copy(E0[n], e)
+            _copy2(J0[n], J)
         else:
-            _point(P[n], M[n], plane_model, kinds, moving, A, b, sig, meas[n], Rv, cv, K, False, Jl, 0, e, J, JX, Jt1)
+            _point(P[n], M[n], plane_model, kinds, moving, A, b, sig, meas[n], Rv, cv, K, no, Jl, zero, e, J, JX, Jt1)
         cost[n] = _lm_point(P[n], M[n], plane_model, kinds, moving, A, b, sig, meas[n], Rv, cv, K, inner, inner_rtol,
                             e, J, et, Jpt, JX, Jt1, Jl, H, g, d, gm, x, dp, pt)
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _solve_diag(H, d, B, X):
     """``X = (H + diag(d))^{-1} B`` for one small system (``H (n, n)``, ``B (n, k)``); returns
     whether it is finite. Two unknowns by ``_bundle._solve_small``'s closed form, three by
@@ -250,7 +282,7 @@ def _solve_diag(H, d, B, X):
     return ok
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _normal(J, e, H, g):
     """``H = J^T J`` and ``g = J^T e`` of one point."""
     R, n_p = J.shape
@@ -266,7 +298,7 @@ def _normal(J, e, H, g):
             H[i, j] = h
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _converged_point(e, J, rtol, H, g, d, gm, x):
     """``_bundle._converged`` for one point: whether Gauss-Newton (trace-regularised normal
     equations) predicts a gain of at most ``rtol`` of its cost."""
@@ -300,7 +332,7 @@ def converged(e, Jp, rtol, out):
         out[n] = _converged_point(e[n], Jp[n], rtol, H, g, d, gm, x)
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _project_point(J, Jt, Y, Jred, H, G, d):
     """One point's ``Y = (H + (1e-12 tr(H) + 1e-300) I)^{-1} J_p^T J_theta`` (``H = J_p^T
     J_p``; NaN where singular) and ``Jred = J_theta - J_p Y``."""
@@ -322,7 +354,7 @@ def _project_point(J, Jt, Y, Jred, H, G, d):
     for i in range(n_p):
         d[i] = 1e-12 * tr + 1e-300
     if not _solve_diag(H, d, G, Y):
-        Y[:, :] = np.nan
+        _fill2(Y, np.nan)
     for r in range(R):
         for t in range(T):
             s = 0.0
@@ -355,16 +387,17 @@ def evaluate(P, M, plane, plane_model, kinds, moving, A, b, sig, meas, Rv, cv, K
     H, g, d = np.empty((n_p, n_p)), np.empty(n_p), np.empty(n_p)
     gm, x, dp, pt = np.empty((n_p, 1)), np.empty((n_p, 1)), np.empty(n_p), np.empty(n_p)
     G = np.empty((n_p, Jt.shape[2]))
+    yes = not _no_theta(kinds)[0]
     for n in range(N):
         col = 6 + 3 * plane[n]
-        Jt[n, :, :] = 0.0
-        _point(P[n], M[n], plane_model, kinds, moving, A, b, sig, meas[n], Rv, cv, K, True, Jl, col, e[n], Jp[n], JX,
+        _fill2(Jt[n], 0.0)
+        _point(P[n], M[n], plane_model, kinds, moving, A, b, sig, meas[n], Rv, cv, K, yes, Jl, col, e[n], Jp[n], JX,
                Jt[n])
         if not _converged_point(e[n], Jp[n], conv_rtol, H, g, d, gm, x):
             _lm_point(P[n], M[n], plane_model, kinds, moving, A, b, sig, meas[n], Rv, cv, K, inner, inner_rtol,
                       e[n], Jp[n], et, Jpt, JX, Jt1, Jl, H, g, d, gm, x, dp, pt)
-            Jt[n, :, :] = 0.0
-            _point(P[n], M[n], plane_model, kinds, moving, A, b, sig, meas[n], Rv, cv, K, True, Jl, col, e[n], Jp[n],
+            _fill2(Jt[n], 0.0)
+            _point(P[n], M[n], plane_model, kinds, moving, A, b, sig, meas[n], Rv, cv, K, yes, Jl, col, e[n], Jp[n],
                    JX, Jt[n])
         _project_point(Jp[n], Jt[n], Y[n], Jred[n], H, G, d)
 
@@ -376,12 +409,12 @@ def evaluate(P, M, plane, plane_model, kinds, moving, A, b, sig, meas, Rv, cv, K
 _GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _wrap(x):
     return (x + _PI) % _TWO_PI - _PI
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _chi_plane(phi, r1, th1, r2, th2, sr, sa, Rs, a, b, n_s, nst):
     """``motion._plane_scale``'s ``chi`` of one match at elevation ``phi``."""
     cp, sp = np.cos(phi), np.sin(phi)
@@ -396,7 +429,7 @@ def _chi_plane(phi, r1, th1, r2, th2, sr, sa, Rs, a, b, n_s, nst):
     return ((rq - r2) / sr) ** 2 + (_wrap(np.arctan2(Q0, Q1) - th2) / sa) ** 2
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _chi_essential(phi, r1, th1, r2, th2, sr, sa, Rs, a, b, bb, sign):
     """``motion._essential_scale``'s ``chi`` of one match at elevation ``phi``, and its scale."""
     cp, sp = np.cos(phi), np.sin(phi)
