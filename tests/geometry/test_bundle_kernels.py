@@ -144,3 +144,20 @@ def test_scale_searches_in_the_kernel_equal_numpy(monkeypatch):
     assert np.allclose(cs1[oks], cs0[oks], rtol=1e-6, atol=1e-9)
     # the plane's distance from most single matches is the true one within their noise
     assert np.median(np.abs(do1[ok] - dist)) < 0.05 * dist
+
+
+def test_the_outer_solve_through_leastsq_is_least_squares_lm():
+    # Problem._least_squares calls MINPACK's lmder through scipy's leastsq (a thinner wrapper):
+    # the same call as least_squares(method="lm", x_scale="jac"), so the same iterates
+    rng = np.random.default_rng(26)
+    for prob, th in _problems(rng):
+        out = []
+        for fast in (True, False):
+            P = B.Problem(prob.K, prob.blocks, prob.k, prob.R_ref)
+            P.inner_rtol, P.ftol, P.fast_outer = prob.inner_rtol, prob.ftol, fast
+            sol = P.solve(th, max_nfev=50)
+            out.append((sol, P.residuals(sol.x)))
+        (a, ea), (b, eb) = out
+        assert np.array_equal(a.x, b.x) and a.nfev == b.nfev
+        assert a.cost == b.cost and np.array_equal(ea, eb)
+        assert a.cost < 0.5 * float(prob.residuals(th) @ prob.residuals(th))  # (it did descend)

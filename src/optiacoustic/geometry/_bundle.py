@@ -40,7 +40,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import OptimizeResult, least_squares, leastsq
 from scipy.spatial.transform import Rotation
 
 
@@ -184,6 +184,7 @@ class Problem:
         self.warm_start = True
         self._branches_fixed = False
         self.kernels = _use_kernels()  # the compiled per-point path (:mod:`._kernels`), else numpy's
+        self.fast_outer = True  # MINPACK through leastsq's thin wrapper (else least_squares's)
         self._chan = {}
 
     # ---------------------------------------------------------------- parameters
@@ -570,8 +571,21 @@ class Problem:
             self._branches_fixed = False
 
     def _least_squares(self, theta0, max_nfev):
-        return least_squares(self.residuals, np.asarray(theta0, float), jac=self.jacobian, method="lm",
-                             x_scale="jac", ftol=self.ftol, xtol=1e-10, gtol=1e-10, max_nfev=max_nfev)
+        """MINPACK's Levenberg-Marquardt (``lmder``) from ``theta0``: the call that
+        ``least_squares(method="lm", x_scale="jac")`` makes (``factor=100``, ``diag=None``, the
+        same tolerances), through ``scipy.optimize.leastsq``, whose wrapper costs far less per
+        evaluation; then, as ``least_squares`` does, the Jacobian at the solution (which leaves
+        the points at its optimum). Returns an ``OptimizeResult`` with ``x``, ``cost``, ``fun``,
+        ``nfev``, ``njev``."""
+        x0 = np.array(theta0, float)
+        if not self.fast_outer or self.residuals(x0).size < x0.size:  # (least_squares's own error)
+            return least_squares(self.residuals, x0, jac=self.jacobian, method="lm", x_scale="jac", ftol=self.ftol,
+                                 xtol=1e-10, gtol=1e-10, max_nfev=max_nfev)
+        x, _, info, _, _ = leastsq(self.residuals, x0, Dfun=self.jacobian, full_output=True, col_deriv=False,
+                                   ftol=self.ftol, xtol=1e-10, gtol=1e-10, maxfev=max_nfev, factor=100.0, diag=None)
+        f = info["fvec"]
+        self.jacobian(x)
+        return OptimizeResult(x=x, cost=0.5 * float(f @ f), fun=f, nfev=int(info["nfev"]), njev=info.get("njev"))
 
     def adopt_points(self, other: "Problem") -> None:
         """Start every block's points from ``other``'s last solution (the same blocks, in order),
