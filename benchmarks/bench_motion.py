@@ -109,7 +109,7 @@ def run() -> list[dict]:
     rows.append(dict(name="motion.estimate, one plane, numpy reference path (OAS_KERNELS=numpy)", value=t_np,
                      unit="ms", reference="the same call with the numba kernels, alternated (CPU time)",
                      ratio=t_np / t_nb,
-                     note=(f"the kernels' CPU time {t_nb:.1f} ms in the same alternation; same estimate (to ~1e-13 "
+                     note=(f"the kernels' CPU time {t_nb:.1f} ms in the same alternation; same estimate (within ~1e-12 "
                            "of its standard deviation, tests/geometry/test_bundle_kernels.py)")))
     with busy_core():
         t_ref_b = median_ms(lambda: cv2.findHomography(p1, p2, cv2.USAC_MAGSAC, 3.0), repeat=50)
