@@ -73,6 +73,14 @@ def _recorded_rays(caster, fn):
     return o, d, len(seen)
 
 
+def _continuing_rays(F, scene, spec, pose, f) -> int:
+    """How many of the frame's grid rays the shadow continues (hits, less those going down through a floor)."""
+    body = f.rays.body.reshape(-1)
+    floors = F._floor_planes(scene)
+    idx = np.flatnonzero(body >= 0)
+    d, _ = F._grid_directions(spec, pose.R, idx)
+    return int(np.count_nonzero(~(np.isin(body[idx], floors) & (d[:, 2] < 0))))
+
 
 def run() -> list[dict]:
     from optiacoustic import Pose, SonarSpec, scenes, simulate_sonar
@@ -126,6 +134,22 @@ def run() -> list[dict]:
     bx, t = paired_ms(bare, with_truth)
     rows.append(dict(name="full frame + all ground truth (body, elevation span, shadow)", value=t, unit="ms",
                      reference=ref, ratio=t / bx, note="target <= 4x; the shadow casts continuation rays"))
+    # the shadow alone: one cast per continuing ray (rtcIntersect1 skipping back faces) against the
+    # multi-cast path (embreex casts in rounds; the algorithm before issue 14), alternated
+    from optiacoustic.sonar import formation as F
+
+    f0 = frame(noise=False)
+    sspec = F.scan_spec(spec, "thesis")
+    n_cont = _continuing_rays(F, scene, spec, pose, f0)
+
+    def shadow(direct):
+        return lambda: F._shadow_mask(scene, caster, sspec, pose, f0.rays, f0.ground_truth.elevation_min, direct=direct)
+
+    if caster.front_hits() is not None:
+        tm, t = paired_ms(shadow(False), shadow(True))
+        rows.append(dict(name=f"acoustic shadow alone, one cast per continuing ray ({n_cont} rays), 2 threads", value=t,
+                         unit="ms", reference="the multi-cast path (casts in rounds through embreex)", ratio=t / tm,
+                         note=f"{1e3 * t / n_cont:.2f} us per continuing ray against {1e3 * tm / n_cont:.2f} us"))
     rb, t = paired_ms(real_bare, lambda: frame(noise=real_noise, options=real_opts).fan("image"), repeat=9)
     rows.append(dict(name="realistic model frame (aperture beams, spreading, scatterer speckle), 2 threads", value=t,
                      unit="ms", reference=f"bare cast of its {len(rd32)} rays", ratio=t / rb,
