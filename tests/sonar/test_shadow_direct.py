@@ -147,3 +147,39 @@ def test_shadow_of_a_box_on_a_flat_seabed_has_the_length_of_similar_triangles(ke
     tol = 0.5 * SPEC.elevation_step * r1 * (5.5 / 1.5) + SPEC.bin_width
     assert rows.size and np.all(np.diff(rows) == 1)  # one contiguous run
     assert abs(ranges[rows[0]] - r0) <= tol and abs(ranges[rows[-1]] - r1) <= tol, (ranges[rows[[0, -1]]], r0, r1)
+
+
+def _sheets_obj(path, ys):
+    """Vertical 2 x 1 m sheets (x in [-1, 1], z in [0, 1]) at the given y, wound to face -y: one
+    open mesh (no back, no sides)."""
+    lines, faces = [], []
+    for k, y in enumerate(ys):
+        lines += [f"v {x} {y} {z}" for x, z in ((-1, 0), (1, 0), (1, 1), (-1, 1))]
+        b = 4 * k + 1
+        faces += [f"f {b} {b + 1} {b + 2}", f"f {b} {b + 2} {b + 3}"]
+    path.write_text("\n".join(lines + faces) + "\n")
+    return str(path)
+
+
+@pytest.mark.parametrize("kernels, direct", [("numba", True), ("numba", False), ("numpy", False)])
+def test_open_body_second_sheet_hides_like_a_separate_body(kernels, direct, tmp_path, monkeypatch):
+    """Two sheets of one open mesh, the far one behind the near one: the far sheet is a hidden
+    surface as it would be if the sheets were two bodies (docs/physics.md 1.6.1); the near sheet
+    is met from the front (its normal faces the sonar)."""
+    from optiacoustic.scene.shapes import Mesh
+
+    seabed = scenes.get("flat_seabed").bodies[0]
+    one = Scene([seabed, Body("sheets", Mesh(file=_sheets_obj(tmp_path / "two.obj", (2.0, 3.0))))])
+    two = Scene([seabed, Body("near", Mesh(file=_sheets_obj(tmp_path / "near.obj", (2.0,)))),
+                 Body("far", Mesh(file=_sheets_obj(tmp_path / "far.obj", (3.0,))))])
+    spec = dataclasses.replace(SPEC, n_beams=128, n_bins=400, elevation_samples=64)
+    pose = Pose.look_at((0.0, -2.0, 1.5), (0.0, 4.0, 0.0))
+    monkeypatch.setenv("OAS_KERNELS", kernels)
+    masks = []
+    for sc in (one, two):
+        caster = F.caster_for(sc)
+        if not direct:
+            monkeypatch.setattr(caster, "front_hits", lambda: None)
+        f = simulate_sonar(sc, spec, pose, noise=False)
+        masks.append(f.ground_truth.shadow)
+    assert masks[0].sum() > 100 and np.array_equal(masks[0], masks[1])
