@@ -26,7 +26,9 @@ DESCRIPTION = (
     "Targets (issue 14): full frame <= 3x, with all ground truth <= 4x, the realistic model in the same budget. "
     "Each frame row and its bare cast are timed alternately (medians of each), so that load falls on both alike. "
     "The frame's inner loops run in numba kernels (compiled once, cached on disk); the 'numpy reference path' row "
-    "runs the pure-numpy implementation the tests compare them with."
+    "runs the pure-numpy implementation the tests compare them with. 'Acoustic shadow alone' times one frame's "
+    "shadow mask with one Embree cast per continuing ray (`rtcIntersect1` with a filter that skips back faces) "
+    "against the same mask cast in rounds through embreex (the path used where the direct call does not check out)."
 )
 
 
