@@ -176,12 +176,13 @@ def intersect_front(fn, scene, args, f, u, addr, ox, oy, oz, dx, dy, dz, tfar, f
 
 
 @njit(cache=True, nogil=True)
-def _probe_cast(fn, scene, args, o, d, tfar, out_t, out_g, out_n, out_uv, out_prim):
-    """Cast ``o``/``d`` (float32 (n, 3)) raw, keeping primID and u, v too (the layout probe)."""
+def _probe_cast(fn, scene, args, o, d, tfar, first, out_t, out_g, out_n, out_uv, out_prim):
+    """Cast ``o``/``d`` (float32 (n, 3)) starting on geometries ``first`` (int64, -1: none), keeping
+    primID and u, v too (the layout probe)."""
     f, u, addr = new_rayhit_scratch()
     for k in range(o.shape[0]):
         t, g, n0, n1, n2 = intersect_front(fn, scene, args, f, u, addr, o[k, 0], o[k, 1], o[k, 2],
-                                           d[k, 0], d[k, 1], d[k, 2], tfar, -1)
+                                           d[k, 0], d[k, 1], d[k, 2], tfar, first[k])
         out_t[k] = t
         out_g[k] = g
         out_n[k, 0], out_n[k, 1], out_n[k, 2] = n0, n1, n2
@@ -242,15 +243,19 @@ def _layout_checks_out(lib_key: str) -> tuple | None:
     try:
         filt = _arguments(_reject_back_faces.address, True)
         plain = _arguments(0, False)
-        # down from z = 1 (meets z = 0 at 1, z = -1 at 2), up from z = -2 (z = -1 at 1, z = 0 at 2), and a
-        # ray beside both triangles (x + y > 1)
-        o = np.array([[0.25, 0.125, 1.0], [0.25, 0.125, -2.0], [0.5, 0.75, 1.0]], np.float32)
-        d = np.array([[0, 0, -1], [0, 0, 1], [0, 0, -1]], np.float32)
+        # down from z = 1 (meets z = 0 at 1, z = -1 at 2), up from z = -2 (z = -1 at 1, z = 0 at 2), a ray
+        # beside both triangles (x + y > 1), and two rays down from 8 um above the lower triangle (its front
+        # face), one of them starting on it (geometry 1: that face is within the self gap, 20 um)
+        o = np.array([[0.25, 0.125, 1.0], [0.25, 0.125, -2.0], [0.5, 0.75, 1.0], [0.25, 0.125, -1.0 + 8e-6],
+                      [0.25, 0.125, -1.0 + 8e-6]], np.float32)
+        d = np.array([[0, 0, -1], [0, 0, 1], [0, 0, -1], [0, 0, -1], [0, 0, -1]], np.float32)
+        first = np.array([-1, -1, -1, -1, 1], np.int64)
         res = {}
         for name, a in (("plain", plain), ("filter", filt)):
-            t, g = np.empty(3, np.float32), np.empty(3, np.int64)
-            nrm, uv, prim = np.empty((3, 3), np.float32), np.empty((3, 2), np.float32), np.empty(3, np.int64)
-            _probe_cast(fn, scene, int(a.ctypes.data), o, d, np.float32(10.0), t, g, nrm, uv, prim)
+            k = len(o)
+            t, g = np.empty(k, np.float32), np.empty(k, np.int64)
+            nrm, uv, prim = np.empty((k, 3), np.float32), np.empty((k, 2), np.float32), np.empty(k, np.int64)
+            _probe_cast(fn, scene, int(a.ctypes.data), o, d, np.float32(10.0), first, t, g, nrm, uv, prim)
             res[name] = (t, g, nrm, uv, prim)
         t, g, nrm, uv, prim = res["plain"]
         # distances as Embree's float32 arithmetic gives them: within a few ulp of 1 and 2
@@ -271,6 +276,9 @@ def _layout_checks_out(lib_key: str) -> tuple | None:
         if not (near(tf[0], 2.0) and gf[0] == 1 and nf[0, 2] > 0 and near(tf[1], 2.0) and gf[1] == 0 and nf[1, 2] < 0):
             return None
         if not (gf[2] == -1 and tf[2] == 10.0):
+            return None
+        # the ray id carries the geometry the ray starts on: its front face that close is skipped
+        if not (gf[3] == 1 and 0 < tf[3] < 2e-5 and gf[4] == -1 and tf[4] == 10.0):
             return None
         return fn, filt
     finally:

@@ -70,7 +70,8 @@ def test_direct_hits_are_embreex_front_hits(monkeypatch):
     t_ref, g_ref, _, _, _, ng_ref = caster.intersect_raw(o, d, np.full(n, 30, np.float32), split=False)
     t, g = np.empty(n, np.float32), np.empty(n, np.int64)
     ng, uv, prim = np.empty((n, 3), np.float32), np.empty((n, 2), np.float32), np.empty(n, np.int64)
-    _probe_cast(direct.fn, direct.scene, direct.args, o, d, np.float32(30), t, g, ng, uv, prim)
+    _probe_cast(direct.fn, direct.scene, direct.args, o, d, np.float32(30), np.full(n, -1, np.int64), t, g, ng, uv,
+                prim)
     front = (g_ref >= 0) & (np.einsum("ij,ij->i", ng_ref, d) < 0)
     assert front.sum() > 0.9 * (g_ref >= 0).sum() > 30000
     assert np.array_equal(g[front], g_ref[front]) and np.array_equal(t[front], t_ref[front])
@@ -183,3 +184,13 @@ def test_open_body_second_sheet_hides_like_a_separate_body(kernels, direct, tmp_
         f = simulate_sonar(sc, spec, pose, noise=False)
         masks.append(f.ground_truth.shadow)
     assert masks[0].sum() > 100 and np.array_equal(masks[0], masks[1])
+
+
+def test_direct_path_is_refused_without_a_handle_or_a_library(tmp_path):
+    """No scene handle, or no Embree library where embreex should be: no direct path (the caller
+    then casts in rounds)."""
+    from optiacoustic._embree_kernels import _layout_checks_out, direct_path
+
+    caster = F.caster_for(scenes.get("cuboids"))
+    assert direct_path(caster._embree, None) is None
+    assert _layout_checks_out(str(tmp_path)) is None
