@@ -84,7 +84,8 @@ def test_direct_hits_are_embreex_front_hits(monkeypatch):
 def test_one_cast_shadow_equals_the_multi_cast_one_but_for_flush_bases(name, bound, monkeypatch):
     """The one-cast mask holds every cell of the multi-cast mask (the algorithm of before; the
     numpy reference is the same) and a few more: measured 207 cells (of 35 895) in thesis scene 1,
-    all behind ``cylinder_standing``, and 23 (of 13 915) in the random scene. They come from rays
+    from rays through the bases of the two cuboids and the standing cylinder, and 23 (of 13 915)
+    in the random scene. They come from rays
     that leave a body through its base, which lies flush on the seabed: the base (a back face)
     and the seabed (a front face) are met at the same distance. The one-cast path passes the
     base and finds the seabed under the body (which would echo but for the body: shadow); the
