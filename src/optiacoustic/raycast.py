@@ -329,15 +329,19 @@ class RayCaster:
         """The direct ``rtcIntersect1`` path with a back-face filter on this scene, for numba kernels
         (:func:`optiacoustic._embree_kernels.direct_path`: integer addresses ``fn``, ``scene``,
         ``args``), or None where Embree's library, the scene handle or the struct layouts do not
-        check out (then kernels use :meth:`intersect_raw`). Looked up once; imports numba."""
+        check out (then kernels use :meth:`intersect_raw`; an exception on the way is kept in
+        ``front_hits_error``). Looked up once; imports numba."""
         if self._front_hits is False:
             with self._lock:
                 if self._front_hits is False:
                     got = None
                     if self._rtc_scene:
-                        from ._embree_kernels import direct_path
+                        try:
+                            from ._embree_kernels import direct_path
 
-                        got = direct_path(self._embree, self._rtc_scene)
+                            got = direct_path(self._embree, self._rtc_scene)
+                        except Exception as exc:  # pragma: no cover - numba or llvmlite cannot build the filter
+                            self.front_hits_error = f"{type(exc).__name__}: {exc}"
                     self._front_hits = got
         return self._front_hits
 

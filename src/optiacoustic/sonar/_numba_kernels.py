@@ -11,7 +11,12 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .._embree_kernels import intersect_front, new_rayhit_scratch, self_gap
+from .._embree_upload import SELF_GAP
+
+try:  # the direct rtcIntersect1 path; without it RayCaster.front_hits is None and shadow_front never runs
+    from .._embree_kernels import intersect_front, new_rayhit_scratch
+except Exception:  # pragma: no cover - a numba/llvmlite without what _embree_kernels needs
+    intersect_front = new_rayhit_scratch = None
 from .speckle import MU_NO_SEABED
 
 _MIN_COS_FOOTPRINT = 0.02  # same clamp as formation._MIN_COS_FOOTPRINT
@@ -852,8 +857,9 @@ def shadow_gap_ends(t, eps, origin, d_act, p0, p1, out):
     the range up to which a front face of the first body is that body's first hit again."""
     for p in range(p0, p1):
         s = t[p] + eps
-        out[p] = s + float(self_gap(np.float32(origin[0] + d_act[p, 0] * s), np.float32(origin[1] + d_act[p, 1] * s),
-                                    np.float32(origin[2] + d_act[p, 2] * s)))
+        size = max(abs(np.float32(origin[0] + d_act[p, 0] * s)), abs(np.float32(origin[1] + d_act[p, 1] * s)),
+                   abs(np.float32(origin[2] + d_act[p, 2] * s)), np.float32(1.0))
+        out[p] = s + SELF_GAP * float(size)  # as _embree_kernels.self_gap
 
 
 @njit(cache=True, nogil=True)
