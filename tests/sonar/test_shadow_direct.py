@@ -195,3 +195,21 @@ def test_direct_path_is_refused_without_a_handle_or_a_library(tmp_path):
     caster = F.caster_for(scenes.get("cuboids"))
     assert direct_path(caster._embree, None) is None
     assert _layout_checks_out(str(tmp_path)) is None
+
+
+def test_one_cast_shadow_with_any_number_of_threads_is_the_same(monkeypatch):
+    """The direct casts run on the caster's threads at once (Embree's queries are thread-safe, the
+    arguments read-only, each call its own ray scratch): the mask does not depend on their number."""
+    sc = scenes.get("thesis_scene1")
+    spec = dataclasses.replace(SPEC, n_beams=128, n_bins=300, elevation_samples=64)
+    pose = Pose.look_at(sc.view.eye, sc.view.target)
+    monkeypatch.setenv("OAS_KERNELS", "numba")
+    f = simulate_sonar(sc, spec, pose, noise=False)
+    caster = F.caster_for(sc)
+    _direct_or_skip(caster)
+    monkeypatch.setattr(caster, "threads", 1)
+    ref = F._shadow_mask(sc, caster, spec, pose, f.rays, f.ground_truth.elevation_min)
+    assert ref.sum() > 50
+    for threads in (2, 3):
+        monkeypatch.setattr(caster, "threads", threads)
+        assert np.array_equal(F._shadow_mask(sc, caster, spec, pose, f.rays, f.ground_truth.elevation_min), ref)
