@@ -321,6 +321,12 @@ def _tvg_water_absorption(spec):
     return float(absorption_db_per_m(spec.frequency))
 
 
+#: 10 / ln 10: dB per neper of intensity
+_DB = 10.0 / np.log(10.0)
+_DEVIANCE = [True]  # (testing switch: the old dB residuals in the polish when False)
+_LOSS = ["soft_l1", 3.0]
+
+
 def _fit_geometry(stats, spec, alpha, azimuths=None, pulse_bins=None):
     """Least squares of the flat-seabed echo + background on the beam groups' range profiles (dB).
 
@@ -366,19 +372,33 @@ def _fit_geometry(stats, spec, alpha, azimuths=None, pulse_bins=None):
 
     cheap = [False]  # the starts use the echo at the groups' centres, unblurred; the polish the full model
 
-    def model(x):
+    def model_lin(x):
         h, pitch, roll, lbw, a_db, kexp, n_db, v_db = x
         pat = BeamPattern.from_beamwidth(float(np.exp(lbw)), f, c)
         E = flat_seabed_echo(r, az, h, pitch, roll, pat) if cheap[0] else seabed(h, pitch, roll, pat)
         rk = (r / r0) ** kexp
         tvg = (r / r0) ** (kexp + 2.0) * 10 ** (2 * alpha * (r - r0) / 10)
         out = 10 ** (a_db / 10) * rk[:, None] * E + (10 ** (n_db / 10) * tvg + 10 ** (v_db / 10) * rk)[:, None]
-        return 10 * np.log10(np.maximum(out, 1e-30))
+        return np.maximum(out, 1e-30)
+
+    def model(x):
+        return 10 * np.log10(model_lin(x))
 
     has_onset = bool(np.isfinite(stats.onset_r10))
 
+    def misfit(x):
+        """Residuals (n_bins, n_groups) in dB-like units: the starts take the difference of the
+        dB; the polish the signed gamma deviance residual of the measured mean against the
+        model's mean intensity (docs/derivations.md, "Fitting the range profile in the
+        intensity domain"), whose estimating equation is unbiased for any number of looks."""
+        if cheap[0] or not _DEVIANCE[0]:
+            return model(x) - data_db
+        mu = model_lin(x)
+        q = prof / mu
+        return _DB * np.sign(q - 1.0) * np.sqrt(2.0 * np.maximum(q - 1.0 - np.log(q), 0.0))
+
     def resid(x):
-        res = (model(x) - data_db).ravel()
+        res = misfit(x).ravel()
         if has_onset:
             return res
         # no onset in the window: the seabed lies in the elevation main lobe (inside its
@@ -429,7 +449,7 @@ def _fit_geometry(stats, spec, alpha, azimuths=None, pulse_bins=None):
     # valley where height, pitch and width trade off
     x_typ = np.array([0.01, 0.01, 0.01, 0.02, 1.0, 0.05, 1.0, 1.0])
     try:
-        best = least_squares(resid, best.x, bounds=(lo, hi), loss="soft_l1", f_scale=3.0, x_scale=x_typ, max_nfev=100,
+        best = least_squares(resid, best.x, bounds=(lo, hi), loss=_LOSS[0], f_scale=_LOSS[1], x_scale=x_typ, max_nfev=100,
                              method="dogbox")
     except ValueError:
         pass
@@ -437,7 +457,7 @@ def _fit_geometry(stats, spec, alpha, azimuths=None, pulse_bins=None):
     # tried: on the real Oculus ping its asymmetry lifted the background by 30 dB; the dB fit stays)
 
     def resid_cols(x, cols=slice(None)):
-        res = (model(x)[:, cols] - data_db[:, cols]).ravel()
+        res = misfit(x)[:, cols].ravel()
         return np.append(res, resid(x)[data_db.size:]) if not has_onset else res
 
     # delete-one-group jackknife: the groups' profiles carry speckle and texture fluctuations
@@ -449,7 +469,7 @@ def _fit_geometry(stats, spec, alpha, azimuths=None, pulse_bins=None):
     for blk in np.array_split(np.arange(G), min(8, G)):
         keep = ~np.isin(np.arange(G), blk)
         try:
-            jk.append(least_squares(resid_cols, best.x, bounds=(lo, hi), loss="soft_l1", f_scale=3.0, x_scale=x_typ, method="dogbox",
+            jk.append(least_squares(resid_cols, best.x, bounds=(lo, hi), loss=_LOSS[0], f_scale=_LOSS[1], x_scale=x_typ, method="dogbox",
                                     max_nfev=30, kwargs={"cols": keep}).x)
         except ValueError:
             continue
