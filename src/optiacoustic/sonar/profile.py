@@ -323,8 +323,9 @@ def _tvg_water_absorption(spec):
 
 #: 10 / ln 10: dB per neper of intensity
 _DB = 10.0 / np.log(10.0)
-_DEVIANCE = [True]  # (testing switch: the old dB residuals in the polish when False)
+_DEVIANCE = [False]  # the gamma-deviance polish (measured, not shipped: docs/physics.md 4.5); True to use it
 _LOSS = ["soft_l1", 3.0]
+_LAST_JACKKNIFE: dict = {}
 
 
 def _fit_geometry(stats, spec, alpha, azimuths=None, pulse_bins=None):
@@ -474,6 +475,8 @@ def _fit_geometry(stats, spec, alpha, azimuths=None, pulse_bins=None):
         except ValueError:
             continue
     jk = np.asarray(jk)
+    _LAST_JACKKNIFE["replicates"] = jk
+    _LAST_JACKKNIFE["polish"] = (int(best.status), int(best.nfev))  # diagnostics: the delete-a-block replicates of the last fit
     sd_jk = np.sqrt((len(jk) - 1) / len(jk) * ((jk - jk.mean(0)) ** 2).sum(0)) if len(jk) > 2 else np.zeros(best.x.size)
     x = best.x
     J = best.jac
