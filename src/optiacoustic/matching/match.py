@@ -766,7 +766,7 @@ FACE_PLANE_SCORE_MODEL = dict(
 #: ``experiments.matching.calibrate_face_score()`` on the same scenes (1235 crease points, 51%
 #: correct).
 CREASE_SCORE_MODEL = dict(
-    weights=(0.02, 0.476, -0.231, -0.224, 0.303, 0.054, -0.592, 0.168, 0.43, -0.053),
+    weights=(0.607, 0.597, -0.196, -0.286, 0.261, -0.033, -0.063, 0.453, 0.639, -0.026),
     mean=(0.3629, 1.2709, 0.498, 0.387, 0.5984, 0.9843, 4.2502, 1.6077, -0.3572),
     std=(0.7471, 0.6737, 0.5, 0.4871, 0.2154, 0.3206, 0.5533, 1.4434, 0.2055),
 )
@@ -843,6 +843,42 @@ def plane_score_features(feats: dict) -> np.ndarray:
                             np.log(np.maximum(feats["image_contrast"], 1e-6))])
 
 
+#: Logistic model of P(correct) of the point above the face's foot (:func:`.contact.foot_points`):
+#: intercept and weights of the standardised :func:`foot_score_features`. Fitted by
+#: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model.
+FOOT_SCORE_MODEL = dict(
+    weights=(0.345, -0.074, -0.053, 0.472, -0.743, 0.211, -0.345, 0.334, -0.065, 0.611, 0.042, -0.378, 0.065, -0.054, -0.462, 0.481, 0.239),
+    mean=(0.2186, 1.7132, 0.8732, 1.5274, 0.5678, 0.9677, 0.6931, 0.4832, 1.6029, 1.0084, 0.4163, 0.7204, 2.8971, -0.3465, 0.6778, 0.3499),
+    std=(0.8965, 0.7764, 0.3328, 0.9476, 0.4954, 1.0258, 0.4612, 0.4997, 0.3163, 0.3352, 0.1761, 0.6607, 0.6205, 0.2012, 0.4673, 0.4769),
+)
+
+
+def foot_score_features(feats: dict) -> np.ndarray:
+    """The foot score model's inputs ``(N, 16)`` (NaN-free; meaningful where ``foot_found``).
+
+    Logit of the arc search's own score; log of 1 + the foot point's elevation distance (units of
+    0.25 deg) from the arc search's pixel, and, with whether each exists, from the crease point and
+    from the plane point; the point inside the arc search's run; onset or peak; log of 1 + the
+    bins between the feature and its echo's end, and between its echo's start and the feature;
+    the point's height above the seabed (m); log of 1 + the image gradient at its pixel; log SNR;
+    log of the image's contrast.
+    """
+    def dist(key):
+        d = np.asarray(feats[key], float)
+        f = np.isfinite(d)
+        return [f.astype(float), np.where(f, np.log1p(np.nan_to_num(d) / 0.25), 0.0)]
+
+    d0 = np.nan_to_num(np.asarray(feats["foot_dphi_deg"], float))
+    return np.column_stack([_logit(feats["arc_score"]), np.log1p(d0 / 0.25), *dist("foot_crease_dphi_deg"),
+                            *dist("foot_plane_dphi_deg"), np.asarray(feats["foot_in_run"], float), feats["kind"],
+                            np.log1p(feats["echo_end_bins"]), np.log1p(feats["echo_depth_bins"]),
+                            np.clip(np.nan_to_num(feats["foot_height"]), 0.0, 2.0),
+                            np.log1p(np.asarray(feats["foot_gradient"], float)),
+                            np.log(np.maximum(feats["snr"], 1e-6)),
+                            np.log(np.maximum(feats["image_contrast"], 1e-6)),
+                            np.asarray(feats["plane_offered"], float), np.asarray(feats["contact_found"], float)])
+
+
 def _logistic(X, model):
     w = np.asarray(model["weights"], float)
     z = w[0] + ((X - np.asarray(model["mean"])) / np.asarray(model["std"])) @ w[1:]
@@ -878,7 +914,8 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     from ..geometry.projection import camera_from_sonar
     from .arc_search import gradient_image, search_arcs, stretched
     from .camera_features import to_gray8
-    from .contact import crease_points, crease_positions, echo_start_ranges, search_contacts
+    from .contact import (crease_points, crease_positions, echo_end_ranges, echo_start_ranges, foot_points,
+                          search_contacts)
     from .face_plane import face_labels, face_planes
 
     if np.ptp(to_gray8(cam_img)) == 0:
@@ -959,13 +996,35 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
                      _logistic(face_score_features(feats), FACE_SCORE_MODEL))
     p_crease = np.where(cr.found, _logistic(crease_score_features(feats), CREASE_SCORE_MODEL), 0.0)
     p_plane = np.where(fp.found, _logistic(plane_score_features(feats), PLANE_SCORE_MODEL), 0.0)
-    # 0: the arc search's pixel, 1: the point below the crease, 2: the point on the face's plane.
-    probs = np.column_stack([p_arc, p_crease, p_plane])
+    # The point above the face's foot, where the feature's echo ends (acoustic only, :func:`.contact.foot_points`).
+    if sonar is not None:
+        r_end = echo_end_ranges(sonar[0], sonar[1], sf.bins[rows], sf.beams[rows])
+    else:
+        r_end = sf.ranges[rows]
+    ft = foot_points(rig, seabed, sf.ranges[rows], sf.azimuths[rows], r_end)
+    feats["foot_found"] = ft.found
+    feats["foot_u"], feats["foot_v"] = ft.pixels[:, 0], ft.pixels[:, 1]
+    feats["foot_height"] = ft.height
+    feats["echo_end_bins"] = (np.maximum(r_end, sf.ranges[rows]) - sf.ranges[rows]) / bin_m
+    feats["foot_in_run"] = ft.found & (np.nan_to_num(ft.elevations) >= ch.run_low[rows] - 1e-9) & \
+        (np.nan_to_num(ft.elevations) <= ch.run_high[rows] + 1e-9)
+    for name, el in (("foot_dphi_deg", ch.elevations[rows]), ("foot_crease_dphi_deg", cr.elevations),
+                     ("foot_plane_dphi_deg", fp.elevations)):
+        feats[name] = np.rad2deg(np.abs(ft.elevations - el))
+    H_g, W_g = grad.shape
+    fpx = np.nan_to_num(ft.pixels)
+    feats["foot_gradient"] = np.where(ft.found, grad[np.clip(np.rint(fpx[:, 1]).astype(int), 0, H_g - 1),
+                                                     np.clip(np.rint(fpx[:, 0]).astype(int), 0, W_g - 1)], 0.0)
+    p_foot = np.where(ft.found, _logistic(foot_score_features(feats), FOOT_SCORE_MODEL), 0.0)
+    # 0: the arc search's pixel, 1: the point below the crease, 2: the point on the face's plane,
+    # 3: the point above the face's foot.
+    probs = np.column_stack([p_arc, p_crease, p_plane, p_foot])
     source = np.argmax(probs, axis=1)
     feats["face_source"] = source
     feats["elevation"] = np.choose(source, [ch.elevations[rows], np.nan_to_num(cr.elevations),
-                                            np.nan_to_num(fp.elevations)])
-    px = np.choose(source[:, None], [px_arc, np.nan_to_num(cr.pixels), np.nan_to_num(fp.pixels)])
+                                            np.nan_to_num(fp.elevations), np.nan_to_num(ft.elevations)])
+    px = np.choose(source[:, None], [px_arc, np.nan_to_num(cr.pixels), np.nan_to_num(fp.pixels),
+                                     np.nan_to_num(ft.pixels)])
     score = probs[np.arange(rows.size), source]
     s_px = noise.sigma_pixel or 0.5
     s_r = np.full(rows.size, noise.sigma_range) if noise.sigma_range else sf.sigma_range[rows]
