@@ -1007,7 +1007,7 @@ def failure_classes(pairs, *, n_samples: int = 800, options=None) -> dict:
                 cls[k] = FAILURE_CLASSES.index("no_match")
                 continue
             jj = j[k]
-            cands = [np.array([f[f"{nm}_u"][jj], f[f"{nm}_v"][jj]]) for nm in ("arc", "crease", "plane")
+            cands = [np.array([f[f"{nm}_u"][jj], f[f"{nm}_v"][jj]]) for nm in ("arc", "crease", "plane", "foot")
                      if f"{nm}_u" in f]
             cands = [c for c in cands if np.all(np.isfinite(c))]
             ok_c = truth.correct(rig, optical.depth, np.array(cands), np.full(len(cands), r[k]),
@@ -1069,3 +1069,4 @@ def _run_around(flat, phis, feats, j, rig, r, th):
         b += 1
     out[a:b + 1] = True
     return out
+

@@ -307,9 +307,9 @@ def _assign(cost, rows, cols, n_rows, null_cost):
 #: (``experiments.matching.vehicle_motion``), disjoint from the evaluation's scenes (1023 arc
 #: matches, 42% correct).
 TWO_VIEW_SCORE_MODEL = dict(
-    weights=(-0.449, 0.886, -0.315, -0.128, 0.196, 0.207, 0.243),
-    mean=(-0.4646, 1.1955, 0.5636, 1.4723, 0.0391, 0.5406),
-    std=(1.5463, 1.0472, 0.7164, 0.9408, 0.1938, 0.4984),
+    weights=(-0.091, 1.233, -0.472, 0.401, 0.381, 0.127, 0.154, 0.262, -0.062, -0.463),
+    mean=(0.2531, 1.0692, 0.5198, 1.465, 0.0391, 0.5523, 1.6185, 0.724, 1.4446),
+    std=(1.5409, 0.9878, 0.712, 0.9435, 0.1938, 0.4973, 1.2223, 1.4355, 1.9833),
 )
 
 
@@ -322,8 +322,12 @@ def two_view_score_features(feats: dict) -> np.ndarray:
     a_px = np.where(missing, 0.0, np.abs(np.nan_to_num(a)))
     a_m = np.where(missing, 0.0, a_px / np.where(missing, 1.0, sens))
     log_sens = np.where(missing, 0.0, np.log(np.where(missing, 1.0, sens)))
-    return np.column_stack([np.log(p / (1 - p)), np.log1p(a_px), np.log1p(a_m), log_sens, missing.astype(float),
-                            np.asarray(feats["two_view"], float)])
+    cols = [np.log(p / (1 - p)), np.log1p(a_px), np.log1p(a_m), log_sens, missing.astype(float),
+            np.asarray(feats["two_view"], float)]
+    # The flow is only as good as the texture it follows: on a uniform face its residual is noise.
+    tex = np.log(np.maximum(np.nan_to_num(np.asarray(feats["arc_texture"], float)), 0.25))
+    cols += [tex, np.log1p(a_m) * tex, np.log1p(a_px) * tex]
+    return np.column_stack(cols)
 
 
 #: Logistic model of P(correct) of the sweep's choice (:func:`.optical_two_view.sweep_arcs`):
@@ -333,9 +337,9 @@ def two_view_score_features(feats: dict) -> np.ndarray:
 #: onset or peak). Fitted by ``experiments.matching.calibrate_two_view_score()`` (see
 #: :data:`TWO_VIEW_SCORE_MODEL`; 624 sweep choices, 51% correct).
 SWEEP_SCORE_MODEL = dict(
-    weights=(-0.011, -0.388, 0.071, -0.525, 0.521, -0.28, -0.524, -0.046, 0.019),
-    mean=(0.4967, 0.916, 1.0869, 1.5753, 3.2119, 0.0096, 2.8849, 0.476),
-    std=(0.6205, 0.7511, 0.6572, 0.8567, 1.0051, 0.0976, 0.5826, 0.4994),
+    weights=(0.01, -0.359, 0.07, -0.483, 0.446, -0.518, -0.576, -0.065, 0.045),
+    mean=(0.4967, 0.916, 1.0869, 1.5753, 3.0581, 0.0096, 2.8849, 0.476),
+    std=(0.6205, 0.7511, 0.6572, 0.8567, 1.0065, 0.0976, 0.5826, 0.4994),
 )
 
 
@@ -357,9 +361,9 @@ def sweep_score_features(feats: dict) -> np.ndarray:
 #: ``experiments.matching.calibrate_two_view_score()`` (see :data:`TWO_VIEW_SCORE_MODEL`; 1034
 #: correlation peaks, 27% correct).
 CORRELATION_SCORE_MODEL = dict(
-    weights=(-1.202, 0.431, -0.593, 0.202, 0.012, -0.442, -0.573, 0.012, -0.024),
-    mean=(0.9086, 0.3396, 2.7121, 1.468, 2.859, 0.0629, 2.8556, 0.4913),
-    std=(0.2385, 0.6642, 0.8621, 0.93, 1.3002, 0.2427, 0.6057, 0.4999),
+    weights=(-1.216, 0.481, -0.52, 0.175, 0.008, -0.497, -0.624, 0.027, -0.018),
+    mean=(0.9086, 0.3396, 2.7121, 1.468, 2.843, 0.0629, 2.8556, 0.4913),
+    std=(0.2385, 0.6642, 0.8621, 0.93, 1.2777, 0.2427, 0.6057, 0.4999),
 )
 
 
@@ -390,7 +394,8 @@ def two_view_candidates(out: Matches, sf, intervals, image_1, second, motion, ri
         The same for :func:`.optical_two_view.correlate_arcs` (``ncc``, ``margin``, ``texture``,
         ``px_per_m``).
     """
-    from .optical_two_view import correlate_arcs, epipolar_residuals, flow_field, forward_backward_error, sweep_arcs
+    from .optical_two_view import (correlate_arcs, epipolar_residuals, flow_field, forward_backward_error,
+                                   photo_consistency, sweep_arcs)
     from .two_view import consistent, motion_arrays
 
     if motion is None:
@@ -421,6 +426,8 @@ def two_view_candidates(out: Matches, sf, intervals, image_1, second, motion, ri
         sw = sweep_arcs(rig, sf.ranges, sf.azimuths, lo, hi, flow, forward_backward_error(flow, back), motion)
         sweep = {k: getattr(sw, k) for k in ("pixels", "elevations", "found", "n_crossings", "fb_error", "slope",
                                              "px_per_m")}
+    # Image 1's texture at the arc pixel (gray sigma of its 9 x 9 patch): what the flow there can follow.
+    arc["arc_texture"] = photo_consistency(image_1, image_2, out.pixels, out.pixels)[1] if n else np.zeros(0)
     lo, hi = intervals[0], intervals[1]
     co = correlate_arcs(rig, sf.ranges, sf.azimuths, lo, hi, image_1, image_2, motion)
     corr = {k: getattr(co, k) for k in ("pixels", "elevations", "found", "ncc", "margin", "texture", "px_per_m")}
@@ -879,6 +886,9 @@ def foot_score_features(feats: dict) -> np.ndarray:
                             np.asarray(feats["plane_offered"], float), np.asarray(feats["contact_found"], float)])
 
 
+#: The four candidate pixels of a one-view match, in ``features["face_source"]`` order.
+CANDIDATES = ("arc", "crease", "plane", "foot")
+
 def _logistic(X, model):
     w = np.asarray(model["weights"], float)
     z = w[0] + ((X - np.asarray(model["mean"])) / np.asarray(model["std"])) @ w[1:]
@@ -1019,6 +1029,9 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     # 0: the arc search's pixel, 1: the point below the crease, 2: the point on the face's plane,
     # 3: the point above the face's foot.
     probs = np.column_stack([p_arc, p_crease, p_plane, p_foot])
+    elevs = np.column_stack([ch.elevations[rows], cr.elevations, fp.elevations, ft.elevations])
+    for k, name in enumerate(CANDIDATES):
+        feats[f"p_{name}"], feats[f"{name}_elevation"] = probs[:, k], elevs[:, k]
     source = np.argmax(probs, axis=1)
     feats["face_source"] = source
     feats["elevation"] = np.choose(source, [ch.elevations[rows], np.nan_to_num(cr.elevations),
