@@ -44,12 +44,12 @@ def test_precision_above_bound_and_baseline(evals):
     n_vis = sum(e["n_visible"] for e in ev)
     assert n_vis >= 10 and ok.size >= 10
     precision, base_precision = ok.mean(), base.mean()
-    # Bound of the strict criterion (within one bin and one beam), set well below the
-    # experiment's figure on 25 other scenes (0.49 at recall 0.49); the baseline (nearest
-    # corner to each conic) is far lower.
-    assert precision >= 0.3
-    assert precision >= base_precision + 0.2
-    assert ok.sum() / n_vis >= 0.3  # recall
+    # Bound of the strict criterion (within one bin and one beam). These two seeded scenes give
+    # precision 0.59 at recall 0.59 (32 matches; the baseline 0.09); the bounds leave 0.14 of
+    # margin (1.6 binomial sigma at n = 32). The baseline (nearest corner to each conic) is far lower.
+    assert precision >= 0.45
+    assert precision >= base_precision + 0.3
+    assert ok.sum() / n_vis >= 0.45  # recall
 
 
 def test_matched_points_are_near_the_truth(pairs):
