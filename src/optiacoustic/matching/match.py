@@ -27,6 +27,7 @@ and the shadows allow (:mod:`.acoustic`), is searched for the longest edge-free 
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from dataclasses import dataclass, field
 
@@ -854,9 +855,9 @@ def plane_score_features(feats: dict) -> np.ndarray:
 #: intercept and weights of the standardised :func:`foot_score_features`. Fitted by
 #: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model.
 FOOT_SCORE_MODEL = dict(
-    weights=(0.345, -0.074, -0.053, 0.472, -0.743, 0.211, -0.345, 0.334, -0.065, 0.611, 0.042, -0.378, 0.065, -0.054, -0.462, 0.481, 0.239),
-    mean=(0.2186, 1.7132, 0.8732, 1.5274, 0.5678, 0.9677, 0.6931, 0.4832, 1.6029, 1.0084, 0.4163, 0.7204, 2.8971, -0.3465, 0.6778, 0.3499),
-    std=(0.8965, 0.7764, 0.3328, 0.9476, 0.4954, 1.0258, 0.4612, 0.4997, 0.3163, 0.3352, 0.1761, 0.6607, 0.6205, 0.2012, 0.4673, 0.4769),
+    weights=(0.399, -0.044, -0.089, 0.374, -0.691, 0.156, -0.329, 0.338, -0.036, 0.547, 0.062, -0.361, 0.123, -0.078, -0.379, 0.442, 0.234),
+    mean=(0.3129, 1.6621, 0.924, 1.6095, 0.5989, 1.0151, 0.7378, 0.481, 1.6118, 1.0119, 0.4177, 0.7192, 2.9067, -0.3463, 0.678, 0.3724),
+    std=(0.8329, 0.7616, 0.265, 0.8935, 0.4901, 1.0217, 0.4398, 0.4996, 0.3079, 0.3326, 0.173, 0.6545, 0.6169, 0.2013, 0.4672, 0.4834),
 )
 
 
@@ -1012,6 +1013,12 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     else:
         r_end = sf.ranges[rows]
     ft = foot_points(rig, seabed, sf.ranges[rows], sf.azimuths[rows], r_end)
+    # A face standing on the seabed casts a shadow behind its foot: with none behind the echo
+    # (a low bar, the seabed itself) the echo's end is not a foot.
+    ft = dataclasses.replace(ft, found=ft.found & shadowed[rows])
+    ft = dataclasses.replace(ft, pixels=np.where(ft.found[:, None], ft.pixels, np.nan),
+                             elevations=np.where(ft.found, ft.elevations, np.nan),
+                             height=np.where(ft.found, ft.height, np.nan))
     feats["foot_found"] = ft.found
     feats["foot_u"], feats["foot_v"] = ft.pixels[:, 0], ft.pixels[:, 1]
     feats["foot_height"] = ft.height
