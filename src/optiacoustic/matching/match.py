@@ -1001,12 +1001,6 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     with np.errstate(invalid="ignore", divide="ignore"):
         feats["plane_position"] = np.where(fp.found, (fp.elevations - ch.run_low[rows])
                                            / np.maximum(ch.run_high[rows] - ch.run_low[rows], 1e-9), np.nan)
-    # Where the plane is offered, the arc search's pixel is scored knowing whether the plane
-    # point agrees with it; elsewhere exactly as before the face-plane model.
-    p_arc = np.where(offered, _logistic(face_plane_score_features(feats), FACE_PLANE_SCORE_MODEL),
-                     _logistic(face_score_features(feats), FACE_SCORE_MODEL))
-    p_crease = np.where(cr.found, _logistic(crease_score_features(feats), CREASE_SCORE_MODEL), 0.0)
-    p_plane = np.where(fp.found, _logistic(plane_score_features(feats), PLANE_SCORE_MODEL), 0.0)
     # The point above the face's foot, where the feature's echo ends (acoustic only, :func:`.contact.foot_points`).
     if sonar is not None:
         r_end = echo_end_ranges(sonar[0], sonar[1], sf.bins[rows], sf.beams[rows])
@@ -1032,6 +1026,12 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     fpx = np.nan_to_num(ft.pixels)
     feats["foot_gradient"] = np.where(ft.found, grad[np.clip(np.rint(fpx[:, 1]).astype(int), 0, H_g - 1),
                                                      np.clip(np.rint(fpx[:, 0]).astype(int), 0, W_g - 1)], 0.0)
+    # Where the plane is offered, the arc search's pixel is scored knowing whether the plane
+    # point agrees with it; elsewhere exactly as before the face-plane model.
+    p_arc = np.where(offered, _logistic(face_plane_score_features(feats), FACE_PLANE_SCORE_MODEL),
+                     _logistic(face_score_features(feats), FACE_SCORE_MODEL))
+    p_crease = np.where(cr.found, _logistic(crease_score_features(feats), CREASE_SCORE_MODEL), 0.0)
+    p_plane = np.where(fp.found, _logistic(plane_score_features(feats), PLANE_SCORE_MODEL), 0.0)
     p_foot = np.where(ft.found, _logistic(foot_score_features(feats), FOOT_SCORE_MODEL), 0.0)
     # 0: the arc search's pixel, 1: the point below the crease, 2: the point on the face's plane,
     # 3: the point above the face's foot.
