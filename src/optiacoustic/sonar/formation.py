@@ -436,9 +436,11 @@ def simulate_sonar(
     def start_draws():
         # the noise variates do not depend on the echo: with a second thread, draw them on the other
         # core once the primary cast (which takes every thread) is done, beside the one-thread stages
+        # (the scatterer noise: the echo-free part of its field too)
         nonlocal draws
         if draw_args is not None and caster.threads > 1:
-            draws = _background().submit(*draw_args)
+            beside = {"_field": True} if pooled and isinstance(noise, ScattererNoise) else {}
+            draws = _background().submit(*draw_args, **beside)
 
     sspec = scan_spec(spec, options.beam_model)
     if options.beam_model == "aperture":
