@@ -907,14 +907,21 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
 
             gain = _workspace("scan_gain", (K * J,), np.float64)  # read by footprints only
             k_abs = -0.2 * np.log(10.0) * float(absorption_db_per_m(spec.frequency, options.water))
-            kernels().spreading_gain(body, r, k_abs, gain)
         else:
             gain = np.where(hit, two_way_gain(np.where(hit, r, 1.0), spec.frequency, options.water), 0.0)
     if fast:
         energy, lo, hi = np.empty(K * J), np.empty(K * J), np.empty(K * J)
-        kernels().footprints(body, r, cos_inc, slope, a, b, refl,
-                             np.zeros(0) if weights is None else np.asarray(weights, float),
-                             np.zeros(0) if gain is None else gain, J, 1e-4 * spec.bin_width, energy, lo, hi)
+        w_k = np.zeros(0) if weights is None else np.asarray(weights, float)
+        kn = kernels()
+
+        def rows(k0, k1):  # elevation rows k0..k1 (every ray on its own: the threads take rows)
+            s = slice(k0 * J, k1 * J)
+            if gain is not None:
+                kn.spreading_gain(body[s], r[s], k_abs, gain[s])
+            kn.footprints(body[s], r[s], cos_inc[s], slope[s], a[s], b[s], refl, w_k[k0:k1],
+                          np.zeros(0) if gain is None else gain[s], J, 1e-4 * spec.bin_width, energy[s], lo[s], hi[s])
+
+        split_run(rows, K, caster.threads)
     else:
         energy = refl[body] * cos_inc * (a + b)
         if weights is not None:
