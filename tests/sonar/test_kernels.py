@@ -361,12 +361,14 @@ def test_fused_aperture_pass_matches_materialised_subcells(thesis, monkeypatch):
 
 
 def test_chunked_run_covers_each_index_once():
+    from optiacoustic.sonar import _kernels as K
+
     seen = []
-    F._chunked_run(lambda a, b: seen.append((a, b)), 1000, 2)
+    K.chunked_run(lambda a, b: seen.append((a, b)), 1000, 2)
     assert sorted(i for a, b in seen for i in range(a, b)) == list(range(1000))
-    assert len(seen) == 2 * F._CHUNKS_PER_THREAD
+    assert len(seen) == 2 * K._CHUNKS_PER_THREAD
     seen.clear()
-    F._chunked_run(lambda a, b: seen.append((a, b)), 100, 2)  # too few for two threads: one call
+    K.chunked_run(lambda a, b: seen.append((a, b)), 100, 2)  # too few for two threads: one call
     assert seen == [(0, 100)]
 
 

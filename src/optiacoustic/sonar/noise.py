@@ -413,7 +413,7 @@ class ScattererNoise:
         It is filtered by the pulse and beam kernels and normalised by ``S2 = sum h^2``,
         so a uniform region has mean ``g I + B`` and the moments of :mod:`.speckle`.
         """
-        from ._kernels import kernels, split_run, use_numba
+        from ._kernels import chunked_run, kernels, use_numba
         from .propagation import absorption_db_per_m
         from .speckle import filter_complex
 
@@ -440,11 +440,11 @@ class ScattererNoise:
             k0, k1 = np.uint32(key[0]), np.uint32(key[1])
             if field:  # the echo's part only: the words were drawn beside the scan
                 words, r2, unit = field[0]
-                split_run(lambda r0, r1: kn.scatterer_field_words(I, gain, back[:, 0], area, float(self.density),
+                chunked_run(lambda r0, r1: kn.scatterer_field_words(I, gain, back[:, 0], area, float(self.density),
                                                                   _POISSON_INVERSION_MAX, r0, r1, words, r2, unit,
                                                                   z, big, mean), I.shape[0], threads)
             else:
-                split_run(lambda r0, r1: kn.scatterer_field(I, gain, back[:, 0], area, float(self.density), k0, k1,
+                chunked_run(lambda r0, r1: kn.scatterer_field(I, gain, back[:, 0], area, float(self.density), k0, k1,
                                                             _POISSON_INVERSION_MAX, r0, r1, z, big, mean),
                           I.shape[0], threads)
             if big.any():  # the rare cells of large mean: counts from the generator, as the numpy path
@@ -499,7 +499,7 @@ class ScattererNoise:
             hr32 = np.ascontiguousarray(h_r, np.float32)
             hb32 = np.ascontiguousarray(h_b, np.float32)
             kn = kernels()
-            split_run(lambda r0, r1: kn.speckle_image(zk, mean, hr32, hb32, tvg, r0, r1, out), I.shape[0], threads)
+            chunked_run(lambda r0, r1: kn.speckle_image(zk, mean, hr32, hb32, tvg, r0, r1, out), I.shape[0], threads)
             return out
         expected = filter_real(mean, np.asarray(h_r, np.float32) ** 2, np.asarray(h_b, np.float32) ** 2)
         # per-cell factor: the image's own mean over the twice-blurred mean, times the device's TVG
