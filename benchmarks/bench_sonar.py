@@ -26,7 +26,9 @@ DESCRIPTION = (
     "Targets (issue 14): full frame <= 3x, with all ground truth <= 4x, the realistic model in the same budget. "
     "Each frame row and its bare cast are timed alternately (medians of each), so that load falls on both alike. "
     "The frame's inner loops run in numba kernels (compiled once, cached on disk); the 'numpy reference path' row "
-    "runs the pure-numpy implementation the tests compare them with."
+    "runs the pure-numpy implementation the tests compare them with. 'Acoustic shadow alone' times one frame's "
+    "shadow mask with one Embree cast per continuing ray (`rtcIntersect1` with a filter that skips back faces) "
+    "against the same mask cast in rounds through embreex (the path used where the direct call does not check out)."
 )
 
 
@@ -72,6 +74,14 @@ def _recorded_rays(caster, fn):
     d = np.ascontiguousarray(np.concatenate([s[1] for s in seen]))
     return o, d, len(seen)
 
+
+def _continuing_rays(F, scene, spec, pose, f) -> int:
+    """How many of the frame's grid rays the shadow continues (hits, less those going down through a floor)."""
+    body = f.rays.body.reshape(-1)
+    floors = F._floor_planes(scene)
+    idx = np.flatnonzero(body >= 0)
+    d, _ = F._grid_directions(spec, pose.R, idx)
+    return int(np.count_nonzero(~(np.isin(body[idx], floors) & (d[:, 2] < 0))))
 
 
 def run() -> list[dict]:
@@ -126,6 +136,22 @@ def run() -> list[dict]:
     bx, t = paired_ms(bare, with_truth)
     rows.append(dict(name="full frame + all ground truth (body, elevation span, shadow)", value=t, unit="ms",
                      reference=ref, ratio=t / bx, note="target <= 4x; the shadow casts continuation rays"))
+    # the shadow alone: one cast per continuing ray (rtcIntersect1 skipping back faces) against the
+    # multi-cast path (embreex casts in rounds; the algorithm before issue 14), alternated
+    from optiacoustic.sonar import formation as F
+
+    f0 = frame(noise=False)
+    sspec = F.scan_spec(spec, "thesis")
+    n_cont = _continuing_rays(F, scene, spec, pose, f0)
+
+    def shadow(direct):
+        return lambda: F._shadow_mask(scene, caster, sspec, pose, f0.rays, f0.ground_truth.elevation_min, direct=direct)
+
+    if caster.front_hits() is not None:
+        tm, t = paired_ms(shadow(False), shadow(True))
+        rows.append(dict(name=f"acoustic shadow alone, one cast per continuing ray ({n_cont} rays), 2 threads", value=t,
+                         unit="ms", reference="the multi-cast path (casts in rounds through embreex)", ratio=t / tm,
+                         note=f"{1e3 * t / n_cont:.2f} us per continuing ray against {1e3 * tm / n_cont:.2f} us"))
     real = lambda: frame(noise=real_noise, options=real_opts).fan("image")  # noqa: E731
     rb, t = paired_ms(real_bare, real, repeat=15)
     rows.append(dict(name="realistic model frame (aperture beams, spreading, scatterer speckle), 2 threads", value=t,

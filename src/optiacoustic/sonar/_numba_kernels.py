@@ -11,6 +11,12 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._embree_upload import SELF_GAP
+
+try:  # the direct rtcIntersect1 path; without it RayCaster.front_hits is None and shadow_front never runs
+    from .._embree_kernels import intersect_front, new_rayhit_scratch
+except Exception:  # pragma: no cover - a numba/llvmlite without what _embree_kernels needs
+    intersect_front = new_rayhit_scratch = None
 from .speckle import MU_NO_SEABED
 
 _MIN_COS_FOOTPRINT = 0.02  # same clamp as formation._MIN_COS_FOOTPRINT
@@ -882,12 +888,12 @@ def shadow_origins(pos, t, n, eps, origin, d_act, o32, d32):
 
 
 @njit(cache=True, nogil=True)
-def shadow_step(pos, t, exited, n, eps, geom, tfar, ng, first_body, d_act, hid_r, hid_n):
-    """One round of continuation hits of ``formation._shadow_mask``: a front-facing hit (``n . d < 0``
-    with Embree's geometric normal normalised in float32 as ``RayCaster.cast_raw`` does) of another
-    body, or of the first body after the ray left it, is the hidden surface (``hid_r``, ``hid_n``);
-    a back-facing hit of the first body marks the ray as having left it. Rays that hit something
-    and are not done move on: ``pos``, ``t``, ``exited`` are compacted in place; returns their count."""
+def shadow_step(pos, t, n, eps, geom, tfar, ng, first_body, gap_end, d_act, hid_r, hid_n):
+    """One round of continuation hits of ``formation._shadow_mask`` (the multi-cast path): a
+    front-facing hit (``n . d < 0`` with Embree's geometric normal normalised in float32 as
+    ``RayCaster.cast_raw`` does) is the hidden surface (``hid_r``, ``hid_n``), unless it is a front
+    face of the body the ray first hit at a range up to ``gap_end`` (the first hit again, through
+    float32 rounding). Rays not done move on: ``pos``, ``t`` are compacted in place; returns their count."""
     m = 0
     for k in range(n):
         g = geom[k]
@@ -898,22 +904,53 @@ def shadow_step(pos, t, exited, n, eps, geom, tfar, ng, first_body, d_act, hid_r
         n0, n1, n2 = ng[k, 0], ng[k, 1], ng[k, 2]
         nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2) + np.float32(1e-30)
         m0, m1, m2 = float(n0 / nn), float(n1 / nn), float(n2 / nn)
-        front = m0 * d_act[p, 0] + m1 * d_act[p, 1] + m2 * d_act[p, 2] < 0
-        same = g == first_body[p]
-        ex = exited[k]
-        if front and (not same or ex):
+        if m0 * d_act[p, 0] + m1 * d_act[p, 1] + m2 * d_act[p, 2] < 0 and not (g == first_body[p] and tt <= gap_end[p]):
             hid_r[p] = tt
             hid_n[p, 0] = m0
             hid_n[p, 1] = m1
             hid_n[p, 2] = m2
             continue
-        if not front and same:
-            ex = True
         pos[m] = p
         t[m] = tt
-        exited[m] = ex
         m += 1
     return m
+
+
+@njit(cache=True, nogil=True)
+def shadow_gap_ends(t, eps, origin, d_act, p0, p1, out):
+    """``t + eps + self_gap(o)`` for rays ``p0..p1``, ``o`` the float32 start ``origin + d (t + eps)``:
+    the range up to which a front face of the first body is that body's first hit again."""
+    for p in range(p0, p1):
+        s = t[p] + eps
+        size = max(abs(np.float32(origin[0] + d_act[p, 0] * s)), abs(np.float32(origin[1] + d_act[p, 1] * s)),
+                   abs(np.float32(origin[2] + d_act[p, 2] * s)), np.float32(1.0))
+        out[p] = s + SELF_GAP * float(size)  # as _embree_kernels.self_gap
+
+
+@njit(cache=True, nogil=True)
+def shadow_front(fn, scene, args, t, eps, origin, d_act, far, first_body, p0, p1, hid_r, hid_n):
+    """The hidden surfaces of ``formation._shadow_mask`` in one cast per ray (the direct path): rays
+    ``p0..p1`` (float64 unit directions ``d_act``, first hits at ``t``) start at ``origin + d (t +
+    eps)`` (float64, then float32, as ``shadow_origins``) and go to their closest front-facing hit
+    (``rtcIntersect1`` with the back-face filter, ``optiacoustic._embree_kernels``), whose range
+    ``t + eps + distance`` and float32-normalised normal go to ``hid_r``, ``hid_n`` (left as they are
+    on a miss). A front face of the body the ray first hit (``first_body``) within ``self_gap`` of the
+    start is that first hit again (float32 rounding) and is skipped, as in ``shadow_step``."""
+    f, u, addr = new_rayhit_scratch()
+    for p in range(p0, p1):
+        s = t[p] + eps
+        dist, g, n0, n1, n2 = intersect_front(
+            fn, scene, args, f, u, addr,
+            np.float32(origin[0] + d_act[p, 0] * s), np.float32(origin[1] + d_act[p, 1] * s),
+            np.float32(origin[2] + d_act[p, 2] * s),
+            np.float32(d_act[p, 0]), np.float32(d_act[p, 1]), np.float32(d_act[p, 2]), far, first_body[p])
+        if g < 0:
+            continue
+        nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2) + np.float32(1e-30)
+        hid_r[p] = s + float(dist)
+        hid_n[p, 0] = float(n0 / nn)
+        hid_n[p, 1] = float(n1 / nn)
+        hid_n[p, 2] = float(n2 / nn)
 
 
 @njit(cache=True, nogil=True)
