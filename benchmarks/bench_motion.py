@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 
+import time
+
 import numpy as np
 
 from _timing import busy_core, median_ms
@@ -16,14 +18,36 @@ DESCRIPTION = ("`motion.estimate` on 200 optical and 50 sonar matches (1 px, 1 c
 def _median_cpu_ms(fn, repeat=9):
     """Median process CPU time (ms) of ``fn()``: on a loaded machine the wall time also counts the
     other processes' turns, the CPU time does not (motion is single-threaded)."""
-    import time
-
     ts = []
     for _ in range(repeat):
         t0 = time.process_time()
         fn()
         ts.append(time.process_time() - t0)
     return 1e3 * float(np.median(ts))
+
+
+def _paired_kernels_ms(fn, repeat=9):
+    """Median CPU times (ms) of ``fn()`` with ``OAS_KERNELS=numpy`` and with the default kernels,
+    alternated (the bundle reads the switch when a problem is built)."""
+    import os
+
+    from _timing import paired_ms
+
+    old = os.environ.get("OAS_KERNELS")
+
+    def with_(mode):
+        def run():
+            os.environ["OAS_KERNELS"] = mode
+            fn()
+        return run
+
+    try:
+        return paired_ms(with_("numpy"), with_("numba"), repeat=repeat, clock=time.process_time)
+    finally:
+        if old is None:
+            os.environ.pop("OAS_KERNELS", None)
+        else:
+            os.environ["OAS_KERNELS"] = old
 
 
 def _scenario(rng, pts, s1, s2, rig, n_opt=200, n_son=50, sp=1.0, sr=0.01, sa=0.005):
@@ -78,13 +102,21 @@ def run() -> list[dict]:
                      reference="cv2.findHomography USAC_MAGSAC, same matches", ratio=t_plane / t_ref,
                      note=(f"target <= 50 ms; the reference takes {t_ref:.2f} ms; CPU time {cpu_plane:.1f} ms; "
                            "variable projection, each evaluation starting the points where the last left them, "
-                           "moved to first order")))
+                           "moved to first order; the per-point work in numba kernels (geometry/_kernels.py)")))
+    # the same estimate with the numpy reference path of the bundle (OAS_KERNELS=numpy), timed
+    # alternately with the kernels' (process CPU time: load that comes and goes falls on both)
+    t_np, t_nb = _paired_kernels_ms(lambda: motion.estimate(rig, p1, p2, son1, son2, planes=1, **sig), repeat=9)
+    rows.append(dict(name="motion.estimate, one plane, numpy reference path (OAS_KERNELS=numpy)", value=t_np,
+                     unit="ms", reference="the same call with the numba kernels, alternated (CPU time)",
+                     ratio=t_np / t_nb,
+                     note=(f"the kernels' CPU time {t_nb:.1f} ms in the same alternation; same estimate (within ~1e-12 "
+                           "of its standard deviation, tests/geometry/test_bundle_kernels.py)")))
     with busy_core():
         t_ref_b = median_ms(lambda: cv2.findHomography(p1, p2, cv2.USAC_MAGSAC, 3.0), repeat=50)
         t_busy = median_ms(lambda: motion.estimate(rig, p1, p2, son1, son2, planes=1, **sig))
     rows.append(dict(name="motion.estimate, one plane, second core busy", value=t_busy, unit="ms",
                      reference="cv2.findHomography USAC_MAGSAC, same matches, core busy", ratio=t_busy / t_ref_b,
-                     note="motion is single-threaded numpy: the busy core should not matter"))
+                     note="motion is single-threaded (numpy and numba kernels): the busy core should not matter"))
     t_auto = median_ms(lambda: motion.estimate(rig, p1, p2, son1, son2, planes="auto", **sig))
     rows.append(dict(name="motion.estimate, planes='auto' on one plane", value=t_auto, unit="ms",
                      reference="cv2.findHomography USAC_MAGSAC, same matches", ratio=t_auto / t_ref,

@@ -16,6 +16,9 @@ FORBIDDEN = {
     "optiacoustic.scene": ["optiacoustic.raycast", "optiacoustic.sonar", "optiacoustic.optical", "optiacoustic.geometry"],
     "optiacoustic._embree_upload": ["optiacoustic.scene", "optiacoustic.sonar", "optiacoustic.optical",
                                     "optiacoustic.simulation", "optiacoustic.geometry"],
+    # the direct rtcIntersect1 path: ctypes and numba over Embree, below the caster
+    "optiacoustic._embree_kernels": ["optiacoustic.scene", "optiacoustic.raycast", "optiacoustic.sonar",
+                                     "optiacoustic.optical", "optiacoustic.simulation", "optiacoustic.geometry", "embreex"],
     "optiacoustic.raycast": ["optiacoustic.sonar", "optiacoustic.optical", "optiacoustic.simulation", "optiacoustic.geometry", "optiacoustic.fusion"],
     # the two sensor simulators are siblings: neither imports the other nor the rig layer above them
     "optiacoustic.sonar": ["optiacoustic.optical", "optiacoustic.simulation", "optiacoustic.geometry", "optiacoustic.fusion",
@@ -88,5 +91,6 @@ def test_embree_is_behind_the_ray_caster():
 def test_numba_is_behind_the_kernel_modules():
     """numba is imported only by kernel modules, loaded on a frame's first kernel call (never by ``import optiacoustic``)."""
     users = sorted(n for n, p in _modules() if any(m == "numba" or m.startswith("numba.") for m in _imports(n, p)))
-    assert users and all(n.rsplit(".", 1)[-1] in ("_kernels", "_numba_kernels", "_truth_kernels", "_aperture_kernels")
+    assert users and all(n.rsplit(".", 1)[-1] in ("_kernels", "_numba_kernels", "_truth_kernels", "_aperture_kernels",
+                                                                 "_embree_kernels")
                for n in users), users

@@ -145,9 +145,13 @@ class RayCaster:
             if not np.isfinite(reach) or reach > MAX_COORDINATE:
                 raise SceneError(f"body '{b.name}': its surface reaches {reach:.3g} m from the origin; the ray caster "
                                  f"computes in float32 and accepts coordinates up to {MAX_COORDINATE:g} m")
-        from ._embree_upload import upload_triangles
+        from ._embree_upload import enable_argument_filter, upload_triangles
 
         self._embree = rtcore_scene.EmbreeScene()
+        # before the commit: lets direct rtcIntersect1 calls skip back faces in one traversal
+        # (front_hits); None where embreex's scene cannot be reached (then only embreex casts)
+        self._rtc_scene = enable_argument_filter(self._embree)
+        self._front_hits = False  # not looked up yet
         for i, s in enumerate(surfaces):
             # Embree copies both into its own buffers: the float32 vertices are a temporary.
             # One numpy copy per buffer; TriangleMesh (element by element) where that is not possible
@@ -320,6 +324,26 @@ class RayCaster:
         outs = self._run_chunks(origins32, directions32, dists, "INTERSECT", True, copy=False, split=split)
         cat = (lambda k: outs[0][k]) if len(outs) == 1 else (lambda k: np.concatenate([r[k] for r in outs]))
         return cat("tfar"), cat("geomID"), cat("primID"), cat("u"), cat("v"), cat("Ng") if normals else None
+
+    def front_hits(self):
+        """The direct ``rtcIntersect1`` path with a back-face filter on this scene, for numba kernels
+        (:func:`optiacoustic._embree_kernels.direct_path`: integer addresses ``fn``, ``scene``,
+        ``args``), or None where Embree's library, the scene handle or the struct layouts do not
+        check out (then kernels use :meth:`intersect_raw`; an exception on the way is kept in
+        ``front_hits_error``). Looked up once; imports numba."""
+        if self._front_hits is False:
+            with self._lock:
+                if self._front_hits is False:
+                    got = None
+                    if self._rtc_scene:
+                        try:
+                            from ._embree_kernels import direct_path
+
+                            got = direct_path(self._embree, self._rtc_scene)
+                        except Exception as exc:  # pragma: no cover - numba or llvmlite cannot build the filter
+                            self.front_hits_error = f"{type(exc).__name__}: {exc}"
+                    self._front_hits = got
+        return self._front_hits
 
     @property
     def corner_normals(self) -> np.ndarray:

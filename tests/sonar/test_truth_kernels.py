@@ -144,7 +144,8 @@ def test_shadow_with_any_number_of_threads_equals_the_numpy_path(name, monkeypat
     try:
         for threads in (1, 2, 3):
             caster.threads = threads
-            got = F._shadow_mask(sc, caster, spec, pose, f.rays, f.ground_truth.elevation_min)
+            # the multi-cast path (the numpy path's algorithm; the one-cast path: test_shadow_direct.py)
+            got = F._shadow_mask(sc, caster, spec, pose, f.rays, f.ground_truth.elevation_min, direct=False)
             assert got.dtype == bool and np.array_equal(got, ref), threads
     finally:
         caster.threads = old

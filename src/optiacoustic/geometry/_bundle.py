@@ -27,6 +27,12 @@ information matrix, i.e. the marginal covariance of ``(w, c, m_1..m_k)``.
 Each evaluation starts every point where the last one left it, moved to first order with
 ``theta`` (``dp/dtheta = -H_pp^{-1} H_ptheta``, which the Kaufman Jacobian needs anyway); a
 point whose Gauss-Newton step promises nothing then costs one residual evaluation.
+
+The per-point work (residuals, Jacobians, the per-point solve, the projection) runs in the
+numba kernels of :mod:`._kernels`, imported on a problem's first evaluation; with
+``OAS_KERNELS=numpy`` (:mod:`optiacoustic._kernel_switch`) it runs in the numpy reference
+methods here (``_residual_numpy``, ``_lm_numpy``, :func:`_converged`), which the tests compare
+with the kernels. A problem reads the switch when it is built (``Problem.kernels``).
 """
 
 from __future__ import annotations
@@ -34,7 +40,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import OptimizeResult, least_squares, leastsq
 from scipy.spatial.transform import Rotation
 
 
@@ -161,6 +167,7 @@ class Problem:
 
     def __init__(self, K, blocks, n_planes, R_ref, inner_iterations=10):
         self.K = K
+        self._K = np.asarray(K, float)
         self.blocks = [b for b in blocks if b.n > 0]
         self.k = int(n_planes)
         self.R_ref = np.asarray(R_ref, float)
@@ -176,6 +183,9 @@ class Problem:
         self._unpack_key = self._unpacked = None
         self.warm_start = True
         self._branches_fixed = False
+        self.kernels = _use_kernels()  # the compiled per-point path (:mod:`._kernels`), else numpy's
+        self.fast_outer = True  # MINPACK through leastsq's thin wrapper (else least_squares's)
+        self._chan = {}
 
     # ---------------------------------------------------------------- parameters
     def unpack(self, theta):
@@ -188,7 +198,43 @@ class Problem:
         return self._unpacked
 
     # ---------------------------------------------------------------- per-point model
+    def _channels(self, block: Block):
+        """The block's channels as the kernels' arrays ``(kinds, moving, A, b, sigma)`` (cached)."""
+        c = self._chan.get(id(block))
+        if c is None:
+            chs = block.channels
+            c = (np.array([0 if ch.kind == "camera" else 1 for ch in chs], np.int64),
+                 np.array([ch.moving for ch in chs], np.bool_),
+                 np.ascontiguousarray([ch.A for ch in chs], float), np.ascontiguousarray([ch.b for ch in chs], float),
+                 np.ascontiguousarray(block.sigma, float))
+            self._chan[id(block)] = c
+        return c
+
     def _residual(self, block: Block, p, m, Rv, cv, w, want_theta=False, meas=None, plane=None):
+        """Whitened residuals ``(N, 2C)`` with ``J_p (N, 2C, n_p)`` and optionally ``J_theta``
+        (:func:`._kernels.residuals`, or the numpy reference :meth:`_residual_numpy`)."""
+        if not self.kernels:
+            return self._residual_numpy(block, p, m, Rv, cv, w, want_theta, meas, plane)
+        from . import _kernels as Kn
+
+        meas = block.meas if meas is None else meas
+        plane = block.plane if plane is None else plane
+        p = np.ascontiguousarray(p, float)
+        N, n_p = p.shape
+        C = len(block.channels)
+        kinds, moving, A, b, sig = self._channels(block)
+        e = np.empty((N, 2 * C))
+        Jp = np.empty((N, 2 * C, n_p))
+        Jt = np.empty((N, 2 * C, self.n_theta)) if want_theta else np.empty((1, 1, 1))
+        Jl = self._left_jacobian(w) if want_theta else np.eye(3)
+        M = _plane_rows(m, N)
+        pl = np.zeros(N, np.int64) if (plane is None or m is None) else np.ascontiguousarray(plane, np.int64)
+        Kn.residuals(p, M, pl, m is not None, kinds, moving, A, b, sig, np.ascontiguousarray(meas, float),
+                     np.ascontiguousarray(Rv, float), np.ascontiguousarray(cv, float), self._K, bool(want_theta),
+                     np.ascontiguousarray(Jl, float), e, Jp, Jt)
+        return e, Jp, (Jt if want_theta else None)
+
+    def _residual_numpy(self, block: Block, p, m, Rv, cv, w, want_theta=False, meas=None, plane=None):
         """Whitened residuals ``(N, 2C)`` with ``J_p (N, 2C, n_p)`` and optionally ``J_theta``.
 
         ``meas`` and ``plane`` default to the block's (they are passed when the points are
@@ -274,6 +320,25 @@ class Problem:
         return self._jl
 
     def _lm(self, block, p, m, Rv, cv, w, meas, e=None, Jp=None):
+        """Per-point Levenberg-Marquardt from ``p``; returns ``(p, cost)`` (:func:`._kernels.lm`,
+        or the numpy reference :meth:`_lm_numpy`)."""
+        if not self.kernels:
+            return self._lm_numpy(block, p, m, Rv, cv, w, meas, e, Jp)
+        from . import _kernels as Kn
+
+        P = np.array(p, float, order="C")
+        N = P.shape[0]
+        kinds, moving, A, b, sig = self._channels(block)
+        cost = np.empty(N)
+        have = e is not None
+        E0 = np.ascontiguousarray(e, float) if have else np.empty((1, 1))
+        J0 = np.ascontiguousarray(Jp, float) if have else np.empty((1, 1, 1))
+        Kn.lm(P, _plane_rows(m, N), m is not None, kinds, moving, A, b, sig, np.ascontiguousarray(meas, float),
+              np.ascontiguousarray(Rv, float), np.ascontiguousarray(cv, float), self._K, self.inner,
+              float(self.inner_rtol), have, E0, J0, cost)
+        return P, cost
+
+    def _lm_numpy(self, block, p, m, Rv, cv, w, meas, e=None, Jp=None):
         """Vectorised per-point Levenberg-Marquardt from ``p``; returns ``(p, cost)``.
 
         A point leaves the iteration once it has converged (Gauss-Newton predicts a negligible
@@ -353,7 +418,7 @@ class Problem:
             warm = p0 = self._predict(block, warm, theta)
             if want_theta:  # where the prediction is already the optimum, one evaluation
                 e, Jp, Jt = self._residual(block, p0, m, Rv, cv, w, True, plane=plane)
-                run = ~_converged(e, Jp, max(1e-10, self.inner_rtol))
+                run = ~self._converged(e, Jp, max(1e-10, self.inner_rtol))
                 if run.any():  # the others: their own iterations, from there
                     p0 = p0.copy()
                     sub = (None if m is None else m[run]), block.meas[run]
@@ -384,6 +449,16 @@ class Problem:
             self._warm[id(block)] = p
         return p, e, Jp, Jt
 
+    def _converged(self, e, Jp, rtol):
+        """:func:`_converged` (its kernel when selected)."""
+        if not self.kernels:
+            return _converged(e, Jp, rtol)
+        from . import _kernels as Kn
+
+        out = np.empty(e.shape[0], np.bool_)
+        Kn.converged(e, Jp, float(rtol), out)
+        return out
+
     def _predict(self, block, warm, theta):
         """``warm`` moved to first order to ``theta``: ``p + dp/dtheta (theta - theta_0)``, with
         ``dp/dtheta = -H_pp^{-1} H_ptheta`` (the optimum's sensitivity, implicit function
@@ -401,13 +476,12 @@ class Problem:
             return self._cache
         es, Js = [], []
         for b in self.blocks:
-            _, e, Jp, Jt = self.solve_points(b, theta, want_theta=True)
-            H = np.einsum("nri,nrj->nij", Jp, Jp)
-            tr = 1e-12 * np.trace(H, axis1=1, axis2=2) + 1e-300
-            G = np.einsum("nri,nrj->nij", Jp, Jt)
-            Y = _solve_small(H, G, np.repeat(tr[:, None], H.shape[1], 1), bad=np.nan)  # (such J: zeroed below)
-            with np.errstate(invalid="ignore", over="ignore"):
-                Jred = Jt - np.einsum("nri,nit->nrt", Jp, Y)
+            fused = self._evaluate_fused(b, theta) if self.kernels else None
+            if fused is not None:
+                e, Y, Jred = fused
+            else:
+                _, e, Jp, Jt = self.solve_points(b, theta, want_theta=True)
+                Y, Jred = self._project(Jp, Jt)
             p = self._warm.get(id(b))
             if p is not None:  # the sensitivity of this solution, for the next evaluation's start
                 self._sens[id(b)] = (p, np.array(theta, float), Y)
@@ -419,6 +493,54 @@ class Problem:
         J = np.where(np.isfinite(J), J, 0.0)
         self._cache_key, self._cache = key, (e, J)
         return e, J
+
+    def _evaluate_fused(self, block, theta):
+        """``solve_points(block, theta, want_theta=True)`` and :meth:`_project` in one kernel
+        call (:func:`._kernels.evaluate`) when the points start where the last evaluation left
+        them (the warm path); returns ``(e, Y, Jred)``, or None when they do not."""
+        warm = self._warm.get(id(block)) if self.warm_start else None
+        if warm is None or not (self._branches_fixed or not block.multi_start):
+            return None
+        from . import _kernels as Kn
+
+        Rv, cv, planes = self.unpack(theta)
+        w = np.asarray(theta, float)[:3]
+        m = planes[block.plane] if block.model == "plane" else None
+        P = np.array(self._predict(block, warm, theta), float, order="C")
+        N, n_p = P.shape
+        C = len(block.channels)
+        kinds, moving, A, b, sig = self._channels(block)
+        e = np.empty((N, 2 * C))
+        Jp = np.empty((N, 2 * C, n_p))
+        Jt = np.empty((N, 2 * C, self.n_theta))
+        Y = np.empty((N, n_p, self.n_theta))
+        Jred = np.empty((N, 2 * C, self.n_theta))
+        pl = np.ascontiguousarray(block.plane, np.int64) if m is not None else np.zeros(N, np.int64)
+        Kn.evaluate(P, _plane_rows(m, N), pl, m is not None, kinds, moving, A, b, sig,
+                    np.ascontiguousarray(block.meas, float), np.ascontiguousarray(Rv, float),
+                    np.ascontiguousarray(cv, float), self._K, np.ascontiguousarray(self._left_jacobian(w), float),
+                    self.inner, float(self.inner_rtol), float(max(1e-10, self.inner_rtol)), e, Jp, Jt, Y, Jred)
+        if np.all(np.isfinite(P)):
+            self._warm[id(block)] = P
+        return e, Y, Jred
+
+    def _project(self, Jp, Jt):
+        """``Y = H_pp^{-1} H_ptheta`` (trace-regularised; NaN rows where singular, their ``J``
+        zeroed by the caller) and the Kaufman Jacobian ``J_theta - J_p Y``, per point."""
+        if self.kernels:
+            from . import _kernels as Kn
+
+            Y = np.empty((Jp.shape[0], Jp.shape[2], Jt.shape[2]))
+            Jred = np.empty(Jt.shape)
+            Kn.project(Jp, Jt, Y, Jred)
+            return Y, Jred
+        H = np.einsum("nri,nrj->nij", Jp, Jp)
+        tr = 1e-12 * np.trace(H, axis1=1, axis2=2) + 1e-300
+        G = np.einsum("nri,nrj->nij", Jp, Jt)
+        Y = _solve_small(H, G, np.repeat(tr[:, None], H.shape[1], 1), bad=np.nan)
+        with np.errstate(invalid="ignore", over="ignore"):
+            Jred = Jt - np.einsum("nri,nit->nrt", Jp, Y)
+        return Y, Jred
 
     def residuals(self, theta):
         return self._evaluate(theta)[0]
@@ -449,8 +571,21 @@ class Problem:
             self._branches_fixed = False
 
     def _least_squares(self, theta0, max_nfev):
-        return least_squares(self.residuals, np.asarray(theta0, float), jac=self.jacobian, method="lm",
-                             x_scale="jac", ftol=self.ftol, xtol=1e-10, gtol=1e-10, max_nfev=max_nfev)
+        """MINPACK's Levenberg-Marquardt (``lmder``) from ``theta0``: the call that
+        ``least_squares(method="lm", x_scale="jac")`` makes (``factor=100``, ``diag=None``, the
+        same tolerances), through ``scipy.optimize.leastsq``, whose wrapper costs far less per
+        evaluation; then, as ``least_squares`` does, the Jacobian at the solution (which leaves
+        the points at its optimum). Returns an ``OptimizeResult`` with ``x``, ``cost``, ``fun``,
+        ``nfev``, ``njev``."""
+        x0 = np.array(theta0, float)
+        if not self.fast_outer or self.residuals(x0).size < x0.size:  # (least_squares's own error)
+            return least_squares(self.residuals, x0, jac=self.jacobian, method="lm", x_scale="jac", ftol=self.ftol,
+                                 xtol=1e-10, gtol=1e-10, max_nfev=max_nfev)
+        x, _, info, _, _ = leastsq(self.residuals, x0, Dfun=self.jacobian, full_output=True, col_deriv=False,
+                                   ftol=self.ftol, xtol=1e-10, gtol=1e-10, maxfev=max_nfev, factor=100.0, diag=None)
+        f = info["fvec"]
+        self.jacobian(x)
+        return OptimizeResult(x=x, cost=0.5 * float(f @ f), fun=f, nfev=int(info["nfev"]), njev=info.get("njev"))
 
     def adopt_points(self, other: "Problem") -> None:
         """Start every block's points from ``other``'s last solution (the same blocks, in order),
@@ -465,6 +600,20 @@ class Problem:
         _, e, _, _ = self.solve_points(block, theta, plane=plane)
         c = np.sum(e * e, axis=1)
         return np.where(np.isfinite(c), c, np.inf)
+
+
+def _use_kernels() -> bool:
+    from .._kernel_switch import use_numba
+
+    return use_numba()
+
+
+def _plane_rows(m, N):
+    """Each point's plane ``(N, 3)`` for the kernels (zeros for free points)."""
+    if m is None:
+        return np.zeros((N, 3))
+    m = np.asarray(m, float)
+    return m if m.shape == (N, 3) and m.flags.c_contiguous else np.ascontiguousarray(np.broadcast_to(m, (N, 3)))
 
 
 def _cross(a, b):

@@ -503,8 +503,11 @@ def _golden(f, lo, hi, iters=40):
     return x, f(x)
 
 
-def _phi_search(d: _Data, chi2_of_phi, extra=None, n_grid=61):
-    """Per-match elevation minimising ``chi2_of_phi (G, M) -> (G, M)``; returns ``(phi, chi2)``."""
+def _phi_search(d: _Data, chi2_of_phi, extra=None, n_grid=61, golden=None):
+    """Per-match elevation minimising ``chi2_of_phi (G, M) -> (G, M)``; returns ``(phi, chi2)``.
+
+    ``golden``: ``(lo, hi) -> (phi, chi2)``, the golden-section refinement of ``chi2_of_phi`` in
+    a compiled kernel (:func:`._kernels.golden_scale`), else :func:`_golden` runs it."""
     half = d.fov / 2 + d.margin
     grid = np.linspace(-half, half, n_grid)[:, None] * np.ones((1, d.n_s))
     c = chi2_of_phi(grid)
@@ -512,7 +515,7 @@ def _phi_search(d: _Data, chi2_of_phi, extra=None, n_grid=61):
     step = grid[1, 0] - grid[0, 0]
     phi0 = grid[k, np.arange(d.n_s)]
     lo, hi = np.maximum(phi0 - step, -half), np.minimum(phi0 + step, half)
-    phi, cbest = _golden(lambda p: chi2_of_phi(p[None])[0], lo, hi)
+    phi, cbest = golden(lo, hi) if golden is not None else _golden(lambda p: chi2_of_phi(p[None])[0], lo, hi)
     if extra is not None:  # analytic roots (exact on noise-free data)
         ce = chi2_of_phi(extra)
         ce = np.where(np.isfinite(ce) & (np.abs(extra) <= half), ce, np.inf)
@@ -522,6 +525,26 @@ def _phi_search(d: _Data, chi2_of_phi, extra=None, n_grid=61):
         phi = np.where(better, extra[j, np.arange(d.n_s)], phi)
         cbest = np.where(better, cj, cbest)
     return phi, np.where(np.isfinite(cbest), cbest, np.inf)
+
+
+def _golden_kernel(d: _Data, essential, R_s, a, b, n_s=None, nst=0.0, bb=1.0, sign=1.0):
+    """:func:`._kernels.golden_scale` for :func:`_phi_search` (None with ``OAS_KERNELS=numpy``)."""
+    from .._kernel_switch import use_numba
+
+    if not use_numba():
+        return None
+    from . import _kernels as Kn
+
+    f = lambda x: np.ascontiguousarray(x, float)  # noqa: E731
+    args = (f(d.r1), f(d.th1), f(d.r2), f(d.th2), float(d.sr), float(d.sa), f(R_s), f(a), f(b),
+            f(np.zeros(3) if n_s is None else n_s), float(nst), float(bb), float(sign))
+
+    def golden(lo, hi, iters=40):
+        phi, chi = np.empty(d.n_s), np.empty(d.n_s)
+        Kn.golden_scale(bool(essential), f(lo), f(hi), iters, *args, phi, chi)
+        return phi, chi
+
+    return golden
 
 
 _trig_roots = cos_sin_roots  # both solutions of A cos(phi) + B sin(phi) = C, (2, ...); NaN where none
@@ -558,7 +581,8 @@ def _plane_scale(d: _Data, sol: MonocularSolution):
     beta = d.r1 * g[:, 2]
     gamma = -(e2 @ a - nst * (e2 @ b))
     roots = _trig_roots(alpha, beta, gamma)
-    phi, c = _phi_search(d, chi, extra=roots)
+    golden = _golden_kernel(d, False, R_s, a, b, n_s=n_s, nst=nst)
+    phi, c = _phi_search(d, chi, extra=roots, golden=golden)
     do = _arc(d, phi) @ n_s - nst
     return np.where(np.isfinite(c), do, np.nan), phi, c
 
@@ -619,7 +643,7 @@ def _essential_scale(d: _Data, R_o, t_dir):
             e = ((np.linalg.norm(Q, axis=-1) - d.r2) / d.sr) ** 2 + (B.wrap(np.arctan2(Q[..., 0], Q[..., 1]) - d.th2) / d.sa) ** 2
             return np.where(s > 0, e, np.inf)
 
-        phi, cb = _phi_search(d, chi)
+        phi, cb = _phi_search(d, chi, golden=_golden_kernel(d, True, R_s, a, b, bb=bb, sign=sign))
         out_s[branch] = s_of(phi[None])[0][0]
         out_c[branch] = cb
     k = np.argmin(out_c, 0)

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import functools
 import os
+import threading
 import time
 from dataclasses import dataclass
 
@@ -164,6 +165,22 @@ def _pixel_rays(camera: PinholeCamera) -> np.ndarray:
     d = camera.pixel_rays().astype(np.float64)
     d.setflags(write=False)
     return d
+
+
+_WORKSPACE = threading.local()
+
+
+def _workspace(name: str, shape: tuple, dtype) -> np.ndarray:
+    """A per-thread scratch array reused from frame to frame (a fresh multi-MB array costs its page
+    faults again on every frame). For what a frame uses and drops only, never for what it returns:
+    the next frame on this thread overwrites it (``tests/optical/test_frame_scratch.py``)."""
+    cache = getattr(_WORKSPACE, "arrays", None)
+    if cache is None:
+        cache = _WORKSPACE.arrays = {}
+    arr = cache.get(name)
+    if arr is None or arr.shape != shape or arr.dtype != dtype:
+        arr = cache[name] = np.empty(shape, dtype)
+    return arr
 
 
 @functools.lru_cache(maxsize=8)
@@ -813,15 +830,17 @@ def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=N
     kernels = _use_kernels()
     # straight into float32 for Embree: the pixel rays are unit vectors by construction
     d_cam32 = _pixel_rays32(camera)
+    # the world rays are scratch of this frame (per-thread, reused: nothing the frame returns
+    # is one of them or a view of them)
+    d32 = _workspace("d32", d_cam32.shape, np.float32)
+    o32 = _workspace("o32", d_cam32.shape, np.float32)
     if kernels:
         from ._kernels import rotate_rays
 
-        d32, o32 = np.empty_like(d_cam32), np.empty_like(d_cam32)
         rotate_rays(d_cam32, pose.R.astype(np.float32), pose.t.astype(np.float32), o32, d32)
     else:
         # einsum, not @: a BLAS call on (n, 3) x (3, 3) can stall on busy cores
-        d32 = np.einsum("ij,kj->ik", d_cam32, pose.R.astype(np.float32))
-        o32 = np.empty_like(d32)
+        np.einsum("ij,kj->ik", d_cam32, pose.R.astype(np.float32), out=d32)
         o32[...] = pose.t
 
     # the backscatter veil needs only the depth map: it runs beside the shading (numpy and

@@ -11,6 +11,12 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .._embree_upload import SELF_GAP
+
+try:  # the direct rtcIntersect1 path; without it RayCaster.front_hits is None and shadow_front never runs
+    from .._embree_kernels import intersect_front, new_rayhit_scratch
+except Exception:  # pragma: no cover - a numba/llvmlite without what _embree_kernels needs
+    intersect_front = new_rayhit_scratch = None
 from .speckle import MU_NO_SEABED
 
 _MIN_COS_FOOTPRINT = 0.02  # same clamp as formation._MIN_COS_FOOTPRINT
@@ -754,53 +760,118 @@ def scatterer_field(intensity, gain, back, area, density, k0, k1, mu_max, r0, r1
             m_row[j] = density * a_row[j]
         _exp_neg_row(m_row, 40.0, p0, scale)
         _uniform_bits_row(w0, u_row)
-        i_row = intensity[i]
-        fours = np.int32(0)
-        for j in range(J):  # counts 0..3 by comparisons with the first four cumulative probabilities
-            m = min(max(m_row[j], 0.0), 40.0)
-            p = p0[j] * scale[j]
-            p0[j] = p
-            uu = u_row[j]
-            t1 = p * m
-            c1 = p + t1
-            t2 = t1 * (m / 2.0)
-            c2 = c1 + t2
-            c3 = c2 + t2 * (m / 3.0)
-            n = np.int32(uu > p) + np.int32(uu > c1) + np.int32(uu > c2) + np.int32(uu > c3)
-            n_row[j] = n
-            fours += np.int32(n == 4)
-        n_fix = 0
-        for j in range(J if fours > 0 else 0):  # most rows have no count above 3: no scan
-            m = m_row[j]
-            fix[n_fix] = j
-            n_fix += (n_row[j] == 4) & (m > MU_NO_SEABED) & (m < mu_max)
-        for t in range(n_fix):  # counts above 3: the inversion from the start
-            j = fix[t]
-            m = m_row[j]
-            uu = u_row[j]
-            p = p0[j]
-            c = p
-            n = 0
-            while uu > c and n < 1000:
-                n += 1
-                p *= m / n
-                c += p
-            n_row[j] = n
-        b_row = big[i]
-        mean_row = mean[i]
-        one = np.float32(1.0)
-        for j in range(J):  # the power; none where the count is left to the caller
-            m = m_row[j]
-            sea = m > MU_NO_SEABED
-            bg = sea & (m >= mu_max)
-            seaf = np.float32(sea)
-            ratio = np.float32(n_row[j] / (m if sea else 1.0)) * seaf + (one - seaf)
-            echo = i_row[j] * gain
-            power[j] = (echo * ratio + bk) * (one - np.float32(bg))
-            mean_row[j] = echo + bk
-            b_row[j] = bg
+        _poisson_small_row(m_row, p0, scale, u_row, mu_max, n_row, fix)
+        _field_power_row(m_row, n_row, intensity[i], gain, bk, mu_max, power, big[i], mean[i])
         _radius2_row(w1, x, e, mant, r2)
         _normals_row(w2, r2, power, z[i].reshape(2 * J))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def field_words(k0, k1, r0, r1, u_words, r2, unit):
+    """The part of :func:`scatterer_field` that does not depend on the echo, rows ``r0..r1``: per cell
+    the count's word ``b0`` (``u_words`` (B, J) uint32), the squared Box-Muller radius of ``b1``
+    (``r2`` (B, J) float32, :func:`_radius2_row`) and the signed ``(cos, sin)(2 pi u)`` of ``b2``
+    (``unit`` (B, J, 2) float32: :func:`_normals_row` before its scale), from Philox4x32-10 under
+    ``(k0, k1)``. Drawn beside the scan (``ScattererNoise.draw``); :func:`scatterer_field_words`
+    finishes the field from them, the same numbers as :func:`scatterer_field`."""
+    J = u_words.shape[1]
+    x = np.empty(J)
+    e = np.empty(J)
+    mant = np.empty(J)
+    ones = np.ones(J, np.float32)
+    r2_one = np.full(J, np.float32(2.0))  # sqrt(1 x 1/2 x 2) = 1: the unscaled (cos, sin) pair
+    w1 = np.empty(J, np.uint32)
+    w2 = np.empty(J, np.uint32)
+    for i in range(r0, r1):
+        _cell_words_row(k0, k1, i * J, u_words[i], w1, w2)
+        _radius2_row(w1, x, e, mant, r2[i])
+        _normals_row(w2, r2_one, ones, unit[i].reshape(2 * J))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def scatterer_field_words(intensity, gain, back, area, density, mu_max, r0, r1, u_words, r2, unit, z, big, mean):
+    """:func:`scatterer_field` from the words :func:`field_words` drew beforehand (the same numbers:
+    the counts from ``u_words``, then ``z = unit x sqrt(power r2 / 2)``, as :func:`_normals_row`)."""
+    J = intensity.shape[1]
+    m_row = np.empty(J)
+    p0 = np.empty(J)
+    scale = np.empty(J)
+    n_row = np.empty(J, np.int32)
+    u_row = np.empty(J)
+    power = np.empty(J, np.float32)
+    fix = np.empty(J, np.int64)
+    half = np.float32(0.5)
+    for i in range(r0, r1):
+        bk = back[i]
+        a_row = area[i]
+        for j in range(J):
+            m_row[j] = density * a_row[j]
+        _exp_neg_row(m_row, 40.0, p0, scale)
+        _uniform_bits_row(u_words[i], u_row)
+        _poisson_small_row(m_row, p0, scale, u_row, mu_max, n_row, fix)
+        _field_power_row(m_row, n_row, intensity[i], gain, bk, mu_max, power, big[i], mean[i])
+        r2i = r2[i]
+        ui = unit[i].reshape(2 * J)
+        zi = z[i].reshape(2 * J)
+        for j in range(J):
+            sc = np.float32(np.sqrt(np.float64(power[j] * half * r2i[j])))
+            zi[2 * j] = ui[2 * j] * sc
+            zi[2 * j + 1] = ui[2 * j + 1] * sc
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _poisson_small_row(m_row, p0, scale, u_row, mu_max, n_row, fix):
+    """:func:`scatterer_field`'s counts of a row (``p0`` ``exp(-mu)`` as :func:`_exp_neg_row` left it,
+    times ``scale``, on return)."""
+    J = m_row.size
+    fours = np.int32(0)
+    for j in range(J):  # counts 0..3 by comparisons with the first four cumulative probabilities
+        m = min(max(m_row[j], 0.0), 40.0)
+        p = p0[j] * scale[j]
+        p0[j] = p
+        uu = u_row[j]
+        t1 = p * m
+        c1 = p + t1
+        t2 = t1 * (m / 2.0)
+        c2 = c1 + t2
+        c3 = c2 + t2 * (m / 3.0)
+        n = np.int32(uu > p) + np.int32(uu > c1) + np.int32(uu > c2) + np.int32(uu > c3)
+        n_row[j] = n
+        fours += np.int32(n == 4)
+    n_fix = 0
+    for j in range(J if fours > 0 else 0):  # most rows have no count above 3: no scan
+        m = m_row[j]
+        fix[n_fix] = j
+        n_fix += (n_row[j] == 4) & (m > MU_NO_SEABED) & (m < mu_max)
+    for t in range(n_fix):  # counts above 3: the inversion from the start
+        j = fix[t]
+        m = m_row[j]
+        uu = u_row[j]
+        p = p0[j]
+        c = p
+        n = 0
+        while uu > c and n < 1000:
+            n += 1
+            p *= m / n
+            c += p
+        n_row[j] = n
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _field_power_row(m_row, n_row, i_row, gain, bk, mu_max, power, b_row, mean_row):
+    """:func:`scatterer_field`'s power of a row (none where the count is left to the caller), its
+    mean ``echo + back`` and the flags of the cells of large mean."""
+    one = np.float32(1.0)
+    for j in range(m_row.size):
+        m = m_row[j]
+        sea = m > MU_NO_SEABED
+        bg = sea & (m >= mu_max)
+        seaf = np.float32(sea)
+        ratio = np.float32(n_row[j] / (m if sea else 1.0)) * seaf + (one - seaf)
+        echo = i_row[j] * gain
+        power[j] = (echo * ratio + bk) * (one - np.float32(bg))
+        mean_row[j] = echo + bk
+        b_row[j] = bg
 
 
 @njit(cache=True, nogil=True)
@@ -817,12 +888,12 @@ def shadow_origins(pos, t, n, eps, origin, d_act, o32, d32):
 
 
 @njit(cache=True, nogil=True)
-def shadow_step(pos, t, exited, n, eps, geom, tfar, ng, first_body, d_act, hid_r, hid_n):
-    """One round of continuation hits of ``formation._shadow_mask``: a front-facing hit (``n . d < 0``
-    with Embree's geometric normal normalised in float32 as ``RayCaster.cast_raw`` does) of another
-    body, or of the first body after the ray left it, is the hidden surface (``hid_r``, ``hid_n``);
-    a back-facing hit of the first body marks the ray as having left it. Rays that hit something
-    and are not done move on: ``pos``, ``t``, ``exited`` are compacted in place; returns their count."""
+def shadow_step(pos, t, n, eps, geom, tfar, ng, first_body, gap_end, d_act, hid_r, hid_n):
+    """One round of continuation hits of ``formation._shadow_mask`` (the multi-cast path): a
+    front-facing hit (``n . d < 0`` with Embree's geometric normal normalised in float32 as
+    ``RayCaster.cast_raw`` does) is the hidden surface (``hid_r``, ``hid_n``), unless it is a front
+    face of the body the ray first hit at a range up to ``gap_end`` (the first hit again, through
+    float32 rounding). Rays not done move on: ``pos``, ``t`` are compacted in place; returns their count."""
     m = 0
     for k in range(n):
         g = geom[k]
@@ -833,22 +904,53 @@ def shadow_step(pos, t, exited, n, eps, geom, tfar, ng, first_body, d_act, hid_r
         n0, n1, n2 = ng[k, 0], ng[k, 1], ng[k, 2]
         nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2) + np.float32(1e-30)
         m0, m1, m2 = float(n0 / nn), float(n1 / nn), float(n2 / nn)
-        front = m0 * d_act[p, 0] + m1 * d_act[p, 1] + m2 * d_act[p, 2] < 0
-        same = g == first_body[p]
-        ex = exited[k]
-        if front and (not same or ex):
+        if m0 * d_act[p, 0] + m1 * d_act[p, 1] + m2 * d_act[p, 2] < 0 and not (g == first_body[p] and tt <= gap_end[p]):
             hid_r[p] = tt
             hid_n[p, 0] = m0
             hid_n[p, 1] = m1
             hid_n[p, 2] = m2
             continue
-        if not front and same:
-            ex = True
         pos[m] = p
         t[m] = tt
-        exited[m] = ex
         m += 1
     return m
+
+
+@njit(cache=True, nogil=True)
+def shadow_gap_ends(t, eps, origin, d_act, p0, p1, out):
+    """``t + eps + self_gap(o)`` for rays ``p0..p1``, ``o`` the float32 start ``origin + d (t + eps)``:
+    the range up to which a front face of the first body is that body's first hit again."""
+    for p in range(p0, p1):
+        s = t[p] + eps
+        size = max(abs(np.float32(origin[0] + d_act[p, 0] * s)), abs(np.float32(origin[1] + d_act[p, 1] * s)),
+                   abs(np.float32(origin[2] + d_act[p, 2] * s)), np.float32(1.0))
+        out[p] = s + SELF_GAP * float(size)  # as _embree_kernels.self_gap
+
+
+@njit(cache=True, nogil=True)
+def shadow_front(fn, scene, args, t, eps, origin, d_act, far, first_body, p0, p1, hid_r, hid_n):
+    """The hidden surfaces of ``formation._shadow_mask`` in one cast per ray (the direct path): rays
+    ``p0..p1`` (float64 unit directions ``d_act``, first hits at ``t``) start at ``origin + d (t +
+    eps)`` (float64, then float32, as ``shadow_origins``) and go to their closest front-facing hit
+    (``rtcIntersect1`` with the back-face filter, ``optiacoustic._embree_kernels``), whose range
+    ``t + eps + distance`` and float32-normalised normal go to ``hid_r``, ``hid_n`` (left as they are
+    on a miss). A front face of the body the ray first hit (``first_body``) within ``self_gap`` of the
+    start is that first hit again (float32 rounding) and is skipped, as in ``shadow_step``."""
+    f, u, addr = new_rayhit_scratch()
+    for p in range(p0, p1):
+        s = t[p] + eps
+        dist, g, n0, n1, n2 = intersect_front(
+            fn, scene, args, f, u, addr,
+            np.float32(origin[0] + d_act[p, 0] * s), np.float32(origin[1] + d_act[p, 1] * s),
+            np.float32(origin[2] + d_act[p, 2] * s),
+            np.float32(d_act[p, 0]), np.float32(d_act[p, 1]), np.float32(d_act[p, 2]), far, first_body[p])
+        if g < 0:
+            continue
+        nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2) + np.float32(1e-30)
+        hid_r[p] = s + float(dist)
+        hid_n[p, 0] = float(n0 / nn)
+        hid_n[p, 1] = float(n1 / nn)
+        hid_n[p, 2] = float(n2 / nn)
 
 
 @njit(cache=True, nogil=True)

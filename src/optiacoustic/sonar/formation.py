@@ -32,11 +32,12 @@ from typing import Literal
 
 import numpy as np
 
+from .._embree_upload import SELF_GAP
 from .._validate import as_rng, check_memory
 from ..frames import Pose
 from ..raycast import RayCaster, caster_for, widen_hits
 from ..scene import Scene
-from ._kernels import kernels, split_run, truth_kernels, use_numba
+from ._kernels import chunked_run, kernels, split_run, truth_kernels, use_numba
 from ._kernels import workspace as _workspace
 from .frame import SonarFrame, SonarGroundTruth, SonarRays
 from .propagation import Seawater, two_way_gain
@@ -436,9 +437,11 @@ def simulate_sonar(
     def start_draws():
         # the noise variates do not depend on the echo: with a second thread, draw them on the other
         # core once the primary cast (which takes every thread) is done, beside the one-thread stages
+        # (the scatterer noise: the echo-free part of its field too)
         nonlocal draws
         if draw_args is not None and caster.threads > 1:
-            draws = _background().submit(*draw_args)
+            beside = {"_field": True} if pooled and isinstance(noise, ScattererNoise) else {}
+            draws = _background().submit(*draw_args, **beside)
 
     sspec = scan_spec(spec, options.beam_model)
     if options.beam_model == "aperture":
@@ -562,11 +565,11 @@ def _finish_numba(spec: SonarSpec, rows: np.ndarray, bottom_types: dict, slot_of
     kn = kernels()
     if len(names) == 2 and names[1] is None and rows.shape[0] == 2 and list(table) == [0, 1]:
         share = np.empty((spec.n_bins, spec.n_beams), np.float32)  # one bottom type, most rays: its share only
-        split_run(lambda r0, r1: kn.finish_two(rows, scale, thr, r0, r1, intensity, share), spec.n_bins, threads)
+        chunked_run(lambda r0, r1: kn.finish_two(rows, scale, thr, r0, r1, intensity, share), spec.n_bins, threads)
         share.setflags(write=False)
         return intensity, {names[0]: share}
     out = np.empty((len(names), spec.n_bins, spec.n_beams), np.float32)
-    split_run(lambda r0, r1: kn.finish_echo(rows, scale, thr, table, r0, r1, intensity, out), spec.n_bins, threads)
+    chunked_run(lambda r0, r1: kn.finish_echo(rows, scale, thr, table, r0, r1, intensity, out), spec.n_bins, threads)
     return intensity, _read_only_shares(out, names)
 
 
@@ -905,14 +908,21 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
 
             gain = _workspace("scan_gain", (K * J,), np.float64)  # read by footprints only
             k_abs = -0.2 * np.log(10.0) * float(absorption_db_per_m(spec.frequency, options.water))
-            kernels().spreading_gain(body, r, k_abs, gain)
         else:
             gain = np.where(hit, two_way_gain(np.where(hit, r, 1.0), spec.frequency, options.water), 0.0)
     if fast:
         energy, lo, hi = np.empty(K * J), np.empty(K * J), np.empty(K * J)
-        kernels().footprints(body, r, cos_inc, slope, a, b, refl,
-                             np.zeros(0) if weights is None else np.asarray(weights, float),
-                             np.zeros(0) if gain is None else gain, J, 1e-4 * spec.bin_width, energy, lo, hi)
+        w_k = np.zeros(0) if weights is None else np.asarray(weights, float)
+        kn = kernels()
+
+        def rows(k0, k1):  # elevation rows k0..k1 (every ray on its own: the threads take rows)
+            s = slice(k0 * J, k1 * J)
+            if gain is not None:
+                kn.spreading_gain(body[s], r[s], k_abs, gain[s])
+            kn.footprints(body[s], r[s], cos_inc[s], slope[s], a[s], b[s], refl, w_k[k0:k1],
+                          np.zeros(0) if gain is None else gain[s], J, 1e-4 * spec.bin_width, energy[s], lo[s], hi[s])
+
+        chunked_run(rows, K, caster.threads)
     else:
         energy = refl[body] * cos_inc * (a + b)
         if weights is not None:
@@ -997,7 +1007,7 @@ def _scan_hits_numba(caster: RayCaster, spec: SonarSpec, pose: Pose):
     r, cos_inc = np.empty(n), np.empty(n)
     nd, ndd, slope = (_workspace(f"scan_{name}", (n,), np.float64) for name in ("nd", "ndd", "slope"))
     cn, off, ng = caster.corner_normals, caster.triangle_offset, np.zeros((0, 3), np.float32)
-    split_run(lambda i0, i1: kn.scan_rays(tfar, geom, prim, u, v, ng, cn, off, True, cp, sp, a_dir, rz, i0, i1,
+    chunked_run(lambda i0, i1: kn.scan_rays(tfar, geom, prim, u, v, ng, cn, off, True, cp, sp, a_dir, rz, i0, i1,
                                           body, r, nd, ndd, cos_inc, slope), n, caster.threads)
     return body, r, nd, ndd, cos_inc, slope
 
@@ -1198,36 +1208,8 @@ def _aperture_rows(spec: SonarSpec, cells: _ApertureCells, options: SonarOptions
             bm(seabed_of_ray), dtheta, float(spec.range_min), B * q, H, V, full, q, B, bool(need_area),
             max(1, int(n_sub.max(initial=0))))
     live = np.empty((n_slots, J), np.bool_)
-    _chunked_run(lambda j0, j1: ak.aperture_echo_rows(*args, j0, j1, out, area, live), J, threads)
+    chunked_run(lambda j0, j1: ak.aperture_echo_rows(*args, j0, j1, out, area, live), J, threads)
     return out, (area if need_area else None), live, slot_of
-
-
-#: Beam chunks per thread of :func:`_chunked_run`.
-_CHUNKS_PER_THREAD = 4
-
-
-def _chunked_run(fn, n: int, threads: int) -> None:
-    """``fn(a, b)`` over ``[0, n)`` in chunks that ``threads`` workers (this thread one of them)
-    take in turn as they finish the last: a thread slowed by another process, or by the noise
-    draws on the second core, takes fewer (``split_run``'s fixed halves waited for it). For
-    GIL-releasing kernels whose chunks write disjoint outputs."""
-    threads = max(1, min(int(threads), n // 64 or 1))
-    if threads == 1:
-        fn(0, n)
-        return
-    from ._kernels import _pool
-
-    step = -(-n // (threads * _CHUNKS_PER_THREAD))
-    starts = iter(range(0, n, step))  # next() on it is atomic under the GIL: each chunk goes to one worker
-
-    def work():
-        for a in starts:
-            fn(a, min(a + step, n))
-
-    jobs = [_pool(threads - 1).submit(work) for _ in range(threads - 1)]
-    work()
-    for job in jobs:
-        job.result()
 
 
 #: Sub-rays cast across each visibility discontinuity between two elevation samples.
@@ -1417,15 +1399,34 @@ def _grid_directions(spec: SonarSpec, R: np.ndarray, idx: np.ndarray):
     return cp * a + sp * R[:, 2], -sp * a + cp * R[:, 2]
 
 
-def _shadow_mask(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.ndarray) -> np.ndarray:
+def _shadow_mask(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.ndarray, *,
+                 direct: bool = True) -> np.ndarray:
     """Cells that would echo but for an occluder: the hidden surfaces behind each hit, unlit.
 
-    Each hit ray is continued beyond its hit, skipping back-facing hits and the rest of
-    the body it hit first, to the next surface facing the sonar. Cells that surface's
-    footprint covers and that no direct ray lights are acoustic shadow.
+    Each hit ray is continued beyond its first hit to the next surface it meets from the front
+    (``n . d < 0``, ``n`` the triangle's geometric normal): back faces are passed through, front
+    faces of any body, the first one included, end it. Cells that this hidden surface's footprint
+    covers and that no direct ray lights are acoustic shadow. Rays going down through a floor plane
+    (a horizontal body with every vertex of the scene at or above it) are not continued: nothing
+    lies beyond.
+
+    Two ways to find the hidden surface, the same surface on closed bodies: with the numba kernels
+    and where :meth:`RayCaster.front_hits` checks out (``direct``), one ``rtcIntersect1`` per ray whose
+    filter rejects back-facing hits during the traversal; otherwise (and on the numpy reference
+    path) casts in rounds, each from just beyond the previous hit, up to 6 hits per ray. The two
+    measure the hidden range from different float32 origins (the first hit, or the last back face),
+    so a footprint edge may move by float32 rounding and a cell at its edge flip; and where a body's
+    base lies flush on the seabed, a ray leaving through it meets base and seabed at one distance:
+    the one-cast path takes the seabed under the body (shadow), the rounds restart under the seabed
+    and find nothing (207 of 35 895 shadow cells in the thesis frame). In both, a front face of the
+    first body within ``SELF_GAP`` x the start's largest coordinate is the first hit met again through
+    float32 rounding and is passed over (docs/physics.md 1.6.1). On an open surface
+    (a body that is not closed) the rule is the one above in both ways: a front face of the body
+    hit first that the ray meets without having crossed one of its back faces (a second sheet of
+    the same open mesh behind the first) is a hidden surface; before issue 14 it was passed over.
     """
     if use_numba():
-        return _shadow_mask_numba(scene, caster, spec, pose, rays, elevation_min)
+        return _shadow_mask_numba(scene, caster, spec, pose, rays, elevation_min, direct=direct)
     first_body = rays.body.reshape(-1)
     r0 = rays.range.reshape(-1)
     hit = first_body >= 0
@@ -1446,8 +1447,11 @@ def _shadow_mask(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.n
     hidden_n = np.zeros((first_body.size, 3))
     t = r0[active].copy()
     idx = active
-    exited = np.zeros(idx.size, bool)  # has the ray left the body it first hit?
     eps = 1e-4 * max(spec.bin_width, 1e-3)
+    # a front face of the first body up to here is that first hit again (float32 rounding at grazing incidence)
+    start32 = (pose.t + d_act * (t + eps)[:, None]).astype(np.float32)
+    gap_end = np.zeros(first_body.size)
+    gap_end[active] = t + eps + SELF_GAP * np.maximum(np.abs(start32).max(axis=1), 1.0).astype(np.float64)
     d32_all = np.asarray(d_w, np.float32)
     for _ in range(6):  # a few crossings of the occluding body are enough for closed shapes
         if idx.size == 0:
@@ -1461,13 +1465,11 @@ def _shadow_mask(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.n
         h_normal = h_n.astype(np.float64)
         with np.errstate(invalid="ignore"):
             front = got & (np.einsum("ij,ij->i", h_normal, d_w[idx]) < 0)
-        same = h_body == first_body[idx]
-        accept = front & (~same | exited)
-        hidden_r[idx[accept]] = tt[accept]
-        hidden_n[idx[accept]] = h_normal[accept]
-        exited = exited | (got & ~front & same)
-        keep = got & ~accept
-        idx, t, exited = idx[keep], tt[keep], exited[keep]
+        front &= ~((h_body == first_body[idx]) & (tt <= gap_end[idx]))
+        hidden_r[idx[front]] = tt[front]
+        hidden_n[idx[front]] = h_normal[front]
+        keep = got & ~front  # met a back face (or the first hit again): on to the next surface
+        idx, t = idx[keep], tt[keep]
     sel = np.isfinite(hidden_r)
     if not sel.any():
         return np.zeros((spec.n_bins, spec.n_beams), bool)
@@ -1487,9 +1489,11 @@ def _shadow_mask(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.n
     return (hidden > 1e-9) & np.isnan(elevation_min)
 
 
-def _shadow_mask_numba(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.ndarray) -> np.ndarray:
+def _shadow_mask_numba(scene, caster, spec, pose, rays: SonarRays, elevation_min: np.ndarray, *,
+                       direct: bool = True) -> np.ndarray:
     """:func:`_shadow_mask` with the continuation rays' bookkeeping in kernels: only the rays that
-    continue are touched (no per-grid-ray arrays of directions or normals)."""
+    continue are touched (no per-grid-ray arrays of directions or normals); one direct cast per ray
+    where ``direct`` and the caster's :meth:`~RayCaster.front_hits` allow, else casts in rounds."""
     kn = kernels()
     first_body = np.ascontiguousarray(rays.body).reshape(-1)
     # nothing lies below a floor plane: a ray going down through it hits nothing more
@@ -1518,6 +1522,7 @@ def _shadow_mask_numba(scene, caster, spec, pose, rays: SonarRays, elevation_min
     eps = 1e-4 * max(spec.bin_width, 1e-3)
     origin = np.asarray(pose.t, float)
     far = min(np.float32(spec.range_max * 1.5), np.float32(1e30))
+    front = caster.front_hits() if direct else None
 
     lo, hi = ws("lo")[:n], ws("hi")[:n]
     min_half = 0.5 * spec.bin_width * 1e-3
@@ -1531,16 +1536,22 @@ def _shadow_mask_numba(scene, caster, spec, pose, rays: SonarRays, elevation_min
         # so the threads need not meet between rounds), then their hidden surfaces' footprints;
         # they write disjoint rows of d_act, dd_act, hid_r, hid_n, lo, hi
         kn.grid_directions(active[p0:p1], cp, sp, a_dir, rz, d_act[p0:p1], dd_act[p0:p1])
-        m = p1 - p0
-        pos, tt, exited = np.arange(p0, p1, dtype=np.int64), t[p0:p1].copy(), np.zeros(m, bool)
-        o32, d32 = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)
-        for _ in range(6):  # a few crossings of the occluding body are enough for closed shapes
-            if m == 0:
-                break
-            kn.shadow_origins(pos, tt, m, eps, origin, d_act, o32, d32)
-            tfar, geom, _, _, _, ng = caster.intersect_raw(o32[:m], d32[:m], np.full(m, far, np.float32),
-                                                           normals=True, split=False)
-            m = kn.shadow_step(pos, tt, exited, m, eps, geom, tfar, ng, body_act, d_act, hid_r, hid_n)
+        if front is not None:  # one cast per ray: Embree skips the back faces
+            kn.shadow_front(front.fn, front.scene, front.args, t, eps, origin, d_act, far, body_act, p0, p1, hid_r,
+                            hid_n)
+        else:
+            m = p1 - p0
+            pos, tt = np.arange(p0, p1, dtype=np.int64), t[p0:p1].copy()
+            gap_end = ws("gap_end")[:n]
+            kn.shadow_gap_ends(t, eps, origin, d_act, p0, p1, gap_end)
+            o32, d32 = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)
+            for _ in range(6):  # each back face met costs a round: a few are enough for closed shapes
+                if m == 0:
+                    break
+                kn.shadow_origins(pos, tt, m, eps, origin, d_act, o32, d32)
+                tfar, geom, _, _, _, ng = caster.intersect_raw(o32[:m], d32[:m], np.full(m, far, np.float32),
+                                                               normals=True, split=False)
+                m = kn.shadow_step(pos, tt, m, eps, geom, tfar, ng, body_act, gap_end, d_act, hid_r, hid_n)
         kn.shadow_boxes(hid_r[p0:p1], hid_n[p0:p1], d_act[p0:p1], dd_act[p0:p1], spec.elevation_step, min_half,
                         lo[p0:p1], hi[p0:p1])
         sel = np.isfinite(hid_r[p0:p1])
