@@ -345,12 +345,12 @@ def _arc_profiles_figure(path, sonar, optical, rig, m, n_rows: int = 6):
 
 
 def _candidate_truth(m, sonar, optical, rig) -> dict:
-    """Which of each one-view match's candidates (arc search, crease, face plane) is right (evaluation only)."""
+    """Which of each one-view match's candidates (arc search, crease, face plane, foot) is right (evaluation only)."""
     from ..matching import truth
 
     bw, aw = float(np.median(np.diff(sonar.ranges))), float(np.median(np.diff(sonar.azimuths)))
     out = {}
-    for name in ("arc", "crease", "plane"):
+    for name in ("arc", "crease", "plane", "foot"):
         has = np.zeros(len(m), bool)
         ok = np.zeros(len(m), bool)
         if m and f"{name}_u" in m.features:
@@ -381,7 +381,8 @@ def _face_plane_figure(path, scene_name, sonar, optical, rig, m, cand, pooled):
     shown[edges] = 0.5 * shown[edges]
     ax[0].imshow(shown)
     f = m.features
-    styles = (("arc", "o", "run's middle"), ("crease", "^", "below the crease"), ("plane", "s", "on the face plane"))
+    styles = (("arc", "o", "run's middle"), ("crease", "^", "below the crease"), ("plane", "s", "on the face plane"),
+              ("foot", "D", "above the foot"))
     for name, marker, label in styles:
         u, v = np.asarray(f[f"{name}_u"], float), np.asarray(f[f"{name}_v"], float)
         has, ok = cand[f"has_{name}"], cand[f"ok_{name}"]
@@ -395,12 +396,13 @@ def _face_plane_figure(path, scene_name, sonar, optical, rig, m, cand, pooled):
                     fontsize=8)
     ax[0].legend(fontsize=6, loc="lower left", ncol=3)
     ax[0].set_axis_off()
-    names = ["run's middle", "below the crease", "on the face plane", "chosen (most probable)", "any of the three"]
-    vals = [pooled["arc"], pooled["crease"], pooled["plane"], pooled["chosen"], pooled["any"]]
-    ax[1].barh(np.arange(5), vals, color=["#4363d8", "#f58231", "#911eb4", "#000000", "#aaaaaa"])
+    names = ["run's middle", "below the crease", "on the face plane", "above the foot", "chosen (most probable)",
+             "any of the four"]
+    vals = [pooled["arc"], pooled["crease"], pooled["plane"], pooled["foot"], pooled["chosen"], pooled["any"]]
+    ax[1].barh(np.arange(6), vals, color=["#4363d8", "#f58231", "#911eb4", "#9a6324", "#000000", "#aaaaaa"])
     for i, (v_, n_) in enumerate(zip(vals, pooled["n"])):
         ax[1].text(min(v_ + 0.01, 0.85), i, f"{v_:.2f} of {n_}", va="center", fontsize=8)
-    ax[1].set_yticks(np.arange(5), names, fontsize=8)
+    ax[1].set_yticks(np.arange(6), names, fontsize=8)
     ax[1].set_xlim(0, 1)
     ax[1].invert_yaxis()
     ax[1].set_xlabel("fraction right (where the candidate exists)")
@@ -542,19 +544,19 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     if cat and cat["source"].size:
         ok_chosen = np.concatenate([e["ok"] for e in evals])
         pooled = dict(n=[int(cat["has_arc"].sum()), int(cat["has_crease"].sum()), int(cat["has_plane"].sum()),
-                         int(ok_chosen.size), int(ok_chosen.size)], n_scenes=len(all_scenes))
-        for name in ("arc", "crease", "plane"):
+                         int(cat["has_foot"].sum()), int(ok_chosen.size), int(ok_chosen.size)], n_scenes=len(all_scenes))
+        for name in ("arc", "crease", "plane", "foot"):
             h = cat[f"has_{name}"]
             pooled[name] = float(cat[f"ok_{name}"][h].mean()) if h.any() else 0.0
         pooled["chosen"] = float(ok_chosen.mean())
-        pooled["any"] = float(np.mean(cat["ok_arc"] | cat["ok_crease"] | cat["ok_plane"]))
-        face_plane_numbers = dict(pooled, source_counts=np.bincount(cat["source"], minlength=3).tolist())
+        pooled["any"] = float(np.mean(cat["ok_arc"] | cat["ok_crease"] | cat["ok_plane"] | cat["ok_foot"]))
+        face_plane_numbers = dict(pooled, source_counts=np.bincount(cat["source"], minlength=4).tolist())
         if profile is not None:
             s_p, o_p, rig_p, m_p = profile
             f_fp = _face_plane_figure(out_dir / "matching_face_plane.png", profile_name, s_p, o_p, rig_p, m_p,
                                       _candidate_truth(m_p, s_p, o_p, rig_p), pooled)
             figures.append((f_fp, f"The face-plane model on {profile_name} (evaluation only: right or wrong by the "
-                                  "depth map): each sonar feature's three candidate pixels, and how often each is "
+                                  "depth map): each sonar feature's four candidate pixels, and how often each is "
                                   f"right over the {len(all_scenes)} scenes."))
 
     # 2. Turbidity and sonar noise (on a subset of scenes).
