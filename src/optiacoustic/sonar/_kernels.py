@@ -14,6 +14,7 @@ import threading
 import numpy as np
 
 from .. import _kernel_switch as _switch
+from .._scratch import Workspace
 
 __all__ = ["use_numba", "kernels", "truth_kernels", "split_run", "chunked_run", "workspace", "pooled", "give_back"]
 
@@ -92,18 +93,8 @@ def chunked_run(fn, n: int, threads: int) -> None:
         job.result()
 
 
-_WORKSPACE = threading.local()
-
-
-def workspace(name: str, shape: tuple, dtype) -> np.ndarray:
-    """A per-thread scratch array reused across frames (large fresh arrays cost page faults)."""
-    cache = getattr(_WORKSPACE, "arrays", None)
-    if cache is None:
-        cache = _WORKSPACE.arrays = {}
-    arr = cache.get(name)
-    if arr is None or arr.shape != shape or arr.dtype != dtype:
-        arr = cache[name] = np.empty(shape, dtype)
-    return arr
+#: per-thread scratch of this simulator's frames (see :mod:`optiacoustic._scratch`)
+workspace = Workspace()
 
 
 # Buffers that one frame holds from one thread to another (the noise variates, drawn on the background
