@@ -59,18 +59,30 @@ class busy_core:
 
 
 class caster_threads:
-    """Context manager: a :class:`~optiacoustic.raycast.RayCaster` limited to ``n`` threads."""
+    """Context manager: a :class:`~optiacoustic.raycast.RayCaster` limited to ``n`` threads, and
+    ``OAS_THREADS`` set to ``n`` (what the stages that take no caster read: the fan resampling), so
+    that a '1 thread' row runs on one thread throughout."""
 
     def __init__(self, caster, n: int):
         self.caster, self.n = caster, n
 
     def __enter__(self):
+        import os
+
         self._old = self.caster.threads
+        self._old_env = os.environ.get("OAS_THREADS")
         self.caster.threads = self.n
+        os.environ["OAS_THREADS"] = str(self.n)
         return self.caster
 
     def __exit__(self, *exc):
+        import os
+
         self.caster.threads = self._old
+        if self._old_env is None:
+            os.environ.pop("OAS_THREADS", None)
+        else:
+            os.environ["OAS_THREADS"] = self._old_env
         return False
 
 

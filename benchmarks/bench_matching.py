@@ -9,7 +9,7 @@ TITLE = "Automatic opti-acoustic matching"
 DESCRIPTION = ("`matching.match` on one simulated pair of `thesis_scene1` (BlueView P900-90 750 x 512 polar "
                "image, 600 x 400 camera, thesis water, default sonar noise), target <= 1 s per pair; against "
                "simulating that pair (`simulate_rig`: both sensors) and against its stages (CFAR sonar features, "
-               "the arc search, the seabed-contact search, the face-plane model; for the first design, corners and the epipolar gate); and the two-view "
+               "the arc search, the seabed-contact search, the face-plane model, the point above the foot; for the first design, corners and the epipolar gate); and the two-view "
                "matching with a second pair after a known motion.")
 
 
@@ -69,6 +69,10 @@ def run() -> list[dict]:
         return face_planes(rig, plane, sf.ranges, sf.azimuths, face, C, ok, np.nan_to_num(ch.elevations), labels)
 
     t_plane = median_ms(plane_stage, repeat=7, warmup=1)
+    from optiacoustic.matching.contact import echo_end_ranges, foot_points
+
+    t_foot = median_ms(lambda: foot_points(rig, plane, sf.ranges, sf.azimuths,
+                                           echo_end_ranges(s.image, s.ranges, sf.bins, sf.beams)), repeat=7, warmup=1)
     m = match(s, o.image, rig, min_score=0.0)
     note = f"{len(sf)} sonar features, {len(m)} matches (arc search)"
     from optiacoustic.experiments.matching import moved_view
@@ -96,6 +100,8 @@ def run() -> list[dict]:
         dict(name="face-plane model (face labels + plane fits + arc-plane points), all arcs", value=t_plane,
              unit="ms", reference="match", ratio=t_plane / t_match,
              note="connected components of edge-free pixels; a RANSAC over crease pairs per face window"),
+        dict(name="point above the foot (echo end + seabed plane), all features", value=t_foot, unit="ms",
+             reference="match", ratio=t_foot / t_match, note="closed form per feature; one CFAR map"),
         dict(name="match / simulate the pair", value=t_match, unit="ms", reference="simulate_rig (both sensors)",
              ratio=t_match / t_sim, note=f"simulate_rig {t_sim:.0f} ms"),
         dict(name="camera corners (OpenCV)", value=t_cam, unit="ms", reference="match (arc search)",

@@ -30,7 +30,6 @@ kernels import it, never ``import optiacoustic``. Struct layouts are from Embree
 
 from __future__ import annotations
 
-import ctypes
 import functools
 import threading
 

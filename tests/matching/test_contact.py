@@ -4,7 +4,8 @@ import numpy as np
 
 from optiacoustic.frames import Pose, sonar_from_spherical, spherical_from_sonar
 from optiacoustic.matching.acoustic import SeabedPlane
-from optiacoustic.matching.contact import crease_points, echo_start_ranges, search_contacts
+from optiacoustic.matching.contact import (crease_points, echo_end_ranges, echo_start_ranges, foot_points,
+                                          search_contacts)
 
 
 def _rig():
@@ -81,3 +82,48 @@ def test_search_contacts_needs_an_edge_at_the_foot():
     assert c.found[0]
     assert abs(np.rad2deg(c.elevations[0]) - 5.0) < 1.0
     assert c.heights[0] > 0.05
+
+
+def test_foot_points_recover_a_point_above_a_known_foot():
+    """A vertical face whose foot lies on the seabed at the feature's azimuth and the echo's end range."""
+    rig, sp = _rig()
+    bed = _seabed(sp)
+    rng = np.random.default_rng(5)
+    th = np.deg2rad(rng.uniform(-20.0, 20.0, 30))
+    r_end = rng.uniform(6.0, 7.5, 30)
+    # The seabed point at (r_end, theta): bisect the elevation where the height crosses zero.
+    lo, hi = np.full(30, -0.6), np.full(30, 0.3)
+    for _ in range(60):
+        mid = (lo + hi) / 2
+        above = bed.height(sonar_from_spherical(r_end, th, mid)) > 0
+        hi, lo = np.where(above, mid, hi), np.where(above, lo, mid)
+    F = sonar_from_spherical(r_end, th, lo)
+    h = rng.uniform(0.05, 0.8, 30)  # the feature's point lies this far above the foot
+    X = F + h[:, None] * bed.normal
+    r, _, ph = spherical_from_sonar(X)
+    c = foot_points(rig, bed, r, th, r_end)
+    assert c.found.all()
+    np.testing.assert_allclose(c.height, h, atol=1e-6)
+    np.testing.assert_allclose(c.elevations, ph, atol=1e-6)
+    # The pixel is the feature's own arc point at that elevation.
+    expected = rig.camera.project(rig.camera_from_sonar(sonar_from_spherical(r, th, ph)))
+    np.testing.assert_allclose(c.pixels, expected, atol=1e-6)
+    # A foot nearer than the feature (no such face) and no seabed give nothing.
+    assert not foot_points(rig, SeabedPlane(np.full(3, np.nan), np.nan, np.nan, 0), r, th, r_end).found.any()
+
+
+def test_echo_end_ranges_find_the_trailing_edge_of_a_block_echo():
+    rng = np.random.default_rng(0)
+    n_bins, n_beams = 300, 60
+    ranges = 1.0 + 0.0254 * np.arange(n_bins)
+    img = rng.exponential(1.0, (n_bins, n_beams))
+    img[120:128, 20:40] += 200.0  # an object's echo from bin 120 to 127 in beams 20-39
+    end = echo_end_ranges(img, ranges, np.array([120, 124, 127]), np.array([25, 30, 35]))
+    # One bin past the echo's last bin: the 3 x 3 mean there holds a third of the echo, above 1.5x its
+    # background (the end's looser threshold), so the end is found one bin late, the blur's width.
+    np.testing.assert_allclose(end, ranges[128], atol=1e-9)
+    # At the detection's threshold (3x) it is the echo's last bin.
+    np.testing.assert_allclose(echo_end_ranges(img, ranges, np.array([124]), np.array([30]), factor=3.0),
+                               ranges[127], atol=1e-9)
+    # A cell outside any echo ends where it is.
+    np.testing.assert_allclose(echo_end_ranges(img, ranges, np.array([200]), np.array([5])), ranges[200])

@@ -70,7 +70,7 @@ def test_returned_arrays_share_no_memory_with_other_frames_or_the_scratch(scene)
 
     a = simulate_optical(scene, CAM, _pose(), seed=1)
     b = simulate_optical(scene, CAM, _pose(0.3), seed=2)
-    scratch = list(getattr(render._WORKSPACE, "arrays", {}).values())
+    scratch = render._workspace.arrays()
     assert scratch  # the rays of this thread's frames are scratch
     for ka, va in _arrays(a).items():
         for s in scratch:

@@ -361,12 +361,14 @@ def test_fused_aperture_pass_matches_materialised_subcells(thesis, monkeypatch):
 
 
 def test_chunked_run_covers_each_index_once():
+    from optiacoustic.sonar import _kernels as K
+
     seen = []
-    F._chunked_run(lambda a, b: seen.append((a, b)), 1000, 2)
+    K.chunked_run(lambda a, b: seen.append((a, b)), 1000, 2)
     assert sorted(i for a, b in seen for i in range(a, b)) == list(range(1000))
-    assert len(seen) == 2 * F._CHUNKS_PER_THREAD
+    assert len(seen) == 2 * K._CHUNKS_PER_THREAD
     seen.clear()
-    F._chunked_run(lambda a, b: seen.append((a, b)), 100, 2)  # too few for two threads: one call
+    K.chunked_run(lambda a, b: seen.append((a, b)), 100, 2)  # too few for two threads: one call
     assert seen == [(0, 100)]
 
 
@@ -421,3 +423,33 @@ def test_aperture_rows_match_deposit_by_deposit(thesis, monkeypatch, q):
         # rows without deposits (left out of the beam mixing) are zeros, in both
         assert not np.any(rows[s][~live[s]]) and not np.any(ref[s][~live[s]])
         assert live[s].any()
+
+
+def test_scatterer_words_drawn_beside_the_scan_give_the_same_image(thesis, monkeypatch):
+    """``ScattererNoise.draw(_field=True)`` (the echo-free part of the field, drawn beside the scan when a
+    frame has a second thread) and the one-pass kernel give the same image, bit for bit, and a frame
+    on two threads (which draws them so) equals one on one thread (which does not)."""
+    monkeypatch.setenv("OAS_KERNELS", "numba")
+    sc, pose = thesis
+    opts = SonarOptions(beam_model="aperture", propagation="spreading")
+    noise = ScattererNoise(density=300.0, gain=DeviceGain(noise_db=-60.0, volume_db=-50.0, spreading_db=30.0))
+    f = simulate_sonar(sc, SPEC, pose, noise=False, options=opts)
+    area = np.full(f.intensity.shape, 0.01, np.float32)
+    area[::17, ::13] = 0.2  # some cells of mean count >= 30: drawn by the generator
+
+    def image(field):
+        d = noise.draw(f.intensity.shape, (), np.random.default_rng(9), _reuse=True, _field=field)
+        assert len(d) == (3 if field else 2)
+        img = noise.apply(f.intensity, spec=SPEC, seabed_share=f.seabed_share, options=opts, draws=d,
+                          cell_area=area, threads=2)
+        N.release_draws(d)
+        return img
+
+    a, b = image(False), image(True)
+    assert np.array_equal(a, b) and a.std() > 0
+    caster = F.caster_for(sc)
+    frames = []
+    for threads in (1, 2):
+        monkeypatch.setattr(caster, "threads", threads)
+        frames.append(simulate_sonar(sc, SPEC, pose, noise=noise, options=opts, seed=4).image)
+    assert np.array_equal(frames[0], frames[1])

@@ -13,8 +13,6 @@ import pkgutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from .._atomic import ensure_dir, write_json
 from .._atomic import jsonable as _jsonable
 

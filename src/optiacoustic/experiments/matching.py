@@ -345,12 +345,12 @@ def _arc_profiles_figure(path, sonar, optical, rig, m, n_rows: int = 6):
 
 
 def _candidate_truth(m, sonar, optical, rig) -> dict:
-    """Which of each one-view match's candidates (arc search, crease, face plane) is right (evaluation only)."""
+    """Which of each one-view match's candidates (arc search, crease, face plane, foot) is right (evaluation only)."""
     from ..matching import truth
 
     bw, aw = float(np.median(np.diff(sonar.ranges))), float(np.median(np.diff(sonar.azimuths)))
     out = {}
-    for name in ("arc", "crease", "plane"):
+    for name in ("arc", "crease", "plane", "foot"):
         has = np.zeros(len(m), bool)
         ok = np.zeros(len(m), bool)
         if m and f"{name}_u" in m.features:
@@ -381,7 +381,8 @@ def _face_plane_figure(path, scene_name, sonar, optical, rig, m, cand, pooled):
     shown[edges] = 0.5 * shown[edges]
     ax[0].imshow(shown)
     f = m.features
-    styles = (("arc", "o", "run's middle"), ("crease", "^", "below the crease"), ("plane", "s", "on the face plane"))
+    styles = (("arc", "o", "run's middle"), ("crease", "^", "below the crease"), ("plane", "s", "on the face plane"),
+              ("foot", "D", "above the foot"))
     for name, marker, label in styles:
         u, v = np.asarray(f[f"{name}_u"], float), np.asarray(f[f"{name}_v"], float)
         has, ok = cand[f"has_{name}"], cand[f"ok_{name}"]
@@ -395,12 +396,13 @@ def _face_plane_figure(path, scene_name, sonar, optical, rig, m, cand, pooled):
                     fontsize=8)
     ax[0].legend(fontsize=6, loc="lower left", ncol=3)
     ax[0].set_axis_off()
-    names = ["run's middle", "below the crease", "on the face plane", "chosen (most probable)", "any of the three"]
-    vals = [pooled["arc"], pooled["crease"], pooled["plane"], pooled["chosen"], pooled["any"]]
-    ax[1].barh(np.arange(5), vals, color=["#4363d8", "#f58231", "#911eb4", "#000000", "#aaaaaa"])
+    names = ["run's middle", "below the crease", "on the face plane", "above the foot", "chosen (most probable)",
+             "any of the four"]
+    vals = [pooled["arc"], pooled["crease"], pooled["plane"], pooled["foot"], pooled["chosen"], pooled["any"]]
+    ax[1].barh(np.arange(6), vals, color=["#4363d8", "#f58231", "#911eb4", "#9a6324", "#000000", "#aaaaaa"])
     for i, (v_, n_) in enumerate(zip(vals, pooled["n"])):
         ax[1].text(min(v_ + 0.01, 0.85), i, f"{v_:.2f} of {n_}", va="center", fontsize=8)
-    ax[1].set_yticks(np.arange(5), names, fontsize=8)
+    ax[1].set_yticks(np.arange(6), names, fontsize=8)
     ax[1].set_xlim(0, 1)
     ax[1].invert_yaxis()
     ax[1].set_xlabel("fraction right (where the candidate exists)")
@@ -542,19 +544,19 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     if cat and cat["source"].size:
         ok_chosen = np.concatenate([e["ok"] for e in evals])
         pooled = dict(n=[int(cat["has_arc"].sum()), int(cat["has_crease"].sum()), int(cat["has_plane"].sum()),
-                         int(ok_chosen.size), int(ok_chosen.size)], n_scenes=len(all_scenes))
-        for name in ("arc", "crease", "plane"):
+                         int(cat["has_foot"].sum()), int(ok_chosen.size), int(ok_chosen.size)], n_scenes=len(all_scenes))
+        for name in ("arc", "crease", "plane", "foot"):
             h = cat[f"has_{name}"]
             pooled[name] = float(cat[f"ok_{name}"][h].mean()) if h.any() else 0.0
         pooled["chosen"] = float(ok_chosen.mean())
-        pooled["any"] = float(np.mean(cat["ok_arc"] | cat["ok_crease"] | cat["ok_plane"]))
-        face_plane_numbers = dict(pooled, source_counts=np.bincount(cat["source"], minlength=3).tolist())
+        pooled["any"] = float(np.mean(cat["ok_arc"] | cat["ok_crease"] | cat["ok_plane"] | cat["ok_foot"]))
+        face_plane_numbers = dict(pooled, source_counts=np.bincount(cat["source"], minlength=4).tolist())
         if profile is not None:
             s_p, o_p, rig_p, m_p = profile
             f_fp = _face_plane_figure(out_dir / "matching_face_plane.png", profile_name, s_p, o_p, rig_p, m_p,
                                       _candidate_truth(m_p, s_p, o_p, rig_p), pooled)
             figures.append((f_fp, f"The face-plane model on {profile_name} (evaluation only: right or wrong by the "
-                                  "depth map): each sonar feature's three candidate pixels, and how often each is "
+                                  "depth map): each sonar feature's four candidate pixels, and how often each is "
                                   f"right over the {len(all_scenes)} scenes."))
 
     # 2. Turbidity and sonar noise (on a subset of scenes).
@@ -812,7 +814,7 @@ FACE_TRAINING = ((range(5000, 5048), "thesis"), (range(5000, 5024), "jerlov-1C")
 
 
 def calibrate_face_score(scenes=FACE_TRAINING, *, ridge: float = 1.0) -> dict:
-    """Refit ``matching.match.FACE_SCORE_MODEL``, ``FACE_PLANE_SCORE_MODEL``, ``CREASE_SCORE_MODEL`` and ``PLANE_SCORE_MODEL``.
+    """Refit ``matching.match.FACE_SCORE_MODEL``, ``FACE_PLANE_SCORE_MODEL``, ``CREASE_SCORE_MODEL``, ``PLANE_SCORE_MODEL``, ``FOOT_SCORE_MODEL``.
 
     Runs the matcher on the random scenes ``scenes`` (pairs of seeds and water, default sonar
     noise; :data:`FACE_TRAINING`) and labels, by the depth-map truth, the arc search's pixel of every
@@ -826,15 +828,15 @@ def calibrate_face_score(scenes=FACE_TRAINING, *, ridge: float = 1.0) -> dict:
     Returns
     -------
     dict
-        ``face``, ``face_plane``, ``crease`` and ``plane``: each ``weights`` (intercept first),
+        ``face``, ``face_plane``, ``crease``, ``plane`` and ``foot``: each ``weights`` (intercept first),
         ``mean``, ``std``, ``n``, ``positive_rate``.
     """
     from ..matching import match, truth
     from ..matching.match import (crease_score_features, face_plane_score_features, face_score_features,
-                                  plane_score_features)
+                                  foot_score_features, plane_score_features)
 
     featurise = dict(face=face_score_features, face_plane=face_plane_score_features, crease=crease_score_features,
-                     plane=plane_score_features)
+                     plane=plane_score_features, foot=foot_score_features)
     X = {k: [] for k in featurise}
     y = {k: [] for k in featurise}
     for sd, water in ((sd, water) for seeds, water in scenes for sd in seeds):
@@ -847,7 +849,8 @@ def calibrate_face_score(scenes=FACE_TRAINING, *, ridge: float = 1.0) -> dict:
         for key, prefix, c in (("face", "arc", np.ones(len(m), bool)),
                                ("face_plane", "arc", np.asarray(f["plane_offered"], bool)),
                                ("crease", "crease", np.asarray(f["crease_found"], bool)),
-                               ("plane", "plane", np.asarray(f["plane_found"], bool))):
+                               ("plane", "plane", np.asarray(f["plane_found"], bool)),
+                               ("foot", "foot", np.asarray(f["foot_found"], bool))):
             if c.any():
                 ok = truth.correct(rig, o.depth, np.column_stack([f[f"{prefix}_u"], f[f"{prefix}_v"]])[c],
                                    m.ranges[c], m.azimuths[c], bin_width=bw, beam_width=aw)
@@ -920,3 +923,152 @@ def calibrate_two_view_score(seeds=range(5000, 5024), *, ridge: float = 1.0) -> 
     return dict(arc=_fit_logistic(np.concatenate(XA), np.concatenate(yA), ridge),
                 sweep=_fit_logistic(np.concatenate(XB), np.concatenate(yB), ridge),
                 correlation=_fit_logistic(np.concatenate(XC), np.concatenate(yC), ridge))
+
+
+#: Failure classes of :func:`failure_classes`, in the order they are tested (mutually exclusive).
+FAILURE_CLASSES = ("correct", "right_candidate_loses", "borderline", "no_match", "truth_on_edge",
+                   "truth_outside_interval", "truth_in_other_run", "truth_in_run_wrong_place")
+
+
+def failure_classes(pairs, *, n_samples: int = 800, options=None) -> dict:
+    """Why each sonar feature visible in both sensors is, or is not, matched correctly (evaluation only).
+
+    For every pair ``(sonar, optical, rig)`` the one-view matcher runs as in :func:`evaluate_pair`;
+    every sonar feature that :func:`matching.truth.visible` counts (the recall's denominator) is
+    put in the first class of :data:`FAILURE_CLASSES` that applies, from the depth-map truth along
+    its arc (``n_samples`` elevations across the aperture):
+
+    - ``correct``: the chosen pixel is right;
+    - ``right_candidate_loses``: one of its other candidates (the arc search's run pixel, the point
+      below the crease, the point on the face's plane) is right, the score chose another;
+    - ``borderline``: no candidate is right, but the chosen pixel's true point is within 1.5 bins and
+      1.5 beams of the feature (the criterion's edge);
+    - ``no_match``: the arc search found no edge-free run in the interval (no candidate at all);
+    - ``truth_on_edge``: every correct arc pixel has a gradient at or above the arc threshold (an
+      image edge: no edge-free run can contain it);
+    - ``truth_outside_interval``: correct edge-free pixels exist, all outside the acoustic elevation
+      interval (with the arc search's 0.25 deg margin);
+    - ``truth_in_other_run``: correct edge-free pixels inside the interval, none in the chosen run
+      (the run, i.e. the surface, is the wrong one);
+    - ``truth_in_run_wrong_place``: correct pixels inside the chosen run, no candidate on them.
+
+    Returns
+    -------
+    dict
+        ``counts`` (class -> int), ``n_visible``, and per feature arrays ``cls`` (index into
+        :data:`FAILURE_CLASSES`), ``range_error_bins`` (chosen pixel's true range minus the
+        feature's; NaN where unmatched or open water), ``correct_band_deg`` (elevation extent of the
+        correct arc samples), ``kind`` (onset 1 / peak 0).
+    """
+    from ..geometry.projection import camera_from_sonar, to_pixels, to_sonar
+    from ..matching import MatchOptions, match, truth
+    from ..matching.arc_search import gradient_image
+    from ..matching.match import _elevation_intervals
+
+    opt = options or MatchOptions()
+    cls_all, rerr_all, band_all, kind_all = [], [], [], []
+    for sonar, optical, rig in pairs:
+        m = match(sonar, optical.image, rig, options=opt, min_score=0.0)
+        sf = m.sonar_features
+        if sf is None or len(sf) == 0:
+            continue
+        bw, aw = float(np.median(np.diff(sonar.ranges))), float(np.median(np.diff(sonar.azimuths)))
+        vis = truth.visible(rig, optical.depth, sf.ranges, sf.azimuths, bin_width=bw, beam_width=aw)
+        idx = np.nonzero(vis)[0]
+        if idx.size == 0:
+            continue
+        r, th = sf.ranges[idx], sf.azimuths[idx]
+        half = rig.fov_elevation / 2
+        phis = np.linspace(-half, half, n_samples)
+        P = camera_from_sonar(rig, r[:, None], th[:, None], phis[None, :])
+        pp = to_pixels(rig, P)
+        uv = np.where(pp.in_image[..., None], pp.pixels, 0.0)
+        Pt = truth.pixel_points(rig, optical.depth, uv.reshape(-1, 2)).reshape(P.shape)
+        sp = to_sonar(rig, np.where(np.isfinite(Pt), Pt, 0.0))
+        good = pp.in_image & np.all(np.isfinite(Pt), -1) & sp.in_fan & \
+            (np.abs(sp.ranges - r[:, None]) <= bw) & (np.abs(sp.azimuths - th[:, None]) <= aw)
+        grad = gradient_image(optical.image)
+        H, W = grad.shape
+        ui = np.clip(np.rint(uv[..., 0]).astype(int), 0, W - 1)
+        vi = np.clip(np.rint(uv[..., 1]).astype(int), 0, H - 1)
+        edge_free = grad[vi, ui] < opt.arc_threshold
+        lo, hi, _, _ = _elevation_intervals(sf, np.asarray(sonar.image, float), np.asarray(sonar.ranges, float),
+                                            np.asarray(sonar.azimuths, float), rig, opt)
+        margin = np.deg2rad(0.25)
+        inside = (phis[None, :] >= lo[idx, None] - margin) & (phis[None, :] <= hi[idx, None] + margin)
+        band = np.rad2deg(good.sum(axis=1) * (phis[1] - phis[0]))  # total elevation extent of the correct samples
+        # The matcher's choice and its candidates for these features.
+        pos = np.full(len(sf), -1)
+        pos[m.sonar_index] = np.arange(len(m))
+        j = pos[idx]
+        cls = np.zeros(idx.size, int)
+        rerr = np.full(idx.size, np.nan)
+        f = m.features
+        for k in range(idx.size):
+            if j[k] < 0:
+                cls[k] = FAILURE_CLASSES.index("no_match")
+                continue
+            jj = j[k]
+            cands = [np.array([f[f"{nm}_u"][jj], f[f"{nm}_v"][jj]]) for nm in ("arc", "crease", "plane", "foot")
+                     if f"{nm}_u" in f]
+            cands = [c for c in cands if np.all(np.isfinite(c))]
+            ok_c = truth.correct(rig, optical.depth, np.array(cands), np.full(len(cands), r[k]),
+                                 np.full(len(cands), th[k]), bin_width=bw, beam_width=aw) if cands else []
+            Pc = truth.pixel_points(rig, optical.depth, m.pixels[jj:jj + 1])
+            spc = to_sonar(rig, np.where(np.isfinite(Pc), Pc, 0.0))
+            if np.all(np.isfinite(Pc)):
+                rerr[k] = (spc.ranges[0] - r[k]) / bw
+            chosen_ok = truth.correct(rig, optical.depth, m.pixels[jj:jj + 1], r[k:k + 1], th[k:k + 1],
+                                      bin_width=bw, beam_width=aw)[0]
+            near = np.all(np.isfinite(Pc)) and abs(spc.ranges[0] - r[k]) <= 1.5 * bw and \
+                abs(spc.azimuths[0] - th[k]) <= 1.5 * aw
+            # The chosen run's elevation extent: the edge-free stretch around the arc search's elevation.
+
+            run = _run_around(edge_free[k] & inside[k], phis, f, jj, rig, r[k], th[k])
+            if chosen_ok:
+                cls[k] = 0
+            elif np.any(ok_c):
+                cls[k] = 1
+            elif near:
+                cls[k] = 2
+            elif not np.any(good[k] & edge_free[k]):
+                cls[k] = 4
+            elif not np.any(good[k] & edge_free[k] & inside[k]):
+                cls[k] = 5
+            elif not np.any(good[k] & run):
+                cls[k] = 6
+            else:
+                cls[k] = 7
+
+        cls_all.append(cls)
+        rerr_all.append(rerr)
+        band_all.append(band)
+        kind_all.append(sf.kind[idx])
+    cls = np.concatenate(cls_all) if cls_all else np.zeros(0, int)
+    return dict(counts={c: int(np.sum(cls == i)) for i, c in enumerate(FAILURE_CLASSES)}, n_visible=int(cls.size),
+                cls=cls, range_error_bins=np.concatenate(rerr_all) if rerr_all else np.zeros(0),
+                correct_band_deg=np.concatenate(band_all) if band_all else np.zeros(0),
+                kind=np.concatenate(kind_all) if kind_all else np.zeros(0, int))
+
+
+def _run_around(flat, phis, feats, j, rig, r, th):
+    """The edge-free run (bool over ``phis``) that contains the arc search's elevation for match ``j``."""
+    from ..geometry.projection import camera_from_sonar, to_pixels
+
+    # The arc search's pixel is on the arc: its elevation is the sample nearest to it in the image.
+    P = camera_from_sonar(rig, r, th, phis)
+    uv = to_pixels(rig, P).pixels
+    d = np.linalg.norm(np.nan_to_num(uv, nan=1e9) - np.array([feats["arc_u"][j], feats["arc_v"][j]]), axis=-1)
+    i0 = int(np.argmin(d))
+    out = np.zeros(phis.size, bool)
+    if not flat[i0]:
+        return out
+    a = i0
+    while a > 0 and flat[a - 1]:
+        a -= 1
+    b = i0
+    while b < phis.size - 1 and flat[b + 1]:
+        b += 1
+    out[a:b + 1] = True
+    return out
+

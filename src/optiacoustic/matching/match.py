@@ -27,6 +27,7 @@ and the shadows allow (:mod:`.acoustic`), is searched for the longest edge-free 
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from dataclasses import dataclass, field
 
@@ -307,9 +308,9 @@ def _assign(cost, rows, cols, n_rows, null_cost):
 #: (``experiments.matching.vehicle_motion``), disjoint from the evaluation's scenes (1023 arc
 #: matches, 42% correct).
 TWO_VIEW_SCORE_MODEL = dict(
-    weights=(-0.449, 0.886, -0.315, -0.128, 0.196, 0.207, 0.243),
-    mean=(-0.4646, 1.1955, 0.5636, 1.4723, 0.0391, 0.5406),
-    std=(1.5463, 1.0472, 0.7164, 0.9408, 0.1938, 0.4984),
+    weights=(-0.091, 1.233, -0.472, 0.401, 0.381, 0.127, 0.154, 0.262, -0.062, -0.463),
+    mean=(0.2531, 1.0692, 0.5198, 1.465, 0.0391, 0.5523, 1.6185, 0.724, 1.4446),
+    std=(1.5409, 0.9878, 0.712, 0.9435, 0.1938, 0.4973, 1.2223, 1.4355, 1.9833),
 )
 
 
@@ -322,8 +323,12 @@ def two_view_score_features(feats: dict) -> np.ndarray:
     a_px = np.where(missing, 0.0, np.abs(np.nan_to_num(a)))
     a_m = np.where(missing, 0.0, a_px / np.where(missing, 1.0, sens))
     log_sens = np.where(missing, 0.0, np.log(np.where(missing, 1.0, sens)))
-    return np.column_stack([np.log(p / (1 - p)), np.log1p(a_px), np.log1p(a_m), log_sens, missing.astype(float),
-                            np.asarray(feats["two_view"], float)])
+    cols = [np.log(p / (1 - p)), np.log1p(a_px), np.log1p(a_m), log_sens, missing.astype(float),
+            np.asarray(feats["two_view"], float)]
+    # The flow is only as good as the texture it follows: on a uniform face its residual is noise.
+    tex = np.log(np.maximum(np.nan_to_num(np.asarray(feats["arc_texture"], float)), 0.25))
+    cols += [tex, np.log1p(a_m) * tex, np.log1p(a_px) * tex]
+    return np.column_stack(cols)
 
 
 #: Logistic model of P(correct) of the sweep's choice (:func:`.optical_two_view.sweep_arcs`):
@@ -333,9 +338,9 @@ def two_view_score_features(feats: dict) -> np.ndarray:
 #: onset or peak). Fitted by ``experiments.matching.calibrate_two_view_score()`` (see
 #: :data:`TWO_VIEW_SCORE_MODEL`; 624 sweep choices, 51% correct).
 SWEEP_SCORE_MODEL = dict(
-    weights=(-0.011, -0.388, 0.071, -0.525, 0.521, -0.28, -0.524, -0.046, 0.019),
-    mean=(0.4967, 0.916, 1.0869, 1.5753, 3.2119, 0.0096, 2.8849, 0.476),
-    std=(0.6205, 0.7511, 0.6572, 0.8567, 1.0051, 0.0976, 0.5826, 0.4994),
+    weights=(0.01, -0.359, 0.07, -0.483, 0.446, -0.518, -0.576, -0.065, 0.045),
+    mean=(0.4967, 0.916, 1.0869, 1.5753, 3.0581, 0.0096, 2.8849, 0.476),
+    std=(0.6205, 0.7511, 0.6572, 0.8567, 1.0065, 0.0976, 0.5826, 0.4994),
 )
 
 
@@ -357,9 +362,9 @@ def sweep_score_features(feats: dict) -> np.ndarray:
 #: ``experiments.matching.calibrate_two_view_score()`` (see :data:`TWO_VIEW_SCORE_MODEL`; 1034
 #: correlation peaks, 27% correct).
 CORRELATION_SCORE_MODEL = dict(
-    weights=(-1.202, 0.431, -0.593, 0.202, 0.012, -0.442, -0.573, 0.012, -0.024),
-    mean=(0.9086, 0.3396, 2.7121, 1.468, 2.859, 0.0629, 2.8556, 0.4913),
-    std=(0.2385, 0.6642, 0.8621, 0.93, 1.3002, 0.2427, 0.6057, 0.4999),
+    weights=(-1.216, 0.481, -0.52, 0.175, 0.008, -0.497, -0.624, 0.027, -0.018),
+    mean=(0.9086, 0.3396, 2.7121, 1.468, 2.843, 0.0629, 2.8556, 0.4913),
+    std=(0.2385, 0.6642, 0.8621, 0.93, 1.2777, 0.2427, 0.6057, 0.4999),
 )
 
 
@@ -390,7 +395,8 @@ def two_view_candidates(out: Matches, sf, intervals, image_1, second, motion, ri
         The same for :func:`.optical_two_view.correlate_arcs` (``ncc``, ``margin``, ``texture``,
         ``px_per_m``).
     """
-    from .optical_two_view import correlate_arcs, epipolar_residuals, flow_field, forward_backward_error, sweep_arcs
+    from .optical_two_view import (correlate_arcs, epipolar_residuals, flow_field, forward_backward_error,
+                                   photo_consistency, sweep_arcs)
     from .two_view import consistent, motion_arrays
 
     if motion is None:
@@ -421,6 +427,8 @@ def two_view_candidates(out: Matches, sf, intervals, image_1, second, motion, ri
         sw = sweep_arcs(rig, sf.ranges, sf.azimuths, lo, hi, flow, forward_backward_error(flow, back), motion)
         sweep = {k: getattr(sw, k) for k in ("pixels", "elevations", "found", "n_crossings", "fb_error", "slope",
                                              "px_per_m")}
+    # Image 1's texture at the arc pixel (gray sigma of its 9 x 9 patch): what the flow there can follow.
+    arc["arc_texture"] = photo_consistency(image_1, image_2, out.pixels, out.pixels)[1] if n else np.zeros(0)
     lo, hi = intervals[0], intervals[1]
     co = correlate_arcs(rig, sf.ranges, sf.azimuths, lo, hi, image_1, image_2, motion)
     corr = {k: getattr(co, k) for k in ("pixels", "elevations", "found", "ncc", "margin", "texture", "px_per_m")}
@@ -766,7 +774,7 @@ FACE_PLANE_SCORE_MODEL = dict(
 #: ``experiments.matching.calibrate_face_score()`` on the same scenes (1235 crease points, 51%
 #: correct).
 CREASE_SCORE_MODEL = dict(
-    weights=(0.02, 0.476, -0.231, -0.224, 0.303, 0.054, -0.592, 0.168, 0.43, -0.053),
+    weights=(0.607, 0.597, -0.196, -0.286, 0.261, -0.033, -0.063, 0.453, 0.639, -0.026),
     mean=(0.3629, 1.2709, 0.498, 0.387, 0.5984, 0.9843, 4.2502, 1.6077, -0.3572),
     std=(0.7471, 0.6737, 0.5, 0.4871, 0.2154, 0.3206, 0.5533, 1.4434, 0.2055),
 )
@@ -843,6 +851,45 @@ def plane_score_features(feats: dict) -> np.ndarray:
                             np.log(np.maximum(feats["image_contrast"], 1e-6))])
 
 
+#: Logistic model of P(correct) of the point above the face's foot (:func:`.contact.foot_points`):
+#: intercept and weights of the standardised :func:`foot_score_features`. Fitted by
+#: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model.
+FOOT_SCORE_MODEL = dict(
+    weights=(0.399, -0.044, -0.089, 0.374, -0.691, 0.156, -0.329, 0.338, -0.036, 0.547, 0.062, -0.361, 0.123, -0.078, -0.379, 0.442, 0.234),
+    mean=(0.3129, 1.6621, 0.924, 1.6095, 0.5989, 1.0151, 0.7378, 0.481, 1.6118, 1.0119, 0.4177, 0.7192, 2.9067, -0.3463, 0.678, 0.3724),
+    std=(0.8329, 0.7616, 0.265, 0.8935, 0.4901, 1.0217, 0.4398, 0.4996, 0.3079, 0.3326, 0.173, 0.6545, 0.6169, 0.2013, 0.4672, 0.4834),
+)
+
+
+def foot_score_features(feats: dict) -> np.ndarray:
+    """The foot score model's inputs ``(N, 16)`` (NaN-free; meaningful where ``foot_found``).
+
+    Logit of the arc search's own score; log of 1 + the foot point's elevation distance (units of
+    0.25 deg) from the arc search's pixel, and, with whether each exists, from the crease point and
+    from the plane point; the point inside the arc search's run; onset or peak; log of 1 + the
+    bins between the feature and its echo's end, and between its echo's start and the feature;
+    the point's height above the seabed (m); log of 1 + the image gradient at its pixel; log SNR;
+    log of the image's contrast.
+    """
+    def dist(key):
+        d = np.asarray(feats[key], float)
+        f = np.isfinite(d)
+        return [f.astype(float), np.where(f, np.log1p(np.nan_to_num(d) / 0.25), 0.0)]
+
+    d0 = np.nan_to_num(np.asarray(feats["foot_dphi_deg"], float))
+    return np.column_stack([_logit(feats["arc_score"]), np.log1p(d0 / 0.25), *dist("foot_crease_dphi_deg"),
+                            *dist("foot_plane_dphi_deg"), np.asarray(feats["foot_in_run"], float), feats["kind"],
+                            np.log1p(feats["echo_end_bins"]), np.log1p(feats["echo_depth_bins"]),
+                            np.clip(np.nan_to_num(feats["foot_height"]), 0.0, 2.0),
+                            np.log1p(np.asarray(feats["foot_gradient"], float)),
+                            np.log(np.maximum(feats["snr"], 1e-6)),
+                            np.log(np.maximum(feats["image_contrast"], 1e-6)),
+                            np.asarray(feats["plane_offered"], float), np.asarray(feats["contact_found"], float)])
+
+
+#: The four candidate pixels of a one-view match, in ``features["face_source"]`` order.
+CANDIDATES = ("arc", "crease", "plane", "foot")
+
 def _logistic(X, model):
     w = np.asarray(model["weights"], float)
     z = w[0] + ((X - np.asarray(model["mean"])) / np.asarray(model["std"])) @ w[1:]
@@ -878,7 +925,8 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     from ..geometry.projection import camera_from_sonar
     from .arc_search import gradient_image, search_arcs, stretched
     from .camera_features import to_gray8
-    from .contact import crease_points, crease_positions, echo_start_ranges, search_contacts
+    from .contact import (crease_points, crease_positions, echo_end_ranges, echo_start_ranges, foot_points,
+                          search_contacts)
     from .face_plane import face_labels, face_planes
 
     if np.ptp(to_gray8(cam_img)) == 0:
@@ -953,19 +1001,50 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     with np.errstate(invalid="ignore", divide="ignore"):
         feats["plane_position"] = np.where(fp.found, (fp.elevations - ch.run_low[rows])
                                            / np.maximum(ch.run_high[rows] - ch.run_low[rows], 1e-9), np.nan)
+    # The point above the face's foot, where the feature's echo ends (acoustic only, :func:`.contact.foot_points`).
+    if sonar is not None:
+        r_end = echo_end_ranges(sonar[0], sonar[1], sf.bins[rows], sf.beams[rows])
+    else:
+        r_end = sf.ranges[rows]
+    ft = foot_points(rig, seabed, sf.ranges[rows], sf.azimuths[rows], r_end)
+    # A face standing on the seabed casts a shadow behind its foot: with none behind the echo
+    # (a low bar, the seabed itself) the echo's end is not a foot.
+    ft = dataclasses.replace(ft, found=ft.found & shadowed[rows])
+    ft = dataclasses.replace(ft, pixels=np.where(ft.found[:, None], ft.pixels, np.nan),
+                             elevations=np.where(ft.found, ft.elevations, np.nan),
+                             height=np.where(ft.found, ft.height, np.nan))
+    feats["foot_found"] = ft.found
+    feats["foot_u"], feats["foot_v"] = ft.pixels[:, 0], ft.pixels[:, 1]
+    feats["foot_height"] = ft.height
+    feats["echo_end_bins"] = (np.maximum(r_end, sf.ranges[rows]) - sf.ranges[rows]) / bin_m
+    feats["foot_in_run"] = ft.found & (np.nan_to_num(ft.elevations) >= ch.run_low[rows] - 1e-9) & \
+        (np.nan_to_num(ft.elevations) <= ch.run_high[rows] + 1e-9)
+    for name, el in (("foot_dphi_deg", ch.elevations[rows]), ("foot_crease_dphi_deg", cr.elevations),
+                     ("foot_plane_dphi_deg", fp.elevations)):
+        feats[name] = np.rad2deg(np.abs(ft.elevations - el))
+    H_g, W_g = grad.shape
+    fpx = np.nan_to_num(ft.pixels)
+    feats["foot_gradient"] = np.where(ft.found, grad[np.clip(np.rint(fpx[:, 1]).astype(int), 0, H_g - 1),
+                                                     np.clip(np.rint(fpx[:, 0]).astype(int), 0, W_g - 1)], 0.0)
     # Where the plane is offered, the arc search's pixel is scored knowing whether the plane
     # point agrees with it; elsewhere exactly as before the face-plane model.
     p_arc = np.where(offered, _logistic(face_plane_score_features(feats), FACE_PLANE_SCORE_MODEL),
                      _logistic(face_score_features(feats), FACE_SCORE_MODEL))
     p_crease = np.where(cr.found, _logistic(crease_score_features(feats), CREASE_SCORE_MODEL), 0.0)
     p_plane = np.where(fp.found, _logistic(plane_score_features(feats), PLANE_SCORE_MODEL), 0.0)
-    # 0: the arc search's pixel, 1: the point below the crease, 2: the point on the face's plane.
-    probs = np.column_stack([p_arc, p_crease, p_plane])
+    p_foot = np.where(ft.found, _logistic(foot_score_features(feats), FOOT_SCORE_MODEL), 0.0)
+    # 0: the arc search's pixel, 1: the point below the crease, 2: the point on the face's plane,
+    # 3: the point above the face's foot.
+    probs = np.column_stack([p_arc, p_crease, p_plane, p_foot])
+    elevs = np.column_stack([ch.elevations[rows], cr.elevations, fp.elevations, ft.elevations])
+    for k, name in enumerate(CANDIDATES):
+        feats[f"p_{name}"], feats[f"{name}_elevation"] = probs[:, k], elevs[:, k]
     source = np.argmax(probs, axis=1)
     feats["face_source"] = source
     feats["elevation"] = np.choose(source, [ch.elevations[rows], np.nan_to_num(cr.elevations),
-                                            np.nan_to_num(fp.elevations)])
-    px = np.choose(source[:, None], [px_arc, np.nan_to_num(cr.pixels), np.nan_to_num(fp.pixels)])
+                                            np.nan_to_num(fp.elevations), np.nan_to_num(ft.elevations)])
+    px = np.choose(source[:, None], [px_arc, np.nan_to_num(cr.pixels), np.nan_to_num(fp.pixels),
+                                     np.nan_to_num(ft.pixels)])
     score = probs[np.arange(rows.size), source]
     s_px = noise.sigma_pixel or 0.5
     s_r = np.full(rows.size, noise.sigma_range) if noise.sigma_range else sf.sigma_range[rows]

@@ -27,13 +27,12 @@
 from __future__ import annotations
 
 import functools
-import os
-import threading
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from .._scratch import Workspace
 from .._validate import as_array, as_rng, check_memory
 from ._sanity import warn_if_blind
 from ..camera import PinholeCamera
@@ -167,20 +166,8 @@ def _pixel_rays(camera: PinholeCamera) -> np.ndarray:
     return d
 
 
-_WORKSPACE = threading.local()
-
-
-def _workspace(name: str, shape: tuple, dtype) -> np.ndarray:
-    """A per-thread scratch array reused from frame to frame (a fresh multi-MB array costs its page
-    faults again on every frame). For what a frame uses and drops only, never for what it returns:
-    the next frame on this thread overwrites it (``tests/optical/test_frame_scratch.py``)."""
-    cache = getattr(_WORKSPACE, "arrays", None)
-    if cache is None:
-        cache = _WORKSPACE.arrays = {}
-    arr = cache.get(name)
-    if arr is None or arr.shape != shape or arr.dtype != dtype:
-        arr = cache[name] = np.empty(shape, dtype)
-    return arr
+#: per-thread scratch of this simulator's frames (see :mod:`optiacoustic._scratch`)
+_workspace = Workspace()
 
 
 @functools.lru_cache(maxsize=8)

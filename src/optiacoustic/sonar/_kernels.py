@@ -14,8 +14,9 @@ import threading
 import numpy as np
 
 from .. import _kernel_switch as _switch
+from .._scratch import Workspace
 
-__all__ = ["use_numba", "kernels", "truth_kernels", "split_run", "workspace", "pooled", "give_back"]
+__all__ = ["use_numba", "kernels", "truth_kernels", "split_run", "chunked_run", "workspace", "pooled", "give_back"]
 
 
 def use_numba() -> bool:
@@ -66,18 +67,34 @@ def split_run(fn, n: int, threads: int) -> None:
         f.result()
 
 
-_WORKSPACE = threading.local()
+#: Chunks per thread of :func:`chunked_run`.
+_CHUNKS_PER_THREAD = 4
 
 
-def workspace(name: str, shape: tuple, dtype) -> np.ndarray:
-    """A per-thread scratch array reused across frames (large fresh arrays cost page faults)."""
-    cache = getattr(_WORKSPACE, "arrays", None)
-    if cache is None:
-        cache = _WORKSPACE.arrays = {}
-    arr = cache.get(name)
-    if arr is None or arr.shape != shape or arr.dtype != dtype:
-        arr = cache[name] = np.empty(shape, dtype)
-    return arr
+def chunked_run(fn, n: int, threads: int) -> None:
+    """``fn(a, b)`` over ``[0, n)`` in chunks that ``threads`` workers (this thread one of them)
+    take in turn as they finish the last: a thread slowed by another process, or by the noise
+    draws on the second core, takes fewer (:func:`split_run`'s fixed halves waited for it). For
+    GIL-releasing kernels whose chunks write disjoint outputs."""
+    threads = max(1, min(int(threads), n // 64 or 1))
+    if threads == 1:
+        fn(0, n)
+        return
+    step = -(-n // (threads * _CHUNKS_PER_THREAD))
+    starts = iter(range(0, n, step))  # next() on it is atomic under the GIL: each chunk goes to one worker
+
+    def work():
+        for a in starts:
+            fn(a, min(a + step, n))
+
+    jobs = [_pool(threads - 1).submit(work) for _ in range(threads - 1)]
+    work()
+    for job in jobs:
+        job.result()
+
+
+#: per-thread scratch of this simulator's frames (see :mod:`optiacoustic._scratch`)
+workspace = Workspace()
 
 
 # Buffers that one frame holds from one thread to another (the noise variates, drawn on the background

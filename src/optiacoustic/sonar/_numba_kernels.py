@@ -760,53 +760,118 @@ def scatterer_field(intensity, gain, back, area, density, k0, k1, mu_max, r0, r1
             m_row[j] = density * a_row[j]
         _exp_neg_row(m_row, 40.0, p0, scale)
         _uniform_bits_row(w0, u_row)
-        i_row = intensity[i]
-        fours = np.int32(0)
-        for j in range(J):  # counts 0..3 by comparisons with the first four cumulative probabilities
-            m = min(max(m_row[j], 0.0), 40.0)
-            p = p0[j] * scale[j]
-            p0[j] = p
-            uu = u_row[j]
-            t1 = p * m
-            c1 = p + t1
-            t2 = t1 * (m / 2.0)
-            c2 = c1 + t2
-            c3 = c2 + t2 * (m / 3.0)
-            n = np.int32(uu > p) + np.int32(uu > c1) + np.int32(uu > c2) + np.int32(uu > c3)
-            n_row[j] = n
-            fours += np.int32(n == 4)
-        n_fix = 0
-        for j in range(J if fours > 0 else 0):  # most rows have no count above 3: no scan
-            m = m_row[j]
-            fix[n_fix] = j
-            n_fix += (n_row[j] == 4) & (m > MU_NO_SEABED) & (m < mu_max)
-        for t in range(n_fix):  # counts above 3: the inversion from the start
-            j = fix[t]
-            m = m_row[j]
-            uu = u_row[j]
-            p = p0[j]
-            c = p
-            n = 0
-            while uu > c and n < 1000:
-                n += 1
-                p *= m / n
-                c += p
-            n_row[j] = n
-        b_row = big[i]
-        mean_row = mean[i]
-        one = np.float32(1.0)
-        for j in range(J):  # the power; none where the count is left to the caller
-            m = m_row[j]
-            sea = m > MU_NO_SEABED
-            bg = sea & (m >= mu_max)
-            seaf = np.float32(sea)
-            ratio = np.float32(n_row[j] / (m if sea else 1.0)) * seaf + (one - seaf)
-            echo = i_row[j] * gain
-            power[j] = (echo * ratio + bk) * (one - np.float32(bg))
-            mean_row[j] = echo + bk
-            b_row[j] = bg
+        _poisson_small_row(m_row, p0, scale, u_row, mu_max, n_row, fix)
+        _field_power_row(m_row, n_row, intensity[i], gain, bk, mu_max, power, big[i], mean[i])
         _radius2_row(w1, x, e, mant, r2)
         _normals_row(w2, r2, power, z[i].reshape(2 * J))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def field_words(k0, k1, r0, r1, u_words, r2, unit):
+    """The part of :func:`scatterer_field` that does not depend on the echo, rows ``r0..r1``: per cell
+    the count's word ``b0`` (``u_words`` (B, J) uint32), the squared Box-Muller radius of ``b1``
+    (``r2`` (B, J) float32, :func:`_radius2_row`) and the signed ``(cos, sin)(2 pi u)`` of ``b2``
+    (``unit`` (B, J, 2) float32: :func:`_normals_row` before its scale), from Philox4x32-10 under
+    ``(k0, k1)``. Drawn beside the scan (``ScattererNoise.draw``); :func:`scatterer_field_words`
+    finishes the field from them, the same numbers as :func:`scatterer_field`."""
+    J = u_words.shape[1]
+    x = np.empty(J)
+    e = np.empty(J)
+    mant = np.empty(J)
+    ones = np.ones(J, np.float32)
+    r2_one = np.full(J, np.float32(2.0))  # sqrt(1 x 1/2 x 2) = 1: the unscaled (cos, sin) pair
+    w1 = np.empty(J, np.uint32)
+    w2 = np.empty(J, np.uint32)
+    for i in range(r0, r1):
+        _cell_words_row(k0, k1, i * J, u_words[i], w1, w2)
+        _radius2_row(w1, x, e, mant, r2[i])
+        _normals_row(w2, r2_one, ones, unit[i].reshape(2 * J))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def scatterer_field_words(intensity, gain, back, area, density, mu_max, r0, r1, u_words, r2, unit, z, big, mean):
+    """:func:`scatterer_field` from the words :func:`field_words` drew beforehand (the same numbers:
+    the counts from ``u_words``, then ``z = unit x sqrt(power r2 / 2)``, as :func:`_normals_row`)."""
+    J = intensity.shape[1]
+    m_row = np.empty(J)
+    p0 = np.empty(J)
+    scale = np.empty(J)
+    n_row = np.empty(J, np.int32)
+    u_row = np.empty(J)
+    power = np.empty(J, np.float32)
+    fix = np.empty(J, np.int64)
+    half = np.float32(0.5)
+    for i in range(r0, r1):
+        bk = back[i]
+        a_row = area[i]
+        for j in range(J):
+            m_row[j] = density * a_row[j]
+        _exp_neg_row(m_row, 40.0, p0, scale)
+        _uniform_bits_row(u_words[i], u_row)
+        _poisson_small_row(m_row, p0, scale, u_row, mu_max, n_row, fix)
+        _field_power_row(m_row, n_row, intensity[i], gain, bk, mu_max, power, big[i], mean[i])
+        r2i = r2[i]
+        ui = unit[i].reshape(2 * J)
+        zi = z[i].reshape(2 * J)
+        for j in range(J):
+            sc = np.float32(np.sqrt(np.float64(power[j] * half * r2i[j])))
+            zi[2 * j] = ui[2 * j] * sc
+            zi[2 * j + 1] = ui[2 * j + 1] * sc
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _poisson_small_row(m_row, p0, scale, u_row, mu_max, n_row, fix):
+    """:func:`scatterer_field`'s counts of a row (``p0`` ``exp(-mu)`` as :func:`_exp_neg_row` left it,
+    times ``scale``, on return)."""
+    J = m_row.size
+    fours = np.int32(0)
+    for j in range(J):  # counts 0..3 by comparisons with the first four cumulative probabilities
+        m = min(max(m_row[j], 0.0), 40.0)
+        p = p0[j] * scale[j]
+        p0[j] = p
+        uu = u_row[j]
+        t1 = p * m
+        c1 = p + t1
+        t2 = t1 * (m / 2.0)
+        c2 = c1 + t2
+        c3 = c2 + t2 * (m / 3.0)
+        n = np.int32(uu > p) + np.int32(uu > c1) + np.int32(uu > c2) + np.int32(uu > c3)
+        n_row[j] = n
+        fours += np.int32(n == 4)
+    n_fix = 0
+    for j in range(J if fours > 0 else 0):  # most rows have no count above 3: no scan
+        m = m_row[j]
+        fix[n_fix] = j
+        n_fix += (n_row[j] == 4) & (m > MU_NO_SEABED) & (m < mu_max)
+    for t in range(n_fix):  # counts above 3: the inversion from the start
+        j = fix[t]
+        m = m_row[j]
+        uu = u_row[j]
+        p = p0[j]
+        c = p
+        n = 0
+        while uu > c and n < 1000:
+            n += 1
+            p *= m / n
+            c += p
+        n_row[j] = n
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _field_power_row(m_row, n_row, i_row, gain, bk, mu_max, power, b_row, mean_row):
+    """:func:`scatterer_field`'s power of a row (none where the count is left to the caller), its
+    mean ``echo + back`` and the flags of the cells of large mean."""
+    one = np.float32(1.0)
+    for j in range(m_row.size):
+        m = m_row[j]
+        sea = m > MU_NO_SEABED
+        bg = sea & (m >= mu_max)
+        seaf = np.float32(sea)
+        ratio = np.float32(n_row[j] / (m if sea else 1.0)) * seaf + (one - seaf)
+        echo = i_row[j] * gain
+        power[j] = (echo * ratio + bk) * (one - np.float32(bg))
+        mean_row[j] = echo + bk
+        b_row[j] = bg
 
 
 @njit(cache=True, nogil=True)

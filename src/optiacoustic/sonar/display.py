@@ -101,7 +101,7 @@ def polar_to_fan(image: np.ndarray, spec: SonarSpec, *, width: int = 800) -> Fan
         raise ValueError(f"image: expected shape (n_bins, n_beams) = {(spec.n_bins, spec.n_beams)}, got {img.shape}")
     col, row, mask, extent, px = fan_geometry(spec, int(width))
     src = np.ascontiguousarray(img, dtype=np.float32)
-    from ._kernels import kernels, split_run, use_numba
+    from ._kernels import chunked_run, kernels, use_numba
 
     if use_numba():
         from ..raycast import default_threads
@@ -109,7 +109,7 @@ def polar_to_fan(image: np.ndarray, spec: SonarSpec, *, width: int = 800) -> Fan
         base, flags, fx, fy = _fan_taps(spec, int(width))
         out = np.empty(mask.shape, np.float32)
         flat_src, flat_out, kn = src.reshape(-1), out.reshape(-1), kernels()
-        split_run(lambda p0, p1: kn.fan_remap(flat_src, base[p0:p1], flags[p0:p1], fx[p0:p1], fy[p0:p1], spec.n_beams,
+        chunked_run(lambda p0, p1: kn.fan_remap(flat_src, base[p0:p1], flags[p0:p1], fx[p0:p1], fy[p0:p1], spec.n_beams,
                                               flat_out[p0:p1]), base.size, default_threads())
         return FanImage(out, mask, extent, px)
     import cv2

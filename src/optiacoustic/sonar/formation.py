@@ -37,7 +37,7 @@ from .._validate import as_rng, check_memory
 from ..frames import Pose
 from ..raycast import RayCaster, caster_for, widen_hits
 from ..scene import Scene
-from ._kernels import kernels, split_run, truth_kernels, use_numba
+from ._kernels import chunked_run, kernels, split_run, truth_kernels, use_numba
 from ._kernels import workspace as _workspace
 from .frame import SonarFrame, SonarGroundTruth, SonarRays
 from .propagation import Seawater, two_way_gain
@@ -437,9 +437,11 @@ def simulate_sonar(
     def start_draws():
         # the noise variates do not depend on the echo: with a second thread, draw them on the other
         # core once the primary cast (which takes every thread) is done, beside the one-thread stages
+        # (the scatterer noise: the echo-free part of its field too)
         nonlocal draws
         if draw_args is not None and caster.threads > 1:
-            draws = _background().submit(*draw_args)
+            beside = {"_field": True} if pooled and isinstance(noise, ScattererNoise) else {}
+            draws = _background().submit(*draw_args, **beside)
 
     sspec = scan_spec(spec, options.beam_model)
     if options.beam_model == "aperture":
@@ -563,11 +565,11 @@ def _finish_numba(spec: SonarSpec, rows: np.ndarray, bottom_types: dict, slot_of
     kn = kernels()
     if len(names) == 2 and names[1] is None and rows.shape[0] == 2 and list(table) == [0, 1]:
         share = np.empty((spec.n_bins, spec.n_beams), np.float32)  # one bottom type, most rays: its share only
-        split_run(lambda r0, r1: kn.finish_two(rows, scale, thr, r0, r1, intensity, share), spec.n_bins, threads)
+        chunked_run(lambda r0, r1: kn.finish_two(rows, scale, thr, r0, r1, intensity, share), spec.n_bins, threads)
         share.setflags(write=False)
         return intensity, {names[0]: share}
     out = np.empty((len(names), spec.n_bins, spec.n_beams), np.float32)
-    split_run(lambda r0, r1: kn.finish_echo(rows, scale, thr, table, r0, r1, intensity, out), spec.n_bins, threads)
+    chunked_run(lambda r0, r1: kn.finish_echo(rows, scale, thr, table, r0, r1, intensity, out), spec.n_bins, threads)
     return intensity, _read_only_shares(out, names)
 
 
@@ -906,14 +908,21 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
 
             gain = _workspace("scan_gain", (K * J,), np.float64)  # read by footprints only
             k_abs = -0.2 * np.log(10.0) * float(absorption_db_per_m(spec.frequency, options.water))
-            kernels().spreading_gain(body, r, k_abs, gain)
         else:
             gain = np.where(hit, two_way_gain(np.where(hit, r, 1.0), spec.frequency, options.water), 0.0)
     if fast:
         energy, lo, hi = np.empty(K * J), np.empty(K * J), np.empty(K * J)
-        kernels().footprints(body, r, cos_inc, slope, a, b, refl,
-                             np.zeros(0) if weights is None else np.asarray(weights, float),
-                             np.zeros(0) if gain is None else gain, J, 1e-4 * spec.bin_width, energy, lo, hi)
+        w_k = np.zeros(0) if weights is None else np.asarray(weights, float)
+        kn = kernels()
+
+        def rows(k0, k1):  # elevation rows k0..k1 (every ray on its own: the threads take rows)
+            s = slice(k0 * J, k1 * J)
+            if gain is not None:
+                kn.spreading_gain(body[s], r[s], k_abs, gain[s])
+            kn.footprints(body[s], r[s], cos_inc[s], slope[s], a[s], b[s], refl, w_k[k0:k1],
+                          np.zeros(0) if gain is None else gain[s], J, 1e-4 * spec.bin_width, energy[s], lo[s], hi[s])
+
+        chunked_run(rows, K, caster.threads)
     else:
         energy = refl[body] * cos_inc * (a + b)
         if weights is not None:
@@ -998,7 +1007,7 @@ def _scan_hits_numba(caster: RayCaster, spec: SonarSpec, pose: Pose):
     r, cos_inc = np.empty(n), np.empty(n)
     nd, ndd, slope = (_workspace(f"scan_{name}", (n,), np.float64) for name in ("nd", "ndd", "slope"))
     cn, off, ng = caster.corner_normals, caster.triangle_offset, np.zeros((0, 3), np.float32)
-    split_run(lambda i0, i1: kn.scan_rays(tfar, geom, prim, u, v, ng, cn, off, True, cp, sp, a_dir, rz, i0, i1,
+    chunked_run(lambda i0, i1: kn.scan_rays(tfar, geom, prim, u, v, ng, cn, off, True, cp, sp, a_dir, rz, i0, i1,
                                           body, r, nd, ndd, cos_inc, slope), n, caster.threads)
     return body, r, nd, ndd, cos_inc, slope
 
@@ -1199,36 +1208,8 @@ def _aperture_rows(spec: SonarSpec, cells: _ApertureCells, options: SonarOptions
             bm(seabed_of_ray), dtheta, float(spec.range_min), B * q, H, V, full, q, B, bool(need_area),
             max(1, int(n_sub.max(initial=0))))
     live = np.empty((n_slots, J), np.bool_)
-    _chunked_run(lambda j0, j1: ak.aperture_echo_rows(*args, j0, j1, out, area, live), J, threads)
+    chunked_run(lambda j0, j1: ak.aperture_echo_rows(*args, j0, j1, out, area, live), J, threads)
     return out, (area if need_area else None), live, slot_of
-
-
-#: Beam chunks per thread of :func:`_chunked_run`.
-_CHUNKS_PER_THREAD = 4
-
-
-def _chunked_run(fn, n: int, threads: int) -> None:
-    """``fn(a, b)`` over ``[0, n)`` in chunks that ``threads`` workers (this thread one of them)
-    take in turn as they finish the last: a thread slowed by another process, or by the noise
-    draws on the second core, takes fewer (``split_run``'s fixed halves waited for it). For
-    GIL-releasing kernels whose chunks write disjoint outputs."""
-    threads = max(1, min(int(threads), n // 64 or 1))
-    if threads == 1:
-        fn(0, n)
-        return
-    from ._kernels import _pool
-
-    step = -(-n // (threads * _CHUNKS_PER_THREAD))
-    starts = iter(range(0, n, step))  # next() on it is atomic under the GIL: each chunk goes to one worker
-
-    def work():
-        for a in starts:
-            fn(a, min(a + step, n))
-
-    jobs = [_pool(threads - 1).submit(work) for _ in range(threads - 1)]
-    work()
-    for job in jobs:
-        job.result()
 
 
 #: Sub-rays cast across each visibility discontinuity between two elevation samples.

@@ -368,7 +368,8 @@ class ScattererNoise:
             if self.bottom_type not in BOTTOM_TYPES:
                 raise ValueError(f"ScattererNoise.bottom_type: unknown {self.bottom_type!r}; expected one of {sorted(BOTTOM_TYPES)}")
 
-    def draw(self, shape: tuple, bottom_types, rng: np.random.Generator, *, _reuse: bool = False):
+    def draw(self, shape: tuple, bottom_types, rng: np.random.Generator, *, _reuse: bool = False,
+             _field: bool = False):
         """The key of the frame's noise words, and the generator for counts of large mean.
 
         Returns ``(key, rng)``: ``key`` (2,) uint32, one draw of ``rng``. Each cell's three
@@ -376,8 +377,27 @@ class ScattererNoise:
         of the cell's index under this key (:func:`cell_words`; docs/physics.md, "Random words
         of the scatterer noise"): the compiled path draws them row by row inside its kernel, so
         no array of draws is made. ``_reuse`` is accepted for ``simulate_sonar`` and changes
-        nothing (:func:`release_draws` keeps nothing)."""
-        return rng.integers(0, 2**32, size=2, dtype=np.uint32), rng
+        nothing by itself. ``_field`` (``simulate_sonar``, with a second thread: this runs beside
+        the scan) also draws the part of the field that does not depend on the echo, when
+        :meth:`apply` takes its one-pass path: ``(key, rng, (words, r2, unit))``
+        (``_numba_kernels.field_words``, buffers from the pool: :func:`release_draws` hands
+        them back), which :meth:`apply` finishes with the same numbers as without."""
+        key = rng.integers(0, 2**32, size=2, dtype=np.uint32)
+        if not (_field and _reuse and self._one_pass()):
+            return key, rng
+        from ._kernels import kernels, pooled
+
+        B, J = shape
+        field = (pooled((B, J), np.uint32), pooled((B, J), np.float32), pooled((B, J, 2), np.float32))
+        kernels().field_words(np.uint32(key[0]), np.uint32(key[1]), 0, B, *field)
+        return key, rng, field
+
+    def _one_pass(self) -> bool:
+        """Whether :meth:`apply` forms the field in one compiled pass (given the cells' areas)."""
+        from ._kernels import use_numba
+
+        return (use_numba() and self.bottom_type is None and np.isfinite(self.density)
+                and not np.isfinite(self.clusters_per_m2) and len(_look_weights(self.looks)) == 1)
 
     def kernels(self, spec):
         """Amplitude kernels along range (the pulse) and across beams (two-way ``F^2``)."""
@@ -393,12 +413,12 @@ class ScattererNoise:
         It is filtered by the pulse and beam kernels and normalised by ``S2 = sum h^2``,
         so a uniform region has mean ``g I + B`` and the moments of :mod:`.speckle`.
         """
-        from ._kernels import kernels, split_run, use_numba
+        from ._kernels import chunked_run, kernels, use_numba
         from .propagation import absorption_db_per_m
         from .speckle import filter_complex
 
         I = np.asarray(intensity, np.float32)
-        key, rng = draws if draws is not None else self.draw(I.shape, (), np.random.default_rng(rng))
+        key, rng, *field = draws if draws is not None else self.draw(I.shape, (), np.random.default_rng(rng))
         h_r, h_b = self.kernels(spec)
         g = self.gain
         alpha = absorption_db_per_m(spec.frequency, options.water) if options.propagation == "spreading" else 0.0
@@ -410,8 +430,7 @@ class ScattererNoise:
         fast = use_numba()
         gain = np.float32(10.0 ** (g.gain_db / 10.0))
         mean = None
-        if (fast and self.bottom_type is None and cell_area is not None and np.isfinite(self.density)
-                and not np.isfinite(self.clusters_per_m2) and len(_look_weights(self.looks)) == 1):
+        if fast and cell_area is not None and self._one_pass():
             # counts, power, complex normals and the mean image in one pass
             z = _workspace("scatterer_z", I.shape + (2,), np.float32)  # reused: no page faults per frame
             big = _workspace("scatterer_big", I.shape, np.bool_)
@@ -419,8 +438,15 @@ class ScattererNoise:
             area = np.ascontiguousarray(cell_area, np.float32)
             kn = kernels()
             k0, k1 = np.uint32(key[0]), np.uint32(key[1])
-            split_run(lambda r0, r1: kn.scatterer_field(I, gain, back[:, 0], area, float(self.density), k0, k1,
-                                                        _POISSON_INVERSION_MAX, r0, r1, z, big, mean), I.shape[0], threads)
+            if field:  # the echo's part only: the words were drawn beside the scan
+                words, r2, unit = field[0]
+                chunked_run(lambda r0, r1: kn.scatterer_field_words(I, gain, back[:, 0], area, float(self.density),
+                                                                  _POISSON_INVERSION_MAX, r0, r1, words, r2, unit,
+                                                                  z, big, mean), I.shape[0], threads)
+            else:
+                chunked_run(lambda r0, r1: kn.scatterer_field(I, gain, back[:, 0], area, float(self.density), k0, k1,
+                                                            _POISSON_INVERSION_MAX, r0, r1, z, big, mean),
+                          I.shape[0], threads)
             if big.any():  # the rare cells of large mean: counts from the generator, as the numpy path
                 mu = self.density * area[big].astype(np.float64)
                 ratio = (rng.poisson(mu) / mu).astype(np.float32)
@@ -473,7 +499,7 @@ class ScattererNoise:
             hr32 = np.ascontiguousarray(h_r, np.float32)
             hb32 = np.ascontiguousarray(h_b, np.float32)
             kn = kernels()
-            split_run(lambda r0, r1: kn.speckle_image(zk, mean, hr32, hb32, tvg, r0, r1, out), I.shape[0], threads)
+            chunked_run(lambda r0, r1: kn.speckle_image(zk, mean, hr32, hb32, tvg, r0, r1, out), I.shape[0], threads)
             return out
         expected = filter_real(mean, np.asarray(h_r, np.float32) ** 2, np.asarray(h_b, np.float32) ** 2)
         # per-cell factor: the image's own mean over the twice-blurred mean, times the device's TVG
@@ -497,9 +523,12 @@ class ScattererNoise:
 
 
 def release_draws(draws) -> None:
-    """Hand back the words of ``ScattererNoise.draw(..., _reuse=True)``; the caller must not read
-    ``draws`` afterwards. (The words are fresh arrays: nothing is pooled; kept for ``simulate_sonar``.)"""
-    return None
+    """Hand back the buffers of ``ScattererNoise.draw(..., _reuse=True, _field=True)`` to the pool (a
+    draw without them holds none); the caller must not read ``draws`` afterwards."""
+    if len(draws) > 2:
+        from ._kernels import give_back
+
+        give_back(*draws[2])
 
 
 def _tvg_column(gain, spec) -> np.ndarray:
