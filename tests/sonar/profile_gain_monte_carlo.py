@@ -26,6 +26,7 @@ def _one(args):
     from optiacoustic.sonar import profile as P
 
     P._DEVIANCE[0] = residuals == "deviance"
+    P._LOGBIAS[0] = residuals == "db-corrected"
     P._LOSS[:] = [loss, f_scale]
     p = P.fit_profile(_simulate(seed), refine_density=False)
     u = p.uncertainty
@@ -38,7 +39,7 @@ def main():
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--seeds", default="100:116")
-    ap.add_argument("--residuals", choices=("db", "deviance"), default="db")
+    ap.add_argument("--residuals", choices=("db", "db-corrected", "deviance"), default="db")
     ap.add_argument("--loss", default="soft_l1")
     ap.add_argument("--f-scale", type=float, default=3.0)
     ap.add_argument("--jobs", type=int, default=1)

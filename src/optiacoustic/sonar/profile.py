@@ -328,6 +328,34 @@ _LOSS = ["soft_l1", 3.0]
 _LAST_JACKKNIFE: dict = {}
 
 
+_LOGBIAS = [False]
+
+
+def _log_bias_db(stats, idx, ok_rows=None):
+    """Expected ``10 log10 m - 10 log10 E m`` of the groups' profiles at bins ``idx``, dB, for a
+    gamma-distributed mean of shape ``k = N_eff / CV^2`` (docs/derivations.md): ``CV^2`` from the
+    groups' mean squares (smoothed along range), ``N_eff`` the group's beams over their
+    correlation spread, times the frames."""
+    from scipy.special import digamma
+
+    from .realism import _smooth1
+
+    w = max(5, len(stats.ranges) // 100)
+    m = _smooth1(np.asarray(stats.group_profiles, float), w, 0)
+    m2 = _smooth1(np.asarray(stats.group_sq_profiles, float), w, 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cv2 = np.where(m > 0, np.maximum(m2 / np.square(m) - 1.0, 1e-3), 1.0)[idx]
+    rho = np.nan_to_num(np.clip(np.asarray(stats.corr_beam, float)[1:], 0.0, 1.0))
+
+    def spread(n):
+        lags = np.arange(1, min(len(rho), int(n) - 1) + 1) if n > 1 else np.arange(0)
+        return 1.0 + 2.0 * float(np.sum((1.0 - lags / n) * rho[: lags.size]))
+
+    n_eff = np.array([nb / spread(nb) for nb in stats.group_beams]) * stats.n_images
+    k = n_eff[None, :] / cv2
+    return _DB * (digamma(k) - np.log(k))
+
+
 def _fit_geometry(stats, spec, alpha, azimuths=None, pulse_bins=None):
     """Least squares of the flat-seabed echo + background on the beam groups' range profiles (dB).
 
@@ -351,6 +379,8 @@ def _fit_geometry(stats, spec, alpha, azimuths=None, pulse_bins=None):
     r, prof, idx = r[ok], prof[ok], idx[ok]
     az = stats.group_azimuths
     data_db = 10 * np.log10(prof)
+    if _LOGBIAS[0] and stats.group_sq_profiles is not None:
+        data_db = data_db - _log_bias_db(stats, idx, ok_rows=None)
     c, f = spec.sound_speed, spec.frequency
     r0 = 1.0
     G = prof.shape[1]

@@ -52,6 +52,10 @@ class FrameStatistics:
     corr_length_beam: float
     normalised: np.ndarray = field(repr=False)  # normalised intensities of the speckle region
     region: np.ndarray = field(repr=False)  # bool (n_bins, n_beams)
+    # (n_bins, n_groups) mean squared linear intensity over each group's beams and the frames
+    group_sq_profiles: np.ndarray | None = field(default=None, repr=False)
+    group_beams: np.ndarray | None = field(default=None, repr=False)
+    n_images: int = 1
 
     def summary(self) -> dict:
         return {
@@ -133,6 +137,7 @@ def frame_statistics(images, ranges, azimuths, *, region=None, smooth_bins: int 
     groups = beam_groups(n_beams)
     w_r = smooth_bins or max(5, n_bins // 100)
     prof = np.mean([np.stack([im[:, g].mean(1) for g in groups], 1) for im in imgs], axis=0)
+    prof_sq = np.mean([np.stack([np.square(im[:, g]).mean(1) for g in groups], 1) for im in imgs], axis=0)
     sm = _smooth1(prof, w_r, 0)
     ons = np.array([_onset(sm[:, k], r) for k in range(len(groups))])
     if np.isfinite(ons[:, 0]).sum() < max(1, len(groups) // 2):  # no seabed onset in most groups
@@ -195,7 +200,8 @@ def frame_statistics(images, ranges, azimuths, *, region=None, smooth_bins: int 
         background_flatness_db=flat, background_profile_db=bprof, background_ranges=r[sel],
         contrast=contrast, k_shape=float(nu), corr_range=cr, corr_beam=cb,
         corr_length_range=correlation_length(cr), corr_length_beam=correlation_length(cb),
-        normalised=zall, region=np.logical_or.reduce(masks),
+        normalised=zall, region=np.logical_or.reduce(masks), group_sq_profiles=prof_sq,
+        group_beams=np.array([len(g) for g in groups]), n_images=len(imgs),
     )
 
 
