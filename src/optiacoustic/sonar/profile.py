@@ -323,15 +323,14 @@ def _tvg_water_absorption(spec):
 
 #: 10 / ln 10: dB per neper of intensity
 _DB = 10.0 / np.log(10.0)
-_DEVIANCE = [False]  # the gamma-deviance polish (measured, not shipped: docs/physics.md 4.5); True to use it
-_LOSS = ["soft_l1", 3.0]
-_LAST_JACKKNIFE: dict = {}
+# Private measurement switches of the polish (docs/physics.md 4.5, "The intensity-domain fit,
+# measured"): read by tests/sonar/profile_gain_monte_carlo.py, off in the shipped estimator.
+_DEVIANCE = [False]  # gamma-deviance residuals instead of dB differences
+_LOGBIAS = [False]  # dB residuals with each bin's derived log bias removed
+_LOSS = ["soft_l1", 3.0]  # the polish's robust loss and its scale, dB
 
 
-_LOGBIAS = [False]
-
-
-def _log_bias_db(stats, idx, ok_rows=None):
+def _log_bias_db(stats, idx):
     """Expected ``10 log10 m - 10 log10 E m`` of the groups' profiles at bins ``idx``, dB, for a
     gamma-distributed mean of shape ``k = N_eff / CV^2`` (docs/derivations.md): ``CV^2`` from the
     groups' mean squares (smoothed along range), ``N_eff`` the group's beams over their
@@ -380,7 +379,7 @@ def _fit_geometry(stats, spec, alpha, azimuths=None, pulse_bins=None):
     az = stats.group_azimuths
     data_db = 10 * np.log10(prof)
     if _LOGBIAS[0] and stats.group_sq_profiles is not None:
-        data_db = data_db - _log_bias_db(stats, idx, ok_rows=None)
+        data_db = data_db - _log_bias_db(stats, idx)
     c, f = spec.sound_speed, spec.frequency
     r0 = 1.0
     G = prof.shape[1]
@@ -505,8 +504,6 @@ def _fit_geometry(stats, spec, alpha, azimuths=None, pulse_bins=None):
         except ValueError:
             continue
     jk = np.asarray(jk)
-    _LAST_JACKKNIFE["replicates"] = jk
-    _LAST_JACKKNIFE["polish"] = (int(best.status), int(best.nfev))  # diagnostics: the delete-a-block replicates of the last fit
     sd_jk = np.sqrt((len(jk) - 1) / len(jk) * ((jk - jk.mean(0)) ** 2).sum(0)) if len(jk) > 2 else np.zeros(best.x.size)
     x = best.x
     J = best.jac
