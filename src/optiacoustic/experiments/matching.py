@@ -85,6 +85,55 @@ def random_scene(seed: int, textured: bool = False):
     return Scene(bodies, name=name, view=View(eye=(0.0, -6.0, 2.0), target=(0.0, 0.0, 0.0)))
 
 
+def varied_scene(seed: int):
+    """A random scene drawn more widely than :func:`random_scene` (seeded): the mix the matcher meets.
+
+    :func:`random_scene` fixes the vehicle's pose (6.3 m from the aim, 2 m up), the seabed (sand,
+    reflectivity 0.3) and the bodies (upright boxes and cylinders, spheres). Here the vehicle stands
+    3.5-6.5 m back (horizontally) and 1.2-2.5 m up, the seabed's reflectivity is 0.12-0.35 (sand or
+    mud, its colour drawn), and besides those bodies (scaled to the view) come low bars (2-6 cm high,
+    the seabed's neighbours in range), thin walls (0.6-2 m tall) and lying cylinders: 3-7 bodies.
+    The camera and sonar are those of :func:`random_scene`'s rig.
+    """
+    from ..frames import Pose
+    from ..scene import Body, Box, Cylinder, Material, Plane, Scene, Sphere, View
+
+    rng = np.random.default_rng(seed)
+    d, h = float(rng.uniform(3.5, 6.5)), float(rng.uniform(1.2, 2.5))
+    mud = bool(rng.random() < 0.5)
+    bed_col = tuple(float(c) for c in rng.uniform(0.25, 0.6, 3))
+    bodies = [Body("seabed", Plane(size=(40.0, 40.0)), Pose.identity(),
+                   Material(reflectivity=float(rng.uniform(0.12, 0.35)), color=bed_col,
+                            bottom_type="mud" if mud else "sand/shell"))]
+    k = d / 6.0  # the visible footprint scales with the distance
+    for i in range(int(rng.integers(3, 8))):
+        kind = rng.choice(["box", "cylinder", "sphere", "bar", "wall", "lying"])
+        x, y = k * rng.uniform(-2.5, 2.5), k * rng.uniform(-1.5, 3.0)
+        col = tuple(float(c) for c in rng.uniform(0.15, 0.95, 3))
+        mat = Material(reflectivity=float(rng.uniform(0.6, 0.95)), color=col)
+        yaw, roll = float(rng.uniform(0, 180)), 0.0
+        if kind == "box":
+            sz = rng.uniform(0.3, 1.0, 3)
+            shape, z = Box(size=tuple(float(v) for v in sz)), sz[2] / 2
+        elif kind == "cylinder":
+            rad, ht = rng.uniform(0.1, 0.35), rng.uniform(0.4, 1.3)
+            shape, z = Cylinder(radius=float(rad), height=float(ht)), ht / 2
+        elif kind == "sphere":
+            rad = rng.uniform(0.15, 0.5)
+            shape, z = Sphere(radius=float(rad)), rad
+        elif kind == "bar":
+            sz = (rng.uniform(0.8, 2.5), rng.uniform(0.03, 0.1), rng.uniform(0.02, 0.06))
+            shape, z = Box(size=tuple(float(v) for v in sz)), sz[2] / 2
+        elif kind == "wall":
+            sz = (rng.uniform(1.0, 2.0), 0.02, rng.uniform(0.6, 2.0))
+            shape, z = Box(size=tuple(float(v) for v in sz)), sz[2] / 2
+        else:  # a cylinder lying on the seabed
+            rad, ln = rng.uniform(0.1, 0.3), rng.uniform(0.6, 1.6)
+            shape, z, roll = Cylinder(radius=float(rad), height=float(ln)), rad, 90.0
+        bodies.append(Body(f"{kind}_{i}", shape, Pose.from_euler_deg((x, y, float(z)), (roll, 0.0, yaw)), mat))
+    return Scene(bodies, name=f"varied_{seed}", view=View(eye=(0.0, -d, h), target=(0.0, 0.0, 0.0)))
+
+
 def _builtin_scenes():
     from .. import scenes
 
@@ -777,14 +826,24 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     return ExperimentResult(NAME, figures, numbers, summary, tables)
 
 
-def calibrate_score(seeds=range(5000, 5024), *, ridge: float = 1.0, method: str = "arc") -> dict:
+def _training_scene(sd, generator: str = "random"):
+    """The training scene of seed ``sd``: :func:`random_scene` (``"random"``) or :func:`varied_scene` (``"varied"``)."""
+    if generator not in ("random", "varied"):
+        raise ValueError(f"unknown training scene generator {generator!r}: 'random' or 'varied'")
+    return random_scene(int(sd)) if generator == "random" else varied_scene(int(sd))
+
+
+def calibrate_score(seeds=range(5000, 5024), *, ridge: float = 1.0, method: str = "arc",
+                    varied_seeds=range(8000, 8024)) -> dict:
     """Refit ``matching.match.ARC_SCORE_MODEL`` (``method="arc"``) or ``SCORE_MODEL`` (``"corners"``).
 
     Logistic regression of correctness on the match evidence.
 
-    Runs the matcher on random scenes seeded ``seeds`` (thesis water, default sonar noise),
-    labels each assigned match by the depth-map truth and fits the logistic model with a
-    ridge penalty (``scipy.optimize.minimize``). Use seeds disjoint from the evaluation's.
+    Runs the matcher on random scenes seeded ``seeds`` (:func:`random_scene`) and ``varied_seeds``
+    (:func:`varied_scene`; thesis water, default sonar noise), labels each assigned match by the
+    depth-map truth (for ``"arc"`` the arc search's own pixel, whichever candidate the face models
+    then choose) and fits the logistic model with a ridge penalty (``scipy.optimize.minimize``).
+    Use seeds disjoint from the evaluation's.
 
     Returns
     -------
@@ -795,29 +854,36 @@ def calibrate_score(seeds=range(5000, 5024), *, ridge: float = 1.0, method: str 
     from ..matching import MatchOptions
     from ..matching.match import arc_score_features, score_features
 
+    from ..matching import truth
+
     featurise = arc_score_features if method == "arc" else score_features
     X, y = [], []
-    for sd in seeds:
-        e = evaluate_pair(*simulate_pair(random_scene(int(sd)), "thesis", "default", int(sd)),
-                          options=MatchOptions(method=method))
+    for sd, gen in [(sd, "random") for sd in seeds] + [(sd, "varied") for sd in varied_seeds]:
+        s, o, rig = simulate_pair(_training_scene(sd, gen), "thesis", "default", int(sd))
+        e = evaluate_pair(s, o, rig, options=MatchOptions(method=method))
         m = e["matches"]
         if m:
             X.append(featurise(m.features))
-            y.append(e["ok"].astype(float))
+            ok = e["ok"]
+            if method == "arc":  # the arc search's own pixel, whichever candidate the face models chose
+                bw, aw = float(np.median(np.diff(s.ranges))), float(np.median(np.diff(s.azimuths)))
+                ok = truth.correct(rig, o.depth, np.column_stack([m.features["arc_u"], m.features["arc_v"]]),
+                                   m.ranges, m.azimuths, bin_width=bw, beam_width=aw)
+            y.append(ok.astype(float))
     X, y = np.concatenate(X), np.concatenate(y)
     return _fit_logistic(X, y, ridge)
 
 
 #: Training scenes of the vertical-face score models: (seeds, water). Turbid water is included
 #: because it changes what the crease candidate is worth (its edge washes out).
-FACE_TRAINING = ((range(5000, 5048), "thesis"), (range(5000, 5024), "jerlov-1C"))
+FACE_TRAINING = ((range(5000, 5048), "thesis"), (range(5000, 5024), "jerlov-1C"), (range(8000, 8048), "thesis", "varied"))
 
 
 def calibrate_face_score(scenes=FACE_TRAINING, *, ridge: float = 1.0) -> dict:
     """Refit ``matching.match.FACE_SCORE_MODEL``, ``FACE_PLANE_SCORE_MODEL``, ``CREASE_SCORE_MODEL``, ``PLANE_SCORE_MODEL``, ``FOOT_SCORE_MODEL``.
 
-    Runs the matcher on the random scenes ``scenes`` (pairs of seeds and water, default sonar
-    noise; :data:`FACE_TRAINING`) and labels, by the depth-map truth, the arc search's pixel of every
+    Runs the matcher on the random scenes ``scenes`` (seeds, water and optionally the generator,
+    ``"random"`` or ``"varied"``; default sonar noise; :data:`FACE_TRAINING`) and labels, by the depth-map truth, the arc search's pixel of every
     match, the point below the crease and the point on the face's fitted plane where there are
     ones; fits a logistic regression of each on :func:`matching.match.face_score_features` (all
     matches), :func:`matching.match.face_plane_score_features` (the matches where the plane is
@@ -839,8 +905,8 @@ def calibrate_face_score(scenes=FACE_TRAINING, *, ridge: float = 1.0) -> dict:
                      plane=plane_score_features, foot=foot_score_features)
     X = {k: [] for k in featurise}
     y = {k: [] for k in featurise}
-    for sd, water in ((sd, water) for seeds, water in scenes for sd in seeds):
-        s, o, rig = simulate_pair(random_scene(int(sd)), water, "default", int(sd))
+    for sd, water, gen in ((sd, e[1], e[2] if len(e) > 2 else "random") for e in scenes for sd in e[0]):
+        s, o, rig = simulate_pair(_training_scene(sd, gen), water, "default", int(sd))
         m = match(s, o.image, rig, min_score=0.0)
         if not m:
             continue

@@ -717,23 +717,29 @@ def _finish(out, cam_img, second, motion, rig, noise, opt, min_score, *, sf=None
 #: standardised :func:`arc_score_features` (log SNR, elevation interval width in degrees and
 #: its squared distance from 4.5 deg, visible arc length in px, log edge-free run length in
 #: px and its squared distance from log 55 px, position of the choice in the interval, shadow
-#: behind the echo, onset or peak, log of 1 + the other matches within 6 px). Fitted by
-#: ``experiments.matching.calibrate_score()`` on random scenes seeded 5000-5023, disjoint
-#: from every scene the experiment and the tests evaluate on.
+#: behind the echo, onset or peak, log of 1 + the other matches within 6 px; and, where no
+#: shadow lies behind the echo, so that the feature is placed at the seabed's elevation, log of 1 +
+#: the bins from its echo's start and to its end: a feature deep inside a long unshadowed echo is an
+#: object whose shadow was missed, not the seabed, a low bar or a wall). Labels: the arc search's
+#: own pixel. Fitted by ``experiments.matching.calibrate_score()`` on random scenes seeded
+#: 5000-5023 and the wider :func:`experiments.matching.varied_scene` seeded 8000-8023 (1281
+#: matches, 47% right), disjoint from every scene the experiment and the tests evaluate on.
 ARC_SCORE_MODEL = dict(
-    weights=(-0.13, 0.122, 0.126, -0.531, 0.106, -0.147, -0.688, 0.603, -0.217, -0.229, -0.544),
-    mean=(2.8569, 5.5396, 11.9292, 89.6247, 3.5824, 1.3928, 0.5315, 0.8569, 0.4647, 0.2357),
-    std=(0.6222, 3.2937, 14.8695, 48.9931, 1.1038, 2.8108, 0.1908, 0.3502, 0.4988, 0.4785),
+    weights=(-0.215, 0.327, -0.109, -0.052, 0.165, 0.036, -0.209, 0.63, -0.598, -0.353, -0.295, -0.552, -0.296),
+    mean=(2.7988, 5.1637, 14.5784, 83.6896, 3.3285, 2.0844, 0.528, 0.8142, 0.4692, 0.2342, 0.257, 0.3583),
+    std=(0.6045, 3.76, 19.4283, 55.8677, 1.2781, 3.6666, 0.2088, 0.3889, 0.499, 0.4195, 0.6972, 0.8789),
 )
 
 
 def arc_score_features(feats: dict) -> np.ndarray:
-    """The arc score model's inputs ``(N, 10)`` from a :attr:`Matches.features` mapping."""
+    """The arc score model's inputs ``(N, 12)`` from a :attr:`Matches.features` mapping."""
     span = np.rad2deg(feats["elevation_span"])
     run = np.log(np.maximum(feats["run_px"], 1e-3))
+    flat = 1.0 - np.asarray(feats["shadowed"], float)  # no shadow behind the echo: the seabed's elevation
     return np.column_stack([np.log(np.maximum(feats["snr"], 1e-6)), span, (span - 4.5) ** 2,
-                            feats["visible_px"], run, (run - 4.0) ** 2, feats["position"],
-                            feats["shadowed"].astype(float), feats["kind"], np.log1p(feats["crowding"])])
+                            feats["visible_px"], run, (run - 4.0) ** 2, np.clip(feats["position"], -0.5, 1.5),
+                            feats["shadowed"].astype(float), feats["kind"], np.log1p(feats["crowding"]),
+                            flat * np.log1p(feats["echo_depth_bins"]), flat * np.log1p(feats["echo_end_bins"])])
 
 
 #: Second-stage logistic model of P(correct) of the arc search's pixel: intercept and weights of
@@ -742,11 +748,12 @@ def arc_score_features(feats: dict) -> np.ndarray:
 #: one, log of 1 + its elevation's distance from the arc search's in units of 0.25 deg, and whether
 #: they agree within 0.5 deg). Fitted by ``experiments.matching.calibrate_face_score()`` on random
 #: scenes seeded 5000-5047 in thesis water and 5000-5023 in Jerlov 1C water
-#: (``experiments.matching.FACE_TRAINING``; 1627 matches, 51% correct).
+#: and :func:`experiments.matching.varied_scene` seeded 8000-8047 in thesis water
+#: (``experiments.matching.FACE_TRAINING``; 3163 matches, 50% correct).
 FACE_SCORE_MODEL = dict(
-    weights=(-0.029, 1.109, 0.946, -1.018, -0.076, 0.187, -0.012, 0.043),
-    mean=(-0.0952, 0.3049, 0.4877, 0.0719, 0.7591, 0.9647, 0.3196),
-    std=(1.2825, 0.4603, 0.8294, 0.2583, 0.4277, 0.8, 0.4663),
+    weights=(-0.102, 1.174, 0.538, -0.539, -0.006, 0.42, -0.398, -0.096),
+    mean=(-0.1695, 0.2836, 0.4693, 0.0604, 0.7019, 0.8811, 0.3038),
+    std=(1.1287, 0.4507, 0.8342, 0.2382, 0.4574, 0.7999, 0.4599),
 )
 
 #: :data:`FACE_SCORE_MODEL` where the face-plane candidate is offered (``MatchOptions.face_plane``
@@ -755,11 +762,11 @@ FACE_SCORE_MODEL = dict(
 #: the point on the face's plane: found, log of 1 + its elevation distance from the arc search's in
 #: units of 0.25 deg, agreement within 0.5 deg). Fitted by
 #: ``experiments.matching.calibrate_face_score()`` on the matches of those scenes where the plane is
-#: offered (thesis water; 1079 matches, 49% correct).
+#: offered (thesis water; 2615 matches, 49% correct).
 FACE_PLANE_SCORE_MODEL = dict(
-    weights=(-0.113, 1.178, 1.121, -0.952, -0.079, 0.08, -0.308, -0.129, 0.521, -0.513, 0.06),
-    mean=(-0.116, 0.4597, 0.7354, 0.1084, 0.7461, 0.8503, 0.3763, 0.7553, 0.9421, 0.3281),
-    std=(1.3063, 0.4984, 0.9248, 0.3109, 0.4353, 0.7315, 0.4845, 0.4299, 0.7965, 0.4695),
+    weights=(-0.118, 1.06, 0.583, -0.496, -0.015, 0.19, -0.433, -0.162, 0.605, -0.365, 0.046),
+    mean=(-0.1657, 0.343, 0.5677, 0.073, 0.6845, 0.8164, 0.3239, 0.6834, 0.892, 0.2635),
+    std=(1.0508, 0.4747, 0.8865, 0.2602, 0.4647, 0.7671, 0.468, 0.4652, 0.8231, 0.4405),
 )
 
 #: Logistic model of P(correct) of the point below the crease (:func:`.contact.crease_points`):
@@ -771,12 +778,12 @@ FACE_PLANE_SCORE_MODEL = dict(
 #: gradient just above the run (the crease's edge), log of the image's contrast (turbid water
 #: washes out the crease between a box's front and top faces, and the run then ends at the top
 #: face's far edge)). Fitted by
-#: ``experiments.matching.calibrate_face_score()`` on the same scenes (1235 crease points, 51%
+#: ``experiments.matching.calibrate_face_score()`` on the same scenes (2220 crease points, 61%
 #: correct).
 CREASE_SCORE_MODEL = dict(
-    weights=(0.607, 0.597, -0.196, -0.286, 0.261, -0.033, -0.063, 0.453, 0.639, -0.026),
-    mean=(0.3629, 1.2709, 0.498, 0.387, 0.5984, 0.9843, 4.2502, 1.6077, -0.3572),
-    std=(0.7471, 0.6737, 0.5, 0.4871, 0.2154, 0.3206, 0.5533, 1.4434, 0.2055),
+    weights=(0.509, 0.695, -0.198, -0.211, 0.422, -0.054, -0.145, 0.216, 0.393, -0.021),
+    mean=(0.2095, 1.2553, 0.4928, 0.3851, 0.5783, 0.9574, 4.1882, 1.5581, -0.265),
+    std=(0.6089, 0.6647, 0.4999, 0.4866, 0.2249, 0.3099, 0.5883, 1.3793, 0.1888),
 )
 
 
@@ -821,15 +828,12 @@ def crease_score_features(feats: dict) -> np.ndarray:
 #: inliers' extent along the edge in units of 5 cm; where the point sits in the
 #: run; its height as a fraction of the face's; log of 1 + how many bins the feature lies behind its
 #: echo's start; log of 1 + the gradient just above the run; log of the image's contrast). Fitted by
-#: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model (815
-#: plane points, all in thesis water where the plane is offered, 67% correct).
+#: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model (1787
+#: plane points, all in thesis water where the plane is offered, 64% correct).
 PLANE_SCORE_MODEL = dict(
-    weights=(0.792, 0.743, 0.231, 0.462, -0.469, -0.259, 0.301, 0.464, 0.094, 0.126, -0.018, -0.017, 0.32,
-             -0.012, 0.446, -0.116),
-    mean=(0.2865, 1.2473, 0.8982, 0.5551, 0.4871, 0.9141, 1.4994, 0.9219, 0.2683, 1.5306, 0.4759, 0.5721,
-          1.0301, 2.3417, -0.2082),
-    std=(0.8773, 0.6777, 0.3024, 0.5928, 0.4998, 0.2802, 0.3423, 0.1351, 0.4074, 0.9188, 0.4173, 0.2646,
-         0.4171, 1.1355, 0.0263),
+    weights=(0.682, 0.769, -0.008, 0.369, -0.34, -0.206, 0.057, 0.785, 0.181, 0.076, -0.101, 0.164, 0.175, 0.005, 0.349, -0.207),
+    mean=(0.1314, 1.3053, 0.8791, 0.5996, 0.4712, 0.9043, 1.5799, 0.9104, 0.2863, 1.6619, 0.4847, 0.573, 0.9903, 1.8913, -0.1779),
+    std=(0.7537, 0.6724, 0.326, 0.6467, 0.4992, 0.2942, 0.3668, 0.1457, 0.3874, 0.8979, 0.4201, 0.2796, 0.3645, 1.2771, 0.0541),
 )
 
 
@@ -855,9 +859,9 @@ def plane_score_features(feats: dict) -> np.ndarray:
 #: intercept and weights of the standardised :func:`foot_score_features`. Fitted by
 #: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model.
 FOOT_SCORE_MODEL = dict(
-    weights=(0.399, -0.044, -0.089, 0.374, -0.691, 0.156, -0.329, 0.338, -0.036, 0.547, 0.062, -0.361, 0.123, -0.078, -0.379, 0.442, 0.234),
-    mean=(0.3129, 1.6621, 0.924, 1.6095, 0.5989, 1.0151, 0.7378, 0.481, 1.6118, 1.0119, 0.4177, 0.7192, 2.9067, -0.3463, 0.678, 0.3724),
-    std=(0.8329, 0.7616, 0.265, 0.8935, 0.4901, 1.0217, 0.4398, 0.4996, 0.3079, 0.3326, 0.173, 0.6545, 0.6169, 0.2013, 0.4672, 0.4834),
+    weights=(0.102, -0.144, -0.098, 0.315, -0.604, 0.377, -0.465, 0.225, 0.002, 0.305, 0.039, -0.129, 0.015, -0.018, -0.089, -0.053, 0.255),
+    mean=(0.1713, 1.7612, 0.8899, 1.6282, 0.7034, 1.2789, 0.6564, 0.4622, 1.5678, 0.9884, 0.3803, 0.7568, 2.8523, -0.2592, 0.8229, 0.3568),
+    std=(0.7078, 0.8023, 0.313, 0.9765, 0.4568, 1.0766, 0.4749, 0.4986, 0.3245, 0.322, 0.1775, 0.7024, 0.6194, 0.1825, 0.3818, 0.4791),
 )
 
 
@@ -953,6 +957,16 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
                  visible_px=ch.visible_px[rows], run_px=ch.run_px[rows], position=ch.position[rows],
                  elevation=ch.elevations[rows], crowding=crowding,
                  seabed_contrast=np.nan_to_num(ch.contrast[rows], nan=1.0))
+    # The feature's echo in its own beam (:mod:`.contact`): where it starts (the crease of a face seen
+    # from above) and where it ends (the foot of a face, where its shadow starts).
+    if sonar is not None:  # (polar image, bin ranges)
+        r_on = echo_start_ranges(sonar[0], sonar[1], sf.bins[rows], sf.beams[rows])
+        r_end = echo_end_ranges(sonar[0], sonar[1], sf.bins[rows], sf.beams[rows])
+    else:
+        r_on = r_end = sf.ranges[rows]
+    bin_m = float(np.median(np.diff(sonar[1]))) if sonar is not None else 1.0
+    feats["echo_depth_bins"] = (sf.ranges[rows] - np.minimum(r_on, sf.ranges[rows])) / bin_m
+    feats["echo_end_bins"] = (np.maximum(r_end, sf.ranges[rows]) - sf.ranges[rows]) / bin_m
     feats["arc_score"] = _logistic(arc_score_features(feats), ARC_SCORE_MODEL)
     # Vertical faces standing on the seabed (a prior, :mod:`.contact`): the foot search's
     # agreement with the arc search, and the point below the face's crease.
@@ -960,10 +974,6 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     feats["contact_found"] = c.found
     feats["contact_dphi_deg"] = np.where(c.found, np.rad2deg(np.abs(np.nan_to_num(c.elevations)
                                                                     - ch.elevations[rows])), np.nan)
-    if sonar is not None:  # (polar image, bin ranges)
-        r_on = echo_start_ranges(sonar[0], sonar[1], sf.bins[rows], sf.beams[rows])
-    else:
-        r_on = sf.ranges[rows]
     cr = crease_points(rig, seabed, sf.ranges[rows], sf.azimuths[rows], r_on, ch.top_pixels[rows],
                        ch.run_low[rows], ch.run_high[rows])
     feats["crease_found"] = cr.found
@@ -972,8 +982,6 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     with np.errstate(invalid="ignore", divide="ignore"):
         feats["crease_position"] = np.where(cr.found, (cr.elevations - ch.run_low[rows])
                                             / np.maximum(ch.run_high[rows] - ch.run_low[rows], 1e-9), np.nan)
-    bin_m = float(np.median(np.diff(sonar[1]))) if sonar is not None else 1.0
-    feats["echo_depth_bins"] = (sf.ranges[rows] - np.minimum(r_on, sf.ranges[rows])) / bin_m
     feats["top_edge"] = ch.top_edge[rows]
     lo_i, hi_i = np.percentile(np.asarray(cam_img, float)[..., :3].mean(axis=-1), [0.5, 99.5])
     feats["image_contrast"] = np.full(rows.size, (hi_i - lo_i) / max(hi_i + lo_i, 1e-12))
@@ -1002,10 +1010,6 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
         feats["plane_position"] = np.where(fp.found, (fp.elevations - ch.run_low[rows])
                                            / np.maximum(ch.run_high[rows] - ch.run_low[rows], 1e-9), np.nan)
     # The point above the face's foot, where the feature's echo ends (acoustic only, :func:`.contact.foot_points`).
-    if sonar is not None:
-        r_end = echo_end_ranges(sonar[0], sonar[1], sf.bins[rows], sf.beams[rows])
-    else:
-        r_end = sf.ranges[rows]
     ft = foot_points(rig, seabed, sf.ranges[rows], sf.azimuths[rows], r_end)
     # A face standing on the seabed casts a shadow behind its foot: with none behind the echo
     # (a low bar, the seabed itself) the echo's end is not a foot.
@@ -1016,7 +1020,6 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     feats["foot_found"] = ft.found
     feats["foot_u"], feats["foot_v"] = ft.pixels[:, 0], ft.pixels[:, 1]
     feats["foot_height"] = ft.height
-    feats["echo_end_bins"] = (np.maximum(r_end, sf.ranges[rows]) - sf.ranges[rows]) / bin_m
     feats["foot_in_run"] = ft.found & (np.nan_to_num(ft.elevations) >= ch.run_low[rows] - 1e-9) & \
         (np.nan_to_num(ft.elevations) <= ch.run_high[rows] + 1e-9)
     for name, el in (("foot_dphi_deg", ch.elevations[rows]), ("foot_crease_dphi_deg", cr.elevations),
