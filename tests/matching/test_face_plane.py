@@ -106,11 +106,15 @@ def test_face_labels_split_faces_at_edges():
     assert lab[:, 30].max() == 0 and lab[5, 5] != lab[5, 50] and lab[5, 5] > 0 and lab[30, 50] == lab[5, 50]
 
 
-def test_face_plane_raises_precision_on_seeded_scenes():
-    """Seeded random scenes (not used to fit anything): the plane candidate adds correct matches.
+def test_face_plane_does_not_cost_precision_on_seeded_scenes():
+    """Seeded random scenes (not used to fit anything): offering the plane candidate costs nothing.
 
-    On the held-out scenes 6000-6047 all matches' precision is 0.58 with the plane and 0.53
-    without it (scene-to-scene spread ~0.15); the bounds leave room for six scenes' spread.
+    Two rounds ago the plane added correct matches (held-out scenes 6000-6047: all matches'
+    precision 0.58 with it, 0.53 without); with the point above the foot and the score models
+    fitted on the wider training mix (docs/matching.md, "a wider training mix") the crease and foot
+    points recover what it adds: held-out 667 right with it, 668 without (of 1072), and these six
+    scenes 82 and 82 of 144 (before the mix 658 against 646, and 79 against 72). The bound on the
+    difference leaves 3 points of precision (about 4 matches of 144).
     """
     from optiacoustic.experiments.matching import random_scene, simulate_pair
     from optiacoustic.matching import MatchOptions, match, truth
@@ -129,4 +133,4 @@ def test_face_plane_raises_precision_on_seeded_scenes():
     print(f"precision with the plane {p_plane:.3f}, without {p_before:.3f} ({n_all[True]} matches)")
     assert n_all[True] == n_all[False]  # the plane changes which pixel, not which features
     assert p_plane >= 0.40
-    assert p_plane > p_before
+    assert p_plane >= p_before - 0.03
