@@ -1092,6 +1092,31 @@ def edge_pairs(body, r, slope, K, J, step, min_jump, kk, jj):
 
 
 @njit(cache=True, nogil=True)
+def edge_directions32(kk, jj, cp, sp, sth, cth, R, i0, i1, out):
+    """World unit directions of the edge sub-rays of discontinuities ``i0..i1`` into ``out``
+    ``(len(kk) * S, 3)`` float32 (``formation._refine_edges``): sub-ray ``s`` of pair ``(k, j)`` is
+    ``R (cos(phi) sin(theta), cos(phi) cos(theta), sin(phi))`` with ``cos(phi), sin(phi)`` the
+    tables ``cp[k, s]``, ``sp[k, s]`` ``(K - 1, S)`` and ``sin(theta), cos(theta)`` ``sth[j]``,
+    ``cth[j]``: the products and the rotation's sums in the order of the numpy path
+    (``Pose.directions_to_world``'s einsum adds the terms of components 0 and 2 first, then 1:
+    measured, bit for bit), the same float64 numbers, rounded to float32."""
+    S = cp.shape[1]
+    for e in range(i0, i1):
+        k = kk[e]
+        j = jj[e]
+        st = sth[j]
+        ct = cth[j]
+        for s in range(S):
+            c = cp[k, s]
+            x = c * st
+            y = c * ct
+            z = sp[k, s]
+            m = e * S + s
+            for i in range(3):
+                out[m, i] = (R[i, 0] * x + R[i, 2] * z) + R[i, 1] * y
+
+
+@njit(cache=True, nogil=True)
 def edge_split(kk, jj, h_body, h_dist, body, r, slope, step, S, J, a, b):
     """Move the shared cell boundary of each discontinuity to where its ``S`` sub-rays change
     from the surface below to the one above (``formation._refine_edges``). ``h_body`` (int32) and

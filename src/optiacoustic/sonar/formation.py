@@ -1281,9 +1281,25 @@ def _refine_edges(caster, spec, pose, body, r, slope, a, b) -> None:
     a[upper] = step * (1 - t)
 
 
+@functools.lru_cache(maxsize=16)
+def _edge_trig(spec: SonarSpec):
+    """The trigonometry of :func:`_refine_edges`' sub-rays, per spec (read-only, cached):
+    ``cos``, ``sin`` of the sub-rays' elevations ``(K - 1, _EDGE_SUBRAYS)`` (sub-ray ``s`` between
+    samples ``k`` and ``k + 1`` at ``phi_k + step (s + 1/2) / S``) and ``sin``, ``cos`` of the beams'
+    azimuths ``(n_beams,)``: the same numbers as the numpy path's per-frame calls on them."""
+    S = _EDGE_SUBRAYS
+    frac = (np.arange(S) + 0.5) / S
+    phi = spec.elevations[:-1, None] + spec.elevation_step * frac[None, :]
+    out = (np.cos(phi), np.sin(phi), np.sin(spec.azimuths), np.cos(spec.azimuths))
+    for arr in out:
+        arr.setflags(write=False)
+    return out
+
+
 def _refine_edges_numba(caster, spec, pose, body, r, slope, a, b) -> None:
-    """:func:`_refine_edges` with the discontinuities found and the sub-rays classified by kernels
-    (the sub-rays' directions as the numpy path computes them, so both cast the same rays)."""
+    """:func:`_refine_edges` with the discontinuities found, the sub-rays' directions formed and the
+    sub-rays classified by kernels (the directions from per-spec tables of the numpy path's sines
+    and cosines, rotated with its einsum's order of sums: both cast the same float32 rays)."""
     K, J = spec.elevation_samples, spec.n_beams
     step = spec.elevation_step
     kn = kernels()
@@ -1293,12 +1309,9 @@ def _refine_edges_numba(caster, spec, pose, body, r, slope, a, b) -> None:
         return
     kk, jj = kk[:m], jj[:m]
     S = _EDGE_SUBRAYS
-    frac = (np.arange(S) + 0.5) / S
-    phi = spec.elevations[kk][:, None] + step * frac[None, :]
-    th = spec.azimuths[jj][:, None]
-    cp = np.cos(phi)
-    d = pose.directions_to_world(np.stack(np.broadcast_arrays(cp * np.sin(th), cp * np.cos(th), np.sin(phi)), -1))
-    d32 = np.ascontiguousarray(d.reshape(-1, 3), np.float32)
+    cp, sp, sth, cth = _edge_trig(spec)
+    d32 = np.empty((m * S, 3), np.float32)
+    kn.edge_directions32(kk, jj, cp, sp, sth, cth, np.ascontiguousarray(pose.R, float), 0, m, d32)
     o32 = _fill_rows(np.empty_like(d32), pose.t)
     dist32 = np.full(len(d32), min(np.float32(spec.range_max * 1.5), np.float32(1e30)), np.float32)
     tfar, h_body, _, _, _, _ = caster.intersect_raw(o32, d32, dist32, normals=False)
