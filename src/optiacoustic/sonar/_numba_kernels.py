@@ -70,8 +70,10 @@ def ray_grid32(cp, sp, a, rz, out):
 
 @njit(cache=True, nogil=True)
 def scan_rays(tfar, geom, prim, u, v, ng, corner_normals, tri_offset, smooth, cp, sp, a, rz, i0, i1,
-              body, r, nd, ndd, cos_inc, slope):
+              body, r, nd, ndd, cos_inc, slope, first=0):
     """Per ray of the grid (rows ``i0..i1``): body, range, ``n.d``, ``n.d'``, ``|n.d|`` and ``dr/dphi``.
+    Embree's output (``tfar`` ... ``ng``) holds rays from ``first`` on (ray ``i`` at ``i - first``: one
+    chunk of the cast, ``RayCaster.intersect_each``); the outputs are the whole grid's.
 
     ``d = cos(phi) a + sin(phi) R_z`` and ``d' = -sin(phi) a + cos(phi) R_z``; the normal is the
     interpolated corner normal (``smooth``) or Embree's geometric normal, normalised in float32
@@ -79,7 +81,7 @@ def scan_rays(tfar, geom, prim, u, v, ng, corner_normals, tri_offset, smooth, cp
     """
     J = a.shape[0]
     for i in range(i0, i1):
-        g = geom[i]
+        g = geom[i - first]
         if g < 0:
             body[i] = -1
             r[i] = np.inf
@@ -91,15 +93,15 @@ def scan_rays(tfar, geom, prim, u, v, ng, corner_normals, tri_offset, smooth, cp
         k = i // J
         j = i - k * J
         if smooth:
-            t = tri_offset[g] + prim[i]
-            w1 = u[i]
-            w2 = v[i]
+            t = tri_offset[g] + prim[i - first]
+            w1 = u[i - first]
+            w2 = v[i - first]
             w0 = np.float32(1.0) - w1 - w2
             n0 = w0 * corner_normals[t, 0, 0] + w1 * corner_normals[t, 1, 0] + w2 * corner_normals[t, 2, 0]
             n1 = w0 * corner_normals[t, 0, 1] + w1 * corner_normals[t, 1, 1] + w2 * corner_normals[t, 2, 1]
             n2 = w0 * corner_normals[t, 0, 2] + w1 * corner_normals[t, 1, 2] + w2 * corner_normals[t, 2, 2]
         else:
-            n0, n1, n2 = ng[i, 0], ng[i, 1], ng[i, 2]
+            n0, n1, n2 = ng[i - first, 0], ng[i - first, 1], ng[i - first, 2]
         inv = np.float32(1.0) / (np.sqrt(n0 * n0 + n1 * n1 + n2 * n2) + np.float32(1e-30))
         m0, m1, m2 = float(n0 * inv), float(n1 * inv), float(n2 * inv)
         c, s = cp[k], sp[k]
@@ -111,7 +113,7 @@ def scan_rays(tfar, geom, prim, u, v, ng, corner_normals, tri_offset, smooth, cp
         e2 = -s * a[j, 2] + c * rz[2]
         x = m0 * d0 + m1 * d1 + m2 * d2
         y = m0 * e0 + m1 * e1 + m2 * e2
-        rr = float(tfar[i])
+        rr = float(tfar[i - first])
         body[i] = g
         r[i] = rr
         nd[i] = x

@@ -1002,13 +1002,16 @@ def _scan_hits_numba(caster: RayCaster, spec: SonarSpec, pose: Pose):
     o32 = _fill_rows(_workspace("scan_o32", (n, 3), np.float32), pose.t)
     dist32 = _workspace("scan_dist32", (n,), np.float32)
     dist32.fill(min(np.float32(spec.range_max * 1.5), np.float32(1e30)))  # Embree writes its hits' distances here
-    tfar, geom, prim, u, v, _ = caster.intersect_raw(o32, d32, dist32, normals=False)
     body = np.empty(n, np.int32)
     r, cos_inc = np.empty(n), np.empty(n)
     nd, ndd, slope = (_workspace(f"scan_{name}", (n,), np.float64) for name in ("nd", "ndd", "slope"))
     cn, off, ng = caster.corner_normals, caster.triangle_offset, np.zeros((0, 3), np.float32)
-    chunked_run(lambda i0, i1: kn.scan_rays(tfar, geom, prim, u, v, ng, cn, off, True, cp, sp, a_dir, rz, i0, i1,
-                                          body, r, nd, ndd, cos_inc, slope), n, caster.threads)
+
+    def each(i0, i1, tfar, geom, prim, u, v):  # each chunk read on the thread that cast it, as soon as it is cast
+        kn.scan_rays(tfar, geom, prim, u, v, ng, cn, off, True, cp, sp, a_dir, rz, i0, i1,
+                     body, r, nd, ndd, cos_inc, slope, i0)
+
+    caster.intersect_each(o32, d32, dist32, each)
     return body, r, nd, ndd, cos_inc, slope
 
 
