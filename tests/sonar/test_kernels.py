@@ -453,3 +453,26 @@ def test_scatterer_words_drawn_beside_the_scan_give_the_same_image(thesis, monke
         monkeypatch.setattr(caster, "threads", threads)
         frames.append(simulate_sonar(sc, SPEC, pose, noise=noise, options=opts, seed=4).image)
     assert np.array_equal(frames[0], frames[1])
+
+
+def test_edge_subray_directions_kernel_is_the_numpy_expression_bit_for_bit():
+    # the numpy path's sub-ray directions (formation._refine_edges), against the kernel's from
+    # per-spec tables, on random pairs and poses: the same float32 rays
+    from optiacoustic.sonar import _numba_kernels as kn
+
+    spec = SonarSpec.preset("blueview-p900-90")
+    rng = np.random.default_rng(11)
+    S, K, J, step = F._EDGE_SUBRAYS, spec.elevation_samples, spec.n_beams, spec.elevation_step
+    frac = (np.arange(S) + 0.5) / S
+    for _ in range(20):
+        pose = Pose.look_at(rng.normal(size=3) * 5, rng.normal(size=3) * 5 + [0, 20, 0])
+        m = 3000
+        kk, jj = rng.integers(0, K - 1, m), rng.integers(0, J, m)
+        phi = spec.elevations[kk][:, None] + step * frac[None, :]
+        th = spec.azimuths[jj][:, None]
+        cp = np.cos(phi)
+        d = pose.directions_to_world(np.stack(np.broadcast_arrays(cp * np.sin(th), cp * np.cos(th), np.sin(phi)), -1))
+        ref = np.ascontiguousarray(d.reshape(-1, 3), np.float32)
+        out = np.empty_like(ref)
+        kn.edge_directions32(kk, jj, *F._edge_trig(spec), np.ascontiguousarray(pose.R), 0, m, out)
+        assert np.array_equal(out, ref)
