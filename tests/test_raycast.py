@@ -150,4 +150,4 @@ def test_intersect_each_hands_over_each_chunk_as_intersect_raw_casts_it(caster, 
         assert np.array_equal(got[k], ref[i])
     ball = got["g"] == 1
     assert ball.sum() > 100
-    assert np.allclose(got["t"][ball], sphere_hit(o, d)[ball], atol=1e-3)
+    assert np.max(np.abs(got["t"][ball] - sphere_hit(o, d)[ball])) < 5e-4 * R / 0.2  # the tessellated ball, as above
