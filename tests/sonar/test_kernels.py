@@ -476,3 +476,23 @@ def test_edge_subray_directions_kernel_is_the_numpy_expression_bit_for_bit():
         out = np.empty_like(ref)
         kn.edge_directions32(kk, jj, *F._edge_trig(spec), np.ascontiguousarray(pose.R), 0, m, out)
         assert np.array_equal(out, ref)
+
+
+@pytest.mark.parametrize("n_bins", [97, 300, 750, 1500])
+def test_beam_mixing_in_column_pieces_is_the_whole_image_bit_for_bit(n_bins):
+    # _form_aperture_numba mixes the beams in pieces of _MIX_COLUMNS bins on several threads: each
+    # piece must give exactly what cv2 gives on the whole image (and zeros outside the live span)
+    spec = dataclasses.replace(SonarSpec.preset("blueview-p900-90"), n_bins=n_bins)
+    rng = np.random.default_rng(n_bins)
+    rows = (rng.random((spec.n_beams, n_bins)) ** 6).astype(np.float32)
+    rows[:40] = 0.0
+    rows[-25:] = 0.0
+    span = F._live_span(rows.any(axis=1), spec)
+    whole = np.full_like(rows, np.nan)
+    F._mix_rows(spec, rows, whole, span)
+    pieces = np.full_like(rows, np.nan)
+    for c0 in range(0, n_bins, F._MIX_COLUMNS):
+        c1 = min(c0 + F._MIX_COLUMNS, n_bins)
+        F._mix_rows(spec, rows[:, c0:c1], pieces[:, c0:c1], span)
+    assert np.array_equal(whole, pieces)
+    assert np.all(whole[:span[0]] == 0) and np.all(whole[span[1]:] == 0) and span[0] > 0

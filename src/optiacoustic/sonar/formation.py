@@ -148,7 +148,8 @@ def _mix_beams(spec: SonarSpec, echo: np.ndarray, out=None) -> np.ndarray:
     import cv2
 
     k = np.ascontiguousarray(azimuth_kernel(spec)[::-1], np.float32).reshape(-1, 1)  # correlation kernel
-    src = np.ascontiguousarray(echo, np.float32)
+    # (rows of contiguous float32, a piece of an image's columns included, go to cv2 as they are)
+    src = echo if echo.dtype == np.float32 and echo.strides[-1] == 4 else np.ascontiguousarray(echo, np.float32)
     if out is None:
         return cv2.filter2D(src, cv2.CV_32F, k, borderType=cv2.BORDER_CONSTANT)
     got = cv2.filter2D(src, cv2.CV_32F, k, dst=out, borderType=cv2.BORDER_CONSTANT)
@@ -168,6 +169,11 @@ def _live_span(live: np.ndarray, spec: SonarSpec):
         return (0, 0)
     m = (azimuth_kernel(spec).size - 1) // 2
     return (max(int(idx[0]) - m, 0), min(int(idx[-1]) + m + 1, spec.n_beams))
+
+
+#: Bins (columns) of one piece of the beam mixing on several threads (:func:`_form_aperture_numba`): a
+#: multiple of 128, so that every piece starts where cv2's vector loop over a row starts a block.
+_MIX_COLUMNS = 256
 
 
 def _mix_rows(spec: SonarSpec, rows: np.ndarray, out: np.ndarray, span) -> None:
@@ -1158,7 +1164,23 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
     # the azimuth pattern mixes whole rows (beams); scale, threshold, shares and the image layout in one pass
     mixed = _workspace(f"mixed{n_slots}", (n_slots, J, B), np.float32)
     spans = [_live_span(live[s], spec) for s in range(n_slots)]
-    if threads > 1 and n_slots > 1:  # the class images on the other threads meanwhile (cv2 releases the GIL)
+    if threads > 1 and all(sp is not None for sp in spans):
+        # cv2's filter along the beams, in pieces of _MIX_COLUMNS bins (columns) of every slot that the
+        # threads take in turn (cv2 releases the GIL): each bin's column is filtered on its own, and pieces
+        # starting at multiples of its vector width compute each value as the whole image does (bit for bit)
+        pieces = iter([(s, c0, min(c0 + _MIX_COLUMNS, B)) for s in range(n_slots) for c0 in range(0, B, _MIX_COLUMNS)])
+
+        def work():
+            for s, c0, c1 in pieces:  # next() on the iterator is atomic under the GIL
+                _mix_rows(spec, out[s][:, c0:c1], mixed[s][:, c0:c1], spans[s])
+
+        from ._kernels import _pool
+
+        jobs = [_pool(threads - 1).submit(work) for _ in range(threads - 1)]
+        work()
+        for job in jobs:
+            job.result()
+    elif threads > 1 and n_slots > 1:  # the class images on the other threads meanwhile (cv2 releases the GIL)
         from ._kernels import _pool
 
         jobs = [_pool(threads - 1).submit(_mix_rows, spec, out[s], mixed[s], spans[s]) for s in range(1, n_slots)]
