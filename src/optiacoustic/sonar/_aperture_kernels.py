@@ -45,7 +45,7 @@ def _box_deposit(f_lo, f_hi, range_min, scale, n, value, k, d_p0, d_p1, d_v):
 @njit(cache=True, nogil=True)
 def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K, J,
                        table_x0, table_dx, table_y, alpha_db, spreading, bin_width,
-                       slot_of_ray, seabed_of_ray, dtheta, range_min, n_cells, H, V, full, q, n_bins,
+                       slot_of_ray, body, is_seabed, dtheta, range_min, n_cells, H, V, full, q, n_bins,
                        want_area, max_s, j0, j1, out, area_out, live):
     """Echo rows (``(S, n_beams, n_bins)`` float32, as ``echo_rows``) and the seabed area
     (``(n_bins, n_beams)`` float32, the image layout, one cell per bin, no anti-aliasing, as
@@ -57,7 +57,7 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     (``subcell_counts``), each with the range, footprint, Lambert factor, two-way pattern weight
     and gain of ``_numba_kernels.subdivide``; a sub-cell of energy ``> 0`` deposits its box
     into slot 0 and its class's slot ``slot_of_ray[i]``; a seabed sub-cell
-    (``seabed_of_ray[i]``) deposits its area ``r^2 cos(phi) dtheta_j dphi / max(cos, 0.05)`` into
+    (``is_seabed[body[i]]``, per body id) deposits its area ``r^2 cos(phi) dtheta_j dphi / max(cos, 0.05)`` into
     ``area_out`` (when ``want_area``). ``max_s``: the largest ``n_sub`` (1 at least).
     ``live[s, j]`` (bool ``(S, n_beams)``) tells whether row
     ``out[s, j]`` has deposits (a row without is written as zeros).
@@ -157,7 +157,7 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
             t = -a[i] + 0.5 * delta
             ct, st = ct0, st0
             s = slot_of_ray[i]
-            seabed = want_area and seabed_of_ray[i]
+            seabed = want_area and is_seabed[body[i]]  # a ray with sub-cells is a hit
             for kk in range(Sn):
                 if kk > 0:
                     t = -a[i] + (kk + 0.5) * delta

@@ -1215,7 +1215,6 @@ def _aperture_rows(spec: SonarSpec, cells: _ApertureCells, options: SonarOptions
     n_bodies = max([int(np.max(body, initial=-1))] + ids) + 1
     is_seabed = np.zeros(n_bodies + 1, np.bool_)
     is_seabed[ids if ids else slice(0, n_bodies)] = True
-    seabed_of_ray = is_seabed[body]  # body -1 reads the last entry (False): no sub-cells anyway
     q = options.range_oversample
     sigma_bins = max(spec.pulse_width / spec.bin_width / 2.3548, 0.5)
     H, V, full = _deposit_tables(spec.n_bins, q, sigma_bins)
@@ -1230,7 +1229,7 @@ def _aperture_rows(spec: SonarSpec, cells: _ApertureCells, options: SonarOptions
     bm = flat
     args = (bm(rays.range), bm(cells.nd), bm(cells.ndd), bm(cells.a), bm(cells.b), 0.5 * rays.elevation_step,
             bm(cells.refl), bm(rays.elevation), bm(n_sub), K, J, x0, dx, y, cells.alpha_db, cells.spreading, spec.bin_width, bm(slot),
-            bm(seabed_of_ray), dtheta, float(spec.range_min), B * q, H, V, full, q, B, bool(need_area),
+            body, is_seabed, dtheta, float(spec.range_min), B * q, H, V, full, q, B, bool(need_area),
             max(1, int(n_sub.max(initial=0))))
     live = np.empty((n_slots, J), np.bool_)
     chunked_run(lambda j0, j1: ak.aperture_echo_rows(*args, j0, j1, out, area, live), J, threads)
