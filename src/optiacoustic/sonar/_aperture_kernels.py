@@ -20,7 +20,7 @@ from ._numba_kernels import subcell_footprint, table_weight
 _AREA_BLOCK = 16  # beams whose area rows are written to the image layout together
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _box_deposit(f_lo, f_hi, range_min, scale, n, value, k, d_p0, d_p1, d_v):
     """Row ``k`` of the deposit lists: a box of ``value`` spread uniformly over the footprint
     ``[f_lo, f_hi]`` (m) on cells of ``1 / scale`` m from ``range_min``, clipped to ``[0, n]``,
@@ -42,7 +42,7 @@ def _box_deposit(f_lo, f_hi, range_min, scale, n, value, k, d_p0, d_p1, d_v):
     d_v[k, 3] = -dens * f1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K, J,
                        table_x0, table_dx, table_y, alpha_db, spreading, bin_width,
                        slot_of_ray, body, is_seabed, dtheta, range_min, n_cells, H, V, full, q, n_bins,
@@ -271,7 +271,7 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                 blk0 = j + 1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _rows_from_deposits(dep, c_lo, c_top, H, V, full, q, n_bins, ph, cum, rowbuf, row_out):
     """One slot's echo row from its fine-cell deposits ``dep[c_lo..c_top]`` (zero elsewhere; zeroed
     here for the next beam): ``echo_rows``' linear map (``H`` taps around each deposit's bin, a
@@ -375,7 +375,7 @@ def _rows_from_deposits(dep, c_lo, c_top, H, V, full, q, n_bins, ph, cum, rowbuf
 
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def class_counts(body, energy, weight, cls, counts, ray_cls):
     """``formation._class_slots``'s first pass: ``ray_cls[i] = cls[body[i]]`` (body -1 reads the last
     entry) and ``counts[c]`` += ``weight[i]`` over the lit rays (``energy > 0``) of class ``c``."""
@@ -388,7 +388,7 @@ def class_counts(body, energy, weight, cls, counts, ray_cls):
             counts[c] += weight[i]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def class_slots(ray_cls, table, slot):
     """``slot[i] = table[ray_cls[i]]`` (``formation._class_slots``'s second pass)."""
     for i in range(ray_cls.size):
