@@ -9,6 +9,8 @@ formulas: the areas are the same numbers, bit for bit; the echo is the same line
 same deposits summed in another order (deposit, then convolve: see ``aperture_echo_rows``), the
 same to float64 rounding. The tests compare it with the materialised numba path and with the
 numpy reference (``OAS_KERNELS=numpy``: materialised sub-cells, ``_form_image``, ``cell_area``).
+numpy's error model, as ``_numba_kernels``: no zero-division checks (the footprints are padded to
+1e-4 of a bin, the pattern table's step is positive).
 """
 
 from __future__ import annotations

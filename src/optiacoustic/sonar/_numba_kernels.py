@@ -4,6 +4,8 @@ Each kernel is one pass over the arrays it reads and computes what the numpy ref
 ``formation.py`` / ``noise.py`` computes (the tests compare the two on seeded inputs).
 They release the GIL (``nogil=True``) so that the caller can run beam ranges on two threads,
 and are cached on disk (``cache=True``) so that only the first run on a machine compiles.
+They use numpy's error model (``error_model="numpy"``): no zero-division check and branch at each
+division (no kernel divides by zero; under Python's model one that did would have raised).
 """
 
 from __future__ import annotations
