@@ -56,20 +56,25 @@ class kernels_env:
 
 
 def _recorded_rays(caster, fn):
-    """The float32 rays every ``intersect_raw`` call of ``fn()`` makes (``cast_raw`` and the sonar's
-    kernels both go through it), concatenated."""
+    """The float32 rays every ``intersect_raw`` and ``intersect_each`` call of ``fn()`` makes (``cast_raw``
+    and the sonar's kernels go through the first, the sonar's primary grid through the second),
+    concatenated in the order cast."""
     seen = []
-    orig = caster.intersect_raw
+    orig_raw, orig_each = caster.intersect_raw, caster.intersect_each
 
     def spy(o32, d32, *args, **kw):
         seen.append((o32.copy(), d32.copy()))
-        return orig(o32, d32, *args, **kw)
+        return orig_raw(o32, d32, *args, **kw)
 
-    caster.intersect_raw = spy
+    def spy_each(o32, d32, *args, **kw):
+        seen.append((o32.copy(), d32.copy()))
+        return orig_each(o32, d32, *args, **kw)
+
+    caster.intersect_raw, caster.intersect_each = spy, spy_each
     try:
         fn()
     finally:
-        del caster.intersect_raw
+        del caster.intersect_raw, caster.intersect_each
     o = np.ascontiguousarray(np.concatenate([s[0] for s in seen]))
     d = np.ascontiguousarray(np.concatenate([s[1] for s in seen]))
     return o, d, len(seen)

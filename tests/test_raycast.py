@@ -118,3 +118,37 @@ def test_vectorised_upload_gives_the_same_hits_as_embreex_trianglemesh(monkeypat
     assert np.array_equal(a.distance, b.distance) and np.array_equal(a.body, b.body)
     assert np.array_equal(a.triangle, b.triangle)
     assert np.array_equal(a.normal, b.normal, equal_nan=True)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_intersect_each_hands_over_each_chunk_as_intersect_raw_casts_it(caster, threads):
+    # every ray handed over exactly once, with intersect_raw's output for it; distances checked
+    # against the analytic sphere for the rays that hit the ball
+    rng = np.random.default_rng(5)
+    n = 9000
+    d = rng.normal(size=(n, 3)) * 0.1 + (C - [0, 0, 8]) / np.linalg.norm(C - [0, 0, 8])  # about the ball
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    o = np.tile(np.array([0, 0, 8.0]), (n, 1))
+    o32, d32 = o.astype(np.float32), d.astype(np.float32)
+    ref = caster.intersect_raw(o32, d32, np.full(n, 1e3, np.float32), normals=False)
+    old = caster.threads
+    caster.threads = threads
+    got = {k: np.full(n, -7, ref[i].dtype) for i, k in enumerate(("t", "g", "p", "u", "v"))}
+    seen = np.zeros(n, int)
+    try:
+        def each(a, b, t, g, p, u, v):
+            seen[a:b] += 1
+            for k, arr in zip(("t", "g", "p", "u", "v"), (t, g, p, u, v)):
+                assert len(arr) == b - a
+                got[k][a:b] = arr
+
+        caster.intersect_each(o32, d32, np.full(n, 1e3, np.float32), each)
+    finally:
+        caster.threads = old
+    assert np.all(seen == 1)
+    for i, k in enumerate(("t", "g", "p")):
+        assert np.array_equal(got[k], ref[i])
+    miss_dist = np.linalg.norm(np.cross(C - o, d), axis=1)  # the ray's closest approach to the ball's centre
+    ball = (got["g"] == 1) & (miss_dist < 0.5 * R)  # away from the silhouette, where the facets are steep
+    assert ball.sum() > 100
+    assert np.max(np.abs(got["t"][ball] - sphere_hit(o, d)[ball])) < 5e-4 * R / 0.2  # the tessellated ball, as above

@@ -325,6 +325,28 @@ class RayCaster:
         cat = (lambda k: outs[0][k]) if len(outs) == 1 else (lambda k: np.concatenate([r[k] for r in outs]))
         return cat("tfar"), cat("geomID"), cat("primID"), cat("u"), cat("v"), cat("Ng") if normals else None
 
+    def intersect_each(self, origins32: np.ndarray, directions32: np.ndarray, max_distance32: np.ndarray, each) -> None:
+        """:meth:`intersect_raw` in the same chunks over the worker threads, each chunk's output handed to
+        ``each(a, b, distance, body, triangle, u, v)`` (rays ``a..b``; the arrays as :meth:`intersect_raw`
+        returns them, of that chunk only) on the thread that cast it, as soon as it is cast: the caller's
+        per-ray work runs beside the other chunks' casts, with no concatenated copy of the output.
+        ``max_distance32`` is overwritten (as by :meth:`intersect_raw`)."""
+        n = len(origins32)
+        n_chunks = 1 if n < 4096 or self.threads == 1 else 2 * self.threads
+        bounds = np.linspace(0, n, n_chunks + 1).astype(int)
+
+        def job(k):
+            a, b = int(bounds[k]), int(bounds[k + 1])
+            out = self._embree.run(origins32[a:b], directions32[a:b], dists=max_distance32[a:b], query="INTERSECT",
+                                   output=True)
+            each(a, b, out["tfar"], out["geomID"], out["primID"], out["u"], out["v"])
+
+        if n_chunks == 1:
+            job(0)
+            return
+        for _ in _pool(self.threads).map(job, range(n_chunks)):
+            pass
+
     def front_hits(self):
         """The direct ``rtcIntersect1`` path with a back-face filter on this scene, for numba kernels
         (:func:`optiacoustic._embree_kernels.direct_path`: integer addresses ``fn``, ``scene``,

@@ -453,3 +453,46 @@ def test_scatterer_words_drawn_beside_the_scan_give_the_same_image(thesis, monke
         monkeypatch.setattr(caster, "threads", threads)
         frames.append(simulate_sonar(sc, SPEC, pose, noise=noise, options=opts, seed=4).image)
     assert np.array_equal(frames[0], frames[1])
+
+
+def test_edge_subray_directions_kernel_is_the_numpy_expression_bit_for_bit():
+    # the numpy path's sub-ray directions (formation._refine_edges), against the kernel's from
+    # per-spec tables, on random pairs and poses: the same float32 rays
+    from optiacoustic.sonar import _numba_kernels as kn
+
+    spec = SonarSpec.preset("blueview-p900-90")
+    rng = np.random.default_rng(11)
+    S, K, J, step = F._EDGE_SUBRAYS, spec.elevation_samples, spec.n_beams, spec.elevation_step
+    frac = (np.arange(S) + 0.5) / S
+    for _ in range(20):
+        pose = Pose.look_at(rng.normal(size=3) * 5, rng.normal(size=3) * 5 + [0, 20, 0])
+        m = 3000
+        kk, jj = rng.integers(0, K - 1, m), rng.integers(0, J, m)
+        phi = spec.elevations[kk][:, None] + step * frac[None, :]
+        th = spec.azimuths[jj][:, None]
+        cp = np.cos(phi)
+        d = pose.directions_to_world(np.stack(np.broadcast_arrays(cp * np.sin(th), cp * np.cos(th), np.sin(phi)), -1))
+        ref = np.ascontiguousarray(d.reshape(-1, 3), np.float32)
+        out = np.empty_like(ref)
+        kn.edge_directions32(kk, jj, *F._edge_trig(spec), np.ascontiguousarray(pose.R), 0, m, out)
+        assert np.array_equal(out, ref)
+
+
+@pytest.mark.parametrize("n_bins", [97, 300, 750, 1500])
+def test_beam_mixing_in_column_pieces_is_the_whole_image_bit_for_bit(n_bins):
+    # _form_aperture_numba mixes the beams in pieces of _MIX_COLUMNS bins on several threads: each
+    # piece must give exactly what cv2 gives on the whole image (and zeros outside the live span)
+    spec = dataclasses.replace(SonarSpec.preset("blueview-p900-90"), n_bins=n_bins)
+    rng = np.random.default_rng(n_bins)
+    rows = (rng.random((spec.n_beams, n_bins)) ** 6).astype(np.float32)
+    rows[:40] = 0.0
+    rows[-25:] = 0.0
+    span = F._live_span(rows.any(axis=1), spec)
+    whole = np.full_like(rows, np.nan)
+    F._mix_rows(spec, rows, whole, span)
+    pieces = np.full_like(rows, np.nan)
+    for c0 in range(0, n_bins, F._MIX_COLUMNS):
+        c1 = min(c0 + F._MIX_COLUMNS, n_bins)
+        F._mix_rows(spec, rows[:, c0:c1], pieces[:, c0:c1], span)
+    assert np.array_equal(whole, pieces)
+    assert np.all(whole[:span[0]] == 0) and np.all(whole[span[1]:] == 0) and span[0] > 0

@@ -9,6 +9,8 @@ formulas: the areas are the same numbers, bit for bit; the echo is the same line
 same deposits summed in another order (deposit, then convolve: see ``aperture_echo_rows``), the
 same to float64 rounding. The tests compare it with the materialised numba path and with the
 numpy reference (``OAS_KERNELS=numpy``: materialised sub-cells, ``_form_image``, ``cell_area``).
+numpy's error model, as ``_numba_kernels``: no zero-division checks (the footprints are padded to
+1e-4 of a bin, the pattern table's step is positive).
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from ._numba_kernels import subcell_footprint, table_weight
 _AREA_BLOCK = 16  # beams whose area rows are written to the image layout together
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def _box_deposit(f_lo, f_hi, range_min, scale, n, value, k, d_p0, d_p1, d_v):
     """Row ``k`` of the deposit lists: a box of ``value`` spread uniformly over the footprint
     ``[f_lo, f_hi]`` (m) on cells of ``1 / scale`` m from ``range_min``, clipped to ``[0, n]``,
@@ -42,10 +44,10 @@ def _box_deposit(f_lo, f_hi, range_min, scale, n, value, k, d_p0, d_p1, d_v):
     d_v[k, 3] = -dens * f1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K, J,
                        table_x0, table_dx, table_y, alpha_db, spreading, bin_width,
-                       slot_of_ray, seabed_of_ray, dtheta, range_min, n_cells, H, V, full, q, n_bins,
+                       slot_of_ray, body, is_seabed, dtheta, range_min, n_cells, H, V, full, q, n_bins,
                        want_area, max_s, j0, j1, out, area_out, live):
     """Echo rows (``(S, n_beams, n_bins)`` float32, as ``echo_rows``) and the seabed area
     (``(n_bins, n_beams)`` float32, the image layout, one cell per bin, no anti-aliasing, as
@@ -57,7 +59,7 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     (``subcell_counts``), each with the range, footprint, Lambert factor, two-way pattern weight
     and gain of ``_numba_kernels.subdivide``; a sub-cell of energy ``> 0`` deposits its box
     into slot 0 and its class's slot ``slot_of_ray[i]``; a seabed sub-cell
-    (``seabed_of_ray[i]``) deposits its area ``r^2 cos(phi) dtheta_j dphi / max(cos, 0.05)`` into
+    (``is_seabed[body[i]]``, per body id) deposits its area ``r^2 cos(phi) dtheta_j dphi / max(cos, 0.05)`` into
     ``area_out`` (when ``want_area``). ``max_s``: the largest ``n_sub`` (1 at least).
     ``live[s, j]`` (bool ``(S, n_beams)``) tells whether row
     ``out[s, j]`` has deposits (a row without is written as zeros).
@@ -157,7 +159,7 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
             t = -a[i] + 0.5 * delta
             ct, st = ct0, st0
             s = slot_of_ray[i]
-            seabed = want_area and seabed_of_ray[i]
+            seabed = want_area and is_seabed[body[i]]  # a ray with sub-cells is a hit
             for kk in range(Sn):
                 if kk > 0:
                     t = -a[i] + (kk + 0.5) * delta
@@ -271,7 +273,7 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                 blk0 = j + 1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _rows_from_deposits(dep, c_lo, c_top, H, V, full, q, n_bins, ph, cum, rowbuf, row_out):
     """One slot's echo row from its fine-cell deposits ``dep[c_lo..c_top]`` (zero elsewhere; zeroed
     here for the next beam): ``echo_rows``' linear map (``H`` taps around each deposit's bin, a
@@ -375,7 +377,7 @@ def _rows_from_deposits(dep, c_lo, c_top, H, V, full, q, n_bins, ph, cum, rowbuf
 
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def class_counts(body, energy, weight, cls, counts, ray_cls):
     """``formation._class_slots``'s first pass: ``ray_cls[i] = cls[body[i]]`` (body -1 reads the last
     entry) and ``counts[c]`` += ``weight[i]`` over the lit rays (``energy > 0``) of class ``c``."""
@@ -388,7 +390,7 @@ def class_counts(body, energy, weight, cls, counts, ray_cls):
             counts[c] += weight[i]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def class_slots(ray_cls, table, slot):
     """``slot[i] = table[ray_cls[i]]`` (``formation._class_slots``'s second pass)."""
     for i in range(ray_cls.size):

@@ -4,6 +4,8 @@ Each kernel is one pass over the arrays it reads and computes what the numpy ref
 ``formation.py`` / ``noise.py`` computes (the tests compare the two on seeded inputs).
 They release the GIL (``nogil=True``) so that the caller can run beam ranges on two threads,
 and are cached on disk (``cache=True``) so that only the first run on a machine compiles.
+They use numpy's error model (``error_model="numpy"``): no zero-division check and branch at each
+division (no kernel divides by zero; under Python's model one that did would have raised).
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from .speckle import MU_NO_SEABED
 _MIN_COS_FOOTPRINT = 0.02  # same clamp as formation._MIN_COS_FOOTPRINT
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def subcell_footprint(x, y, ct, st, ch, sh, sgn, base, pad_w):
     """One sub-cell of a ray's cell (``subdivide`` and the fused aperture pass): with
     ``x = n.d``, ``y = n.d'`` of the ray, ``(ct, st)`` the cos/sin of the sub-cell's centre
@@ -42,7 +44,7 @@ def subcell_footprint(x, y, ct, st, ch, sh, sgn, base, pad_w):
     return r_mid, c_mid, flo - pad, fhi + pad
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
 def table_weight(x, x0, dx, y):
     """Linear interpolation in the uniform table ``y`` (from ``x0`` in steps ``dx``), clamped at
     its ends as ``np.interp``: the two-way elevation pattern's weight at elevation ``x``."""
@@ -57,7 +59,7 @@ def table_weight(x, x0, dx, y):
     return y[j] + f * (y[j + 1] - y[j])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def ray_grid32(cp, sp, a, rz, out):
     """World unit directions of the (K, J) ray grid, ``cos(phi_k) a_j + sin(phi_k) R_z``, into ``out`` (K*J, 3) float32."""
     K, J = cp.size, a.shape[0]
@@ -68,10 +70,12 @@ def ray_grid32(cp, sp, a, rz, out):
                 out[i, c] = cp[k] * a[j, c] + sp[k] * rz[c]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def scan_rays(tfar, geom, prim, u, v, ng, corner_normals, tri_offset, smooth, cp, sp, a, rz, i0, i1,
-              body, r, nd, ndd, cos_inc, slope):
+              body, r, nd, ndd, cos_inc, slope, first=0):
     """Per ray of the grid (rows ``i0..i1``): body, range, ``n.d``, ``n.d'``, ``|n.d|`` and ``dr/dphi``.
+    Embree's output (``tfar`` ... ``ng``) holds rays from ``first`` on (ray ``i`` at ``i - first``: one
+    chunk of the cast, ``RayCaster.intersect_each``); the outputs are the whole grid's.
 
     ``d = cos(phi) a + sin(phi) R_z`` and ``d' = -sin(phi) a + cos(phi) R_z``; the normal is the
     interpolated corner normal (``smooth``) or Embree's geometric normal, normalised in float32
@@ -79,7 +83,7 @@ def scan_rays(tfar, geom, prim, u, v, ng, corner_normals, tri_offset, smooth, cp
     """
     J = a.shape[0]
     for i in range(i0, i1):
-        g = geom[i]
+        g = geom[i - first]
         if g < 0:
             body[i] = -1
             r[i] = np.inf
@@ -91,15 +95,15 @@ def scan_rays(tfar, geom, prim, u, v, ng, corner_normals, tri_offset, smooth, cp
         k = i // J
         j = i - k * J
         if smooth:
-            t = tri_offset[g] + prim[i]
-            w1 = u[i]
-            w2 = v[i]
+            t = tri_offset[g] + prim[i - first]
+            w1 = u[i - first]
+            w2 = v[i - first]
             w0 = np.float32(1.0) - w1 - w2
             n0 = w0 * corner_normals[t, 0, 0] + w1 * corner_normals[t, 1, 0] + w2 * corner_normals[t, 2, 0]
             n1 = w0 * corner_normals[t, 0, 1] + w1 * corner_normals[t, 1, 1] + w2 * corner_normals[t, 2, 1]
             n2 = w0 * corner_normals[t, 0, 2] + w1 * corner_normals[t, 1, 2] + w2 * corner_normals[t, 2, 2]
         else:
-            n0, n1, n2 = ng[i, 0], ng[i, 1], ng[i, 2]
+            n0, n1, n2 = ng[i - first, 0], ng[i - first, 1], ng[i - first, 2]
         inv = np.float32(1.0) / (np.sqrt(n0 * n0 + n1 * n1 + n2 * n2) + np.float32(1e-30))
         m0, m1, m2 = float(n0 * inv), float(n1 * inv), float(n2 * inv)
         c, s = cp[k], sp[k]
@@ -111,7 +115,7 @@ def scan_rays(tfar, geom, prim, u, v, ng, corner_normals, tri_offset, smooth, cp
         e2 = -s * a[j, 2] + c * rz[2]
         x = m0 * d0 + m1 * d1 + m2 * d2
         y = m0 * e0 + m1 * e1 + m2 * e2
-        rr = float(tfar[i])
+        rr = float(tfar[i - first])
         body[i] = g
         r[i] = rr
         nd[i] = x
@@ -122,7 +126,7 @@ def scan_rays(tfar, geom, prim, u, v, ng, corner_normals, tri_offset, smooth, cp
         slope[i] = -rr * y / (sgn * max(ci, _MIN_COS_FOOTPRINT))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def footprints(body, r, cos_inc, slope, a, b, refl, weight_k, gain, J, pad_width, energy, lo, hi):
     """Energy and range footprint of every ray (``formation._scan``'s last step).
 
@@ -150,7 +154,7 @@ def footprints(body, r, cos_inc, slope, a, b, refl, weight_k, gain, J, pad_width
         hi[i] = y + pad
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def spreading_gain(body, r, k_abs, gain):
     """``propagation.two_way_gain`` of every ray (reference range 1 m): ``exp(k_abs (r - 1)) / r^2``
     with ``k_abs = -0.2 ln(10) alpha`` (alpha in dB/m) where ``body >= 0``, 0 on a miss (the same
@@ -163,7 +167,7 @@ def spreading_gain(body, r, k_abs, gain):
             gain[i] = np.exp(k_abs * (ri - 1.0)) / (ri * ri)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def bucket_by_beam(beam, lo_m, hi_m, energy, slot, range_min, scale, n_cells, n_beams, rec, starts):
     """The lit rays (``energy > 0``) as records grouped by beam (a counting sort), in their
     original order within a beam: ``rec[k] = (x0, x1, density, slot)`` with the footprint
@@ -193,7 +197,7 @@ def bucket_by_beam(beam, lo_m, hi_m, energy, slot, range_min, scale, n_cells, n_
             rec[k, 3] = slot[i]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def echo_rows(rec, starts, n_cells, H, V, full, q, n_bins, j0, j1, out):
     """Box-integrate rays into fine range cells, low-pass and decimate, for beams ``j0..j1``.
 
@@ -279,7 +283,7 @@ def echo_rows(rec, starts, n_cells, H, V, full, q, n_bins, j0, j1, out):
             used[ss] = False
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def shares(parts, intensity, slot_of_share, r0, r1, out):
     """Seabed shares from class images: ``out[m] = clip(parts[slot] / parts[0], 0, 1)`` where the
     intensity is positive; the share whose slot is 0 is the remainder ``clip(1 - others, 0, 1)``.
@@ -313,7 +317,7 @@ def shares(parts, intensity, slot_of_share, r0, r1, out):
                 out[rest_m, bb, j] = min(max(rest, np.float32(0.0)), np.float32(1.0))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def noise_gaussian(I, shares, N, cumw, lams, U, E, psi, target_speckle, use_psi, r0, r1, out):
     """The thesis noise model with Rayleigh-family bottoms, rows ``r0..r1`` (``NoiseModel._apply_numpy``).
 
@@ -357,7 +361,7 @@ def noise_gaussian(I, shares, N, cumw, lams, U, E, psi, target_speckle, use_psi,
                 out[bb, j] = max(v, np.float32(0.0))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _noise_one_bottom(I, shares, N, cumw, lams, U, E, r0, r1, out):
     """:func:`noise_gaussian` for one bottom type of at most 4 mixture components with target
     speckle: ``(N + I share lam_c + max(I - I share, 0)) E``, the component by selects (no inner
@@ -389,7 +393,7 @@ def _noise_one_bottom(I, shares, N, cumw, lams, U, E, r0, r1, out):
             out[bb, j] = (P + target) * E[bb, j]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def truth_maps(beam, lo_m, hi_m, energy, body, el_lo, el_hi, range_min, inv_bin, n_bins, n_beams,
                body_map, el_min, el_max, rec, j0, j1):
     """Per cell the body of the strongest single contribution and the elevation span that echoes
@@ -443,7 +447,7 @@ def truth_maps(beam, lo_m, hi_m, energy, body, el_lo, el_hi, range_min, inv_bin,
                 el_max[bb, j] = np.nan
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def subcell_counts(body, lo, hi, bin_width, max_sub, sub_bins, n_sub):
     """Sub-cells of each hit ray for :func:`subdivide` into ``n_sub``; returns their total."""
     total = 0
@@ -457,7 +461,7 @@ def subcell_counts(body, lo, hi, bin_width, max_sub, sub_bins, n_sub):
     return total
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def subdivide(body, rng, lo, hi, nd, ndd, a, b, refl, elevation, beam, bin_width, n_sub,
               table_x0, table_dx, table_y, alpha_db, spreading,
               o_r, o_e, o_body, o_c, o_lo, o_hi, o_beam, o_el, o_el_lo, o_el_hi, i0=0, i1=-1, m0=0):
@@ -519,7 +523,7 @@ def subdivide(body, rng, lo, hi, nd, ndd, a, b, refl, elevation, beam, bin_width
             m += 1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def subcell_area(body, is_seabed, rng, cos_inc, el_lo, el_hi, elevation, beam, dtheta, out):
     """Seabed area of each ray or sub-cell (``formation.cell_area``): ``r^2 cos(phi) dtheta
     (phi_hi - phi_lo) / max(cos_incidence, 0.05)`` where ``is_seabed[body]``, else 0."""
@@ -552,7 +556,7 @@ def box_muller(bits, scale, out):
         _normals_row(bits[2, i], r2, power, out[i].reshape(2 * J))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def poisson_inverse(mu, u, mu_max, out):
     """Poisson counts by inversion: the least ``n`` with ``P(N <= n) >= u`` (``scipy.stats.poisson.ppf``),
     for ``0 < mu < mu_max``; ``mu <= 0`` gives 0, ``mu >= mu_max`` gives -1 (left to the caller)."""
@@ -874,7 +878,7 @@ def _field_power_row(m_row, n_row, i_row, gain, bk, mu_max, power, b_row, mean_r
         b_row[j] = bg
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def shadow_origins(pos, t, n, eps, origin, d_act, o32, d32):
     """Continuation rays of the acoustic shadow (``formation._shadow_mask``): for the ``n`` rays
     ``pos[:n]`` (rows of ``d_act``, float64 unit directions) the float32 origin
@@ -887,7 +891,7 @@ def shadow_origins(pos, t, n, eps, origin, d_act, o32, d32):
             d32[k, c] = d_act[p, c]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def shadow_step(pos, t, n, eps, geom, tfar, ng, first_body, gap_end, d_act, hid_r, hid_n):
     """One round of continuation hits of ``formation._shadow_mask`` (the multi-cast path): a
     front-facing hit (``n . d < 0`` with Embree's geometric normal normalised in float32 as
@@ -916,7 +920,7 @@ def shadow_step(pos, t, n, eps, geom, tfar, ng, first_body, gap_end, d_act, hid_
     return m
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def shadow_gap_ends(t, eps, origin, d_act, p0, p1, out):
     """``t + eps + self_gap(o)`` for rays ``p0..p1``, ``o`` the float32 start ``origin + d (t + eps)``:
     the range up to which a front face of the first body is that body's first hit again."""
@@ -927,7 +931,7 @@ def shadow_gap_ends(t, eps, origin, d_act, p0, p1, out):
         out[p] = s + SELF_GAP * float(size)  # as _embree_kernels.self_gap
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def shadow_front(fn, scene, args, t, eps, origin, d_act, far, first_body, p0, p1, hid_r, hid_n):
     """The hidden surfaces of ``formation._shadow_mask`` in one cast per ray (the direct path): rays
     ``p0..p1`` (float64 unit directions ``d_act``, first hits at ``t``) start at ``origin + d (t +
@@ -953,7 +957,7 @@ def shadow_front(fn, scene, args, t, eps, origin, d_act, far, first_body, p0, p1
         hid_n[p, 2] = float(n2 / nn)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def shadow_boxes(hid_r, hid_n, d_act, dd_act, step, min_half, lo, hi):
     """Range footprint ``r -+ half`` of each hidden surface (``half = step r |n.d'| / (2 max(|n.d|, c))``,
     at least ``min_half``); NaN where the ray found none (``hid_r`` infinite)."""
@@ -971,7 +975,7 @@ def shadow_boxes(hid_r, hid_n, d_act, dd_act, step, min_half, lo, hi):
         hi[p] = r + half
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def grid_directions(idx, cp, sp, a, rz, d, dd):
     """World ``d = cos(phi) a + sin(phi) R_z`` and ``d' = -sin(phi) a + cos(phi) R_z`` (float64) of the
     grid rays ``idx`` (flat ``k * J + j``), as ``formation._grid_directions``."""
@@ -985,7 +989,7 @@ def grid_directions(idx, cp, sp, a, rz, d, dd):
             dd[m, q] = -s * a[j, q] + c * rz[q]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def fan_remap(img, base, flags, fx, fy, n_cols, out):
     """Bilinear resampling through precomputed taps (``display._fan_taps``): pixel ``p`` reads the
     polar image (flat) at ``base[p]`` and its right / lower neighbours (``flags`` bit 0: one column
@@ -1009,7 +1013,7 @@ def fan_remap(img, base, flags, fx, fy, n_cols, out):
         out[p] = top + fy[p] * (bot - top)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def finish_echo(parts, scale, thr, slot_of_share, r0, r1, intensity, out):
     """The echo image and its seabed shares from :func:`echo_rows`' per-beam rows, bins ``r0..r1``:
     ``intensity[b, j] = parts[0, j, b] scale`` (zeroed below ``thr``, the cumulative sums' rounding
@@ -1047,7 +1051,7 @@ def finish_echo(parts, scale, thr, slot_of_share, r0, r1, intensity, out):
                 out[rest_m, bb, j] = min(max(rest, np.float32(0.0)), np.float32(1.0))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def shadow_cells(beam, lo_m, hi_m, range_min, inv_bin, n_bins, elevation_min, out):
     """Acoustic shadow from the hidden surfaces' footprints (``formation._shadow_mask``): a cell is
     shadow when a footprint ``[lo_m, hi_m]`` (m) puts more than 1e-9 of its unit energy into it
@@ -1068,7 +1072,7 @@ def shadow_cells(beam, lo_m, hi_m, range_min, inv_bin, n_bins, elevation_min, ou
                 out[bb, j] = True
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def edge_pairs(body, r, slope, K, J, step, min_jump, kk, jj):
     """Visibility discontinuities between elevation samples ``k`` and ``k + 1`` of each beam
     (``formation._refine_edges``): another body, a miss, or a range jump larger than
@@ -1091,7 +1095,32 @@ def edge_pairs(body, r, slope, K, J, step, min_jump, kk, jj):
     return n
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
+def edge_directions32(kk, jj, cp, sp, sth, cth, R, i0, i1, out):
+    """World unit directions of the edge sub-rays of discontinuities ``i0..i1`` into ``out``
+    ``(len(kk) * S, 3)`` float32 (``formation._refine_edges``): sub-ray ``s`` of pair ``(k, j)`` is
+    ``R (cos(phi) sin(theta), cos(phi) cos(theta), sin(phi))`` with ``cos(phi), sin(phi)`` the
+    tables ``cp[k, s]``, ``sp[k, s]`` ``(K - 1, S)`` and ``sin(theta), cos(theta)`` ``sth[j]``,
+    ``cth[j]``: the products and the rotation's sums in the order of the numpy path
+    (``Pose.directions_to_world``'s einsum adds the terms of components 0 and 2 first, then 1:
+    measured, bit for bit), the same float64 numbers, rounded to float32."""
+    S = cp.shape[1]
+    for e in range(i0, i1):
+        k = kk[e]
+        j = jj[e]
+        st = sth[j]
+        ct = cth[j]
+        for s in range(S):
+            c = cp[k, s]
+            x = c * st
+            y = c * ct
+            z = sp[k, s]
+            m = e * S + s
+            for i in range(3):
+                out[m, i] = (R[i, 0] * x + R[i, 2] * z) + R[i, 1] * y
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def edge_split(kk, jj, h_body, h_dist, body, r, slope, step, S, J, a, b):
     """Move the shared cell boundary of each discontinuity to where its ``S`` sub-rays change
     from the surface below to the one above (``formation._refine_edges``). ``h_body`` (int32) and
@@ -1126,7 +1155,7 @@ def edge_split(kk, jj, h_body, h_dist, body, r, slope, step, S, J, a, b):
         a[upper] = step * (1 - t)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def finish_two(parts, scale, thr, r0, r1, intensity, share):
     """:func:`finish_echo` for one bottom type (slot 0, the class with most rays) and the targets
     (slot 1), the thesis scenes' case: the bottom type's share ``clip(1 - clip(target / echo))``
@@ -1143,7 +1172,7 @@ def finish_two(parts, scale, thr, r0, r1, intensity, share):
             share[bb, j] = min(max(one - v, zero), one) if lit else zero
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def shadow_active(body, is_floor, cp, sp, a, rz, r, active, t):
     """The grid rays whose continuation the acoustic shadow needs (``formation._shadow_mask``): every
     hit but those going down (``d_z < 0``, ``d = cos(phi) a + sin(phi) R_z``) through a floor plane

@@ -148,7 +148,8 @@ def _mix_beams(spec: SonarSpec, echo: np.ndarray, out=None) -> np.ndarray:
     import cv2
 
     k = np.ascontiguousarray(azimuth_kernel(spec)[::-1], np.float32).reshape(-1, 1)  # correlation kernel
-    src = np.ascontiguousarray(echo, np.float32)
+    # (rows of contiguous float32, a piece of an image's columns included, go to cv2 as they are)
+    src = echo if echo.dtype == np.float32 and echo.strides[-1] == 4 else np.ascontiguousarray(echo, np.float32)
     if out is None:
         return cv2.filter2D(src, cv2.CV_32F, k, borderType=cv2.BORDER_CONSTANT)
     got = cv2.filter2D(src, cv2.CV_32F, k, dst=out, borderType=cv2.BORDER_CONSTANT)
@@ -168,6 +169,11 @@ def _live_span(live: np.ndarray, spec: SonarSpec):
         return (0, 0)
     m = (azimuth_kernel(spec).size - 1) // 2
     return (max(int(idx[0]) - m, 0), min(int(idx[-1]) + m + 1, spec.n_beams))
+
+
+#: Bins (columns) of one piece of the beam mixing on several threads (:func:`_form_aperture_numba`): a
+#: multiple of 128, so that every piece starts where cv2's vector loop over a row starts a block.
+_MIX_COLUMNS = 256
 
 
 def _mix_rows(spec: SonarSpec, rows: np.ndarray, out: np.ndarray, span) -> None:
@@ -1002,13 +1008,16 @@ def _scan_hits_numba(caster: RayCaster, spec: SonarSpec, pose: Pose):
     o32 = _fill_rows(_workspace("scan_o32", (n, 3), np.float32), pose.t)
     dist32 = _workspace("scan_dist32", (n,), np.float32)
     dist32.fill(min(np.float32(spec.range_max * 1.5), np.float32(1e30)))  # Embree writes its hits' distances here
-    tfar, geom, prim, u, v, _ = caster.intersect_raw(o32, d32, dist32, normals=False)
     body = np.empty(n, np.int32)
     r, cos_inc = np.empty(n), np.empty(n)
     nd, ndd, slope = (_workspace(f"scan_{name}", (n,), np.float64) for name in ("nd", "ndd", "slope"))
     cn, off, ng = caster.corner_normals, caster.triangle_offset, np.zeros((0, 3), np.float32)
-    chunked_run(lambda i0, i1: kn.scan_rays(tfar, geom, prim, u, v, ng, cn, off, True, cp, sp, a_dir, rz, i0, i1,
-                                          body, r, nd, ndd, cos_inc, slope), n, caster.threads)
+
+    def each(i0, i1, tfar, geom, prim, u, v):  # each chunk read on the thread that cast it, as soon as it is cast
+        kn.scan_rays(tfar, geom, prim, u, v, ng, cn, off, True, cp, sp, a_dir, rz, i0, i1,
+                     body, r, nd, ndd, cos_inc, slope, i0)
+
+    caster.intersect_each(o32, d32, dist32, each)
     return body, r, nd, ndd, cos_inc, slope
 
 
@@ -1155,7 +1164,23 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
     # the azimuth pattern mixes whole rows (beams); scale, threshold, shares and the image layout in one pass
     mixed = _workspace(f"mixed{n_slots}", (n_slots, J, B), np.float32)
     spans = [_live_span(live[s], spec) for s in range(n_slots)]
-    if threads > 1 and n_slots > 1:  # the class images on the other threads meanwhile (cv2 releases the GIL)
+    if threads > 1 and all(sp is not None for sp in spans):
+        # cv2's filter along the beams, in pieces of _MIX_COLUMNS bins (columns) of every slot that the
+        # threads take in turn (cv2 releases the GIL): each bin's column is filtered on its own, and pieces
+        # starting at multiples of its vector width compute each value as the whole image does (bit for bit)
+        pieces = iter([(s, c0, min(c0 + _MIX_COLUMNS, B)) for s in range(n_slots) for c0 in range(0, B, _MIX_COLUMNS)])
+
+        def work():
+            for s, c0, c1 in pieces:  # next() on the iterator is atomic under the GIL
+                _mix_rows(spec, out[s][:, c0:c1], mixed[s][:, c0:c1], spans[s])
+
+        from ._kernels import _pool
+
+        jobs = [_pool(threads - 1).submit(work) for _ in range(threads - 1)]
+        work()
+        for job in jobs:
+            job.result()
+    elif threads > 1 and n_slots > 1:  # the class images on the other threads meanwhile (cv2 releases the GIL)
         from ._kernels import _pool
 
         jobs = [_pool(threads - 1).submit(_mix_rows, spec, out[s], mixed[s], spans[s]) for s in range(1, n_slots)]
@@ -1190,7 +1215,6 @@ def _aperture_rows(spec: SonarSpec, cells: _ApertureCells, options: SonarOptions
     n_bodies = max([int(np.max(body, initial=-1))] + ids) + 1
     is_seabed = np.zeros(n_bodies + 1, np.bool_)
     is_seabed[ids if ids else slice(0, n_bodies)] = True
-    seabed_of_ray = is_seabed[body]  # body -1 reads the last entry (False): no sub-cells anyway
     q = options.range_oversample
     sigma_bins = max(spec.pulse_width / spec.bin_width / 2.3548, 0.5)
     H, V, full = _deposit_tables(spec.n_bins, q, sigma_bins)
@@ -1205,7 +1229,7 @@ def _aperture_rows(spec: SonarSpec, cells: _ApertureCells, options: SonarOptions
     bm = flat
     args = (bm(rays.range), bm(cells.nd), bm(cells.ndd), bm(cells.a), bm(cells.b), 0.5 * rays.elevation_step,
             bm(cells.refl), bm(rays.elevation), bm(n_sub), K, J, x0, dx, y, cells.alpha_db, cells.spreading, spec.bin_width, bm(slot),
-            bm(seabed_of_ray), dtheta, float(spec.range_min), B * q, H, V, full, q, B, bool(need_area),
+            body, is_seabed, dtheta, float(spec.range_min), B * q, H, V, full, q, B, bool(need_area),
             max(1, int(n_sub.max(initial=0))))
     live = np.empty((n_slots, J), np.bool_)
     chunked_run(lambda j0, j1: ak.aperture_echo_rows(*args, j0, j1, out, area, live), J, threads)
@@ -1281,9 +1305,25 @@ def _refine_edges(caster, spec, pose, body, r, slope, a, b) -> None:
     a[upper] = step * (1 - t)
 
 
+@functools.lru_cache(maxsize=16)
+def _edge_trig(spec: SonarSpec):
+    """The trigonometry of :func:`_refine_edges`' sub-rays, per spec (read-only, cached):
+    ``cos``, ``sin`` of the sub-rays' elevations ``(K - 1, _EDGE_SUBRAYS)`` (sub-ray ``s`` between
+    samples ``k`` and ``k + 1`` at ``phi_k + step (s + 1/2) / S``) and ``sin``, ``cos`` of the beams'
+    azimuths ``(n_beams,)``: the same numbers as the numpy path's per-frame calls on them."""
+    S = _EDGE_SUBRAYS
+    frac = (np.arange(S) + 0.5) / S
+    phi = spec.elevations[:-1, None] + spec.elevation_step * frac[None, :]
+    out = (np.cos(phi), np.sin(phi), np.sin(spec.azimuths), np.cos(spec.azimuths))
+    for arr in out:
+        arr.setflags(write=False)
+    return out
+
+
 def _refine_edges_numba(caster, spec, pose, body, r, slope, a, b) -> None:
-    """:func:`_refine_edges` with the discontinuities found and the sub-rays classified by kernels
-    (the sub-rays' directions as the numpy path computes them, so both cast the same rays)."""
+    """:func:`_refine_edges` with the discontinuities found, the sub-rays' directions formed and the
+    sub-rays classified by kernels (the directions from per-spec tables of the numpy path's sines
+    and cosines, rotated with its einsum's order of sums: both cast the same float32 rays)."""
     K, J = spec.elevation_samples, spec.n_beams
     step = spec.elevation_step
     kn = kernels()
@@ -1293,12 +1333,9 @@ def _refine_edges_numba(caster, spec, pose, body, r, slope, a, b) -> None:
         return
     kk, jj = kk[:m], jj[:m]
     S = _EDGE_SUBRAYS
-    frac = (np.arange(S) + 0.5) / S
-    phi = spec.elevations[kk][:, None] + step * frac[None, :]
-    th = spec.azimuths[jj][:, None]
-    cp = np.cos(phi)
-    d = pose.directions_to_world(np.stack(np.broadcast_arrays(cp * np.sin(th), cp * np.cos(th), np.sin(phi)), -1))
-    d32 = np.ascontiguousarray(d.reshape(-1, 3), np.float32)
+    cp, sp, sth, cth = _edge_trig(spec)
+    d32 = np.empty((m * S, 3), np.float32)
+    kn.edge_directions32(kk, jj, cp, sp, sth, cth, np.ascontiguousarray(pose.R, float), 0, m, d32)
     o32 = _fill_rows(np.empty_like(d32), pose.t)
     dist32 = np.full(len(d32), min(np.float32(spec.range_max * 1.5), np.float32(1e30)), np.float32)
     tfar, h_body, _, _, _, _ = caster.intersect_raw(o32, d32, dist32, normals=False)
