@@ -34,7 +34,10 @@ def _logit(p):
 
 
 def candidate_table(feats: dict):
-    """The candidates of each match: probabilities ``(N, 4)``, elevations (deg) ``(N, 4)``, pixels ``(N, 4, 2)``, available ``(N, 4)``.
+    """The candidates of each match: probabilities, elevations (deg), pixels and availability.
+
+    Returns ``P`` ``(N, 4)``, ``E`` ``(N, 4)``, ``U`` ``(N, 4, 2)`` (camera pixels u, v) and ``A``
+    ``(N, 4)`` (bool), in :data:`CANDIDATES` order.
 
     ``feats`` is a one-view :attr:`optiacoustic.matching.Matches.features` mapping. The arc
     search's pixel is always available; the others where their search found one (finite pixel and
