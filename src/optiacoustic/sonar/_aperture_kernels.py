@@ -7,7 +7,8 @@ the seabed area per cell (``formation.cell_area``). The sub-cells of a beam are 
 order the materialised path buckets them (elevation sample, then sub-cell), with the same
 formulas: the areas are the same numbers, bit for bit; the echo is the same linear map of the
 same deposits summed in another order (deposit, then convolve: see ``aperture_echo_rows``), the
-same to float64 rounding. The tests compare it with the materialised numba path and with the
+same to float64 rounding; the spreading's ``exp`` is :func:`._numba_kernels.exp_row` (vectorised,
+within an ulp of libm's ``exp`` that the materialised path calls: float64 rounding again). The tests compare it with the materialised numba path and with the
 numpy reference (``OAS_KERNELS=numpy``: materialised sub-cells, ``_form_image``, ``cell_area``).
 numpy's error model, as ``_numba_kernels``: no zero-division checks (the footprints are padded to
 1e-4 of a bin, the pattern table's step is positive).
@@ -18,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._numba_kernels import subcell_footprint, table_weight
+from ._numba_kernels import exp_row, subcell_footprint, table_weight
 _AREA_BLOCK = 16  # beams whose area rows are written to the image layout together
 
 
@@ -123,6 +124,9 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     c_s = np.empty(cap, np.int64)
     c_sea = np.empty(cap, np.bool_)
     c_key = np.empty(cap, np.int64)
+    c_x = np.empty(cap)  # the spreading's exponents, exp and scratch (exp_row)
+    c_g = np.empty(cap)
+    c_t = np.empty(cap)
     # cos(elevation) of the sub-cells, remembered per (elevation sample, sub-cell): the grid's cells
     # (most) give the same elevation, bit for bit, in every beam, so libm is called once per value
     # (a hit only where the stored elevation is the same number: the same cos)
@@ -178,10 +182,13 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                 c_sea[nc] = seabed
                 c_key[nc] = k * max_s + kk
                 nc += 1
-        if spreading:
+        if spreading:  # the two-way gain exp(k_abs (r - 1)) / r^2, its exp vectorised (exp_row)
+            for ic in range(nc):
+                c_x[ic] = k_abs * (c_r[ic] - 1.0)
+            exp_row(c_x, nc, c_g, c_t)
             for ic in range(nc):
                 r_mid = c_r[ic]
-                c_e[ic] *= np.exp(k_abs * (r_mid - 1.0)) / (r_mid * r_mid)
+                c_e[ic] *= c_g[ic] / (r_mid * r_mid)
         # the echo: each box's edges as four fine-cell deposits per slot (slot 0, the class's);
         # their places and values first, in a loop without stores to the rows (deposits of
         # neighbouring sub-cells share cells: adds that wait on the divisions serialise the loop)
