@@ -5,7 +5,8 @@ formed before (issue 10, cost): each hit ray's sub-cells (``formation._subdivide
 their echo with the seabed/target split (``_numba_kernels.bucket_by_beam`` + ``echo_rows``) and
 the seabed area per cell (``formation.cell_area``). The sub-cells of a beam are visited in the
 order the materialised path buckets them (elevation sample, then sub-cell), with the same
-formulas: the areas are the same numbers, bit for bit; the echo is the same linear map of the
+formulas: the areas are the same deposits summed in the same order, each sub-cell's
+``cos(elevation)`` by angle addition (i14j: a few float64 ulp from libm's ``cos``); the echo is the same linear map of the
 same deposits summed in another order (deposit, then convolve: see ``aperture_echo_rows``), the
 same to float64 rounding; the spreading's ``exp`` is :func:`._numba_kernels.exp_row` (vectorised,
 within an ulp of libm's ``exp`` that the materialised path calls: float64 rounding again). The tests compare it with the materialised numba path and with the
@@ -76,7 +77,12 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     float64 rounding of the partial sums (``~1e-16`` of the largest running sum of a row, which
     a short footprint's ``+dens``/``-dens`` pair can make ``~1e4`` times its echo).
     The area (no anti-aliasing: one cell per bin) is the cumulative sum of its deposits,
-    the same additions in the same order as ``echo_rows`` with one cell per bin: bit for bit.
+    the same additions in the same order as ``echo_rows`` with one cell per bin; each sub-cell's
+    ``cos(elevation)`` is ``cos(e) cos(t) - sin(e) sin(t)`` from the ray's elevation ``e`` and the
+    ``(cos t, sin t)`` of its footprint (a few float64 ulp from ``cos(e + t)``), and the area's
+    deposits of all the beam's sub-cells (zeros off the seabed) are formed in branch-free loops
+    that vectorise (i14j: the per-sub-cell libm ``cos`` and the compacting loop took ~1/4 of the
+    kernel).
     """
     S = out.shape[0]
     D = (H.shape[1] - 1) // 2
@@ -123,15 +129,22 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     c_e = np.empty(cap)
     c_s = np.empty(cap, np.int64)
     c_sea = np.empty(cap, np.bool_)
-    c_key = np.empty(cap, np.int64)
+    c_cos = np.empty(cap)  # cos(elevation) at the sub-cell's centre (for the area)
     c_x = np.empty(cap)  # the spreading's exponents, exp and scratch (exp_row)
     c_g = np.empty(cap)
     c_t = np.empty(cap)
-    # cos(elevation) of the sub-cells, remembered per (elevation sample, sub-cell): the grid's cells
-    # (most) give the same elevation, bit for bit, in every beam, so libm is called once per value
-    # (a hit only where the stored elevation is the same number: the same cos)
-    memo_el = np.full(K * max_s, np.nan)
-    memo_cos = np.empty(K * max_s)
+    # cos(elevation) of a sub-cell by angle addition, cos(e + t) = cos(e) cos(t) - sin(e) sin(t), from
+    # the ray's elevation e and the (cos t, sin t) its footprint uses (i14j; libm's cos per sub-cell,
+    # memoised, kept the area's loop from vectorising). (cos e, sin e) remembered per elevation
+    # sample: the grid's rays give the same elevation, bit for bit, in every beam
+    memo_e = np.full(K, np.nan)
+    memo_ce = np.empty(K)
+    memo_se = np.empty(K)
+    # the area's deposits of every sub-cell of a beam (zeros off the seabed: they add nothing), in
+    # loops without branches or compaction, which vectorise (int32 cells: AVX2 converts to those)
+    a_v = np.empty((4, cap))
+    a_p0 = np.empty(cap, np.int32)
+    a_p1 = np.empty(cap, np.int32)
     # a beam's deposits (first cells and values), computed in a loop that does not add them:
     # neighbouring sub-cells' deposits share cells, and adds that wait on the divisions
     # before them serialised the loop that did both
@@ -164,6 +177,14 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
             ct, st = ct0, st0
             s = slot_of_ray[i]
             seabed = want_area and is_seabed[body[i]]  # a ray with sub-cells is a hit
+            ce = se = 0.0
+            if seabed:
+                e_i = elevation[i]
+                if memo_e[k] == e_i:
+                    ce, se = memo_ce[k], memo_se[k]
+                else:
+                    ce, se = np.cos(e_i), np.sin(e_i)
+                    memo_e[k], memo_ce[k], memo_se[k] = e_i, ce, se
             for kk in range(Sn):
                 if kk > 0:
                     t = -a[i] + (kk + 0.5) * delta
@@ -180,7 +201,7 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                 c_e[nc] = refl[i] * c_mid * delta * w
                 c_s[nc] = s
                 c_sea[nc] = seabed
-                c_key[nc] = k * max_s + kk
+                c_cos[nc] = ce * ct - se * st
                 nc += 1
         if spreading:  # the two-way gain exp(k_abs (r - 1)) / r^2, its exp vectorised (exp_row)
             for ic in range(nc):
@@ -216,34 +237,38 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                     break
                 ss = s
         if want_area:
-            na = 0
-            for ic in range(nc):
-                if not c_sea[ic]:
-                    continue
-                key = c_key[ic]
-                el = c_el[ic]
-                if memo_el[key] == el:
-                    cv = memo_cos[key]
-                else:
-                    cv = np.cos(el)
-                    memo_el[key] = el
-                    memo_cos[key] = cv
+            for ic in range(nc):  # the seabed area of each sub-cell (0 off the seabed)
                 r_mid = c_r[ic]
                 delta = c_d[ic]
+                el = c_el[ic]
                 el_lo = el - 0.5 * delta
                 el_hi = el + 0.5 * delta
-                ar = r_mid * r_mid * cv * dth * (el_hi - el_lo) / max(c_c[ic], 0.05)
-                if ar > 0:
-                    _box_deposit(c_lo[ic], c_hi[ic], range_min, a_scale, n_bins, ar, na, d_p0, d_p1, d_v)
-                    na += 1
+                ar = r_mid * r_mid * c_cos[ic] * dth * (el_hi - el_lo) / max(c_c[ic], 0.05)
+                a_v[0, ic] = ar if (c_sea[ic] and ar > 0) else 0.0
+            for ic in range(nc):  # its box deposit (as _box_deposit, one cell per bin)
+                x0 = (c_lo[ic] - range_min) * a_scale
+                x1 = (c_hi[ic] - range_min) * a_scale
+                dens = a_v[0, ic] / (x1 - x0)
+                x0 = min(max(x0, 0.0), n_bins)
+                x1 = min(max(x1, 0.0), n_bins)
+                p0 = np.int32(x0)
+                f0 = x0 - p0
+                p1 = np.int32(x1)
+                f1 = x1 - p1
+                a_p0[ic] = p0
+                a_p1[ic] = p1
+                a_v[0, ic] = dens - dens * f0
+                a_v[1, ic] = dens * f0
+                a_v[2, ic] = dens * f1 - dens
+                a_v[3, ic] = -dens * f1
             # one cell per bin (echo_rows with D = 0); cells past the end are not read
-            for ia in range(na):
-                p0 = d_p0[ia]
-                p1 = d_p1[ia]
-                a_dep[p0] += d_v[ia, 0]
-                a_dep[p0 + 1] += d_v[ia, 1]
-                a_dep[p1] += d_v[ia, 2]
-                a_dep[p1 + 1] += d_v[ia, 3]
+            for ia in range(nc):
+                p0 = a_p0[ia]
+                p1 = a_p1[ia]
+                a_dep[p0] += a_v[0, ia]
+                a_dep[p0 + 1] += a_v[1, ia]
+                a_dep[p1] += a_v[2, ia]
+                a_dep[p1 + 1] += a_v[3, ia]
                 a_lo = min(a_lo, p0)
                 a_hi = max(a_hi, p1 + 1)
         for ss in range(S):
