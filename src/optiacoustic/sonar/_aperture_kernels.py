@@ -24,28 +24,6 @@ from ._numba_kernels import exp_row, subcell_footprint, table_weight
 _AREA_BLOCK = 16  # beams whose area rows are written to the image layout together
 
 
-@njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _box_deposit(f_lo, f_hi, range_min, scale, n, value, k, d_p0, d_p1, d_v):
-    """Row ``k`` of the deposit lists: a box of ``value`` spread uniformly over the footprint
-    ``[f_lo, f_hi]`` (m) on cells of ``1 / scale`` m from ``range_min``, clipped to ``[0, n]``,
-    as the four signed density steps at its two ends (cells ``p0``, ``p0 + 1``, ``p1``, ``p1 + 1``)."""
-    x0 = (f_lo - range_min) * scale
-    x1 = (f_hi - range_min) * scale
-    dens = value / (x1 - x0)
-    x0 = min(max(x0, 0.0), n)
-    x1 = min(max(x1, 0.0), n)
-    p0 = int(x0)
-    f0 = x0 - p0
-    p1 = int(x1)
-    f1 = x1 - p1
-    d_p0[k] = p0
-    d_p1[k] = p1
-    d_v[k, 0] = dens - dens * f0
-    d_v[k, 1] = dens * f0
-    d_v[k, 2] = dens * f1 - dens
-    d_v[k, 3] = -dens * f1
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
 def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K, J,
                        table_x0, table_dx, table_y, alpha_db, spreading, bin_width,
@@ -143,15 +121,11 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     # the area's deposits of every sub-cell of a beam (zeros off the seabed: they add nothing), in
     # loops without branches or compaction, which vectorise (int32 cells: AVX2 converts to those)
     a_v = np.empty((4, cap))
+    e_v = np.empty((4, cap))  # the echo's, likewise (then added for the lit sub-cells only)
+    e_p0 = np.empty(cap, np.int32)
+    e_p1 = np.empty(cap, np.int32)
     a_p0 = np.empty(cap, np.int32)
     a_p1 = np.empty(cap, np.int32)
-    # a beam's deposits (first cells and values), computed in a loop that does not add them:
-    # neighbouring sub-cells' deposits share cells, and adds that wait on the divisions
-    # before them serialised the loop that did both
-    d_p0 = np.empty(cap, np.int64)
-    d_p1 = np.empty(cap, np.int64)
-    d_v = np.empty((cap, 4))
-    d_s = np.empty(cap, np.int64)
     for j in range(j0, j1):
         dth = dtheta[j]
         nc = 0
@@ -213,24 +187,35 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
         # the echo: each box's edges as four fine-cell deposits per slot (slot 0, the class's);
         # their places and values first, in a loop without stores to the rows (deposits of
         # neighbouring sub-cells share cells: adds that wait on the divisions serialise the loop)
-        nd_ = 0
-        for ic in range(nc):
+        for ic in range(nc):  # every sub-cell's box as four fine-cell deposits (0 where unlit), branch-free: vectorises
             e = c_e[ic]
-            if not e > 0:  # as bucket_by_beam: footprint in fine cells, density, clipped
+            x0 = (c_lo[ic] - range_min) * scale
+            x1 = (c_hi[ic] - range_min) * scale
+            dens = (e if e > 0 else 0.0) / (x1 - x0)
+            x0 = min(max(x0, 0.0), n_cells)
+            x1 = min(max(x1, 0.0), n_cells)
+            p0 = np.int32(x0)
+            f0 = x0 - p0
+            p1 = np.int32(x1)
+            f1 = x1 - p1
+            e_p0[ic] = p0
+            e_p1[ic] = p1
+            e_v[0, ic] = dens - dens * f0
+            e_v[1, ic] = dens * f0
+            e_v[2, ic] = dens * f1 - dens
+            e_v[3, ic] = -dens * f1
+        for ic in range(nc):  # as bucket_by_beam: the lit sub-cells only
+            if not c_e[ic] > 0:
                 continue
-            _box_deposit(c_lo[ic], c_hi[ic], range_min, scale, n_cells, e, nd_, d_p0, d_p1, d_v)
-            d_s[nd_] = c_s[ic]
-            nd_ += 1
-        for idd in range(nd_):
-            p0 = d_p0[idd]
-            p1 = d_p1[idd]
-            s = d_s[idd]
+            p0 = e_p0[ic]
+            p1 = e_p1[ic]
+            s = c_s[ic]
             ss = 0
             while True:  # slot 0 (the whole echo), then the class's slot when it has one
-                dep[ss, p0] += d_v[idd, 0]
-                dep[ss, p0 + 1] += d_v[idd, 1]
-                dep[ss, p1] += d_v[idd, 2]
-                dep[ss, p1 + 1] += d_v[idd, 3]
+                dep[ss, p0] += e_v[0, ic]
+                dep[ss, p0 + 1] += e_v[1, ic]
+                dep[ss, p1] += e_v[2, ic]
+                dep[ss, p1 + 1] += e_v[3, ic]
                 lo_c[ss] = min(lo_c[ss], p0)
                 hi_c[ss] = max(hi_c[ss], p1 + 1)
                 if ss != 0 or s <= 0:
@@ -245,7 +230,7 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                 el_hi = el + 0.5 * delta
                 ar = r_mid * r_mid * c_cos[ic] * dth * (el_hi - el_lo) / max(c_c[ic], 0.05)
                 a_v[0, ic] = ar if (c_sea[ic] and ar > 0) else 0.0
-            for ic in range(nc):  # its box deposit (as _box_deposit, one cell per bin)
+            for ic in range(nc):  # its box deposit (as the echo's, one cell per bin)
                 x0 = (c_lo[ic] - range_min) * a_scale
                 x1 = (c_hi[ic] - range_min) * a_scale
                 dens = a_v[0, ic] / (x1 - x0)
