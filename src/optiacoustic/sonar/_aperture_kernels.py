@@ -71,10 +71,12 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     hi_c = np.full(S, -1, np.int64)
     ph = np.zeros((q, n_bins + 2 * D))
     cum = np.empty(n_bins + D + 2)
-    a_rows = np.empty((_AREA_BLOCK, n_bins), np.float32)
     blk0 = j0
     rowbuf = np.zeros(n_bins)
-    a_dep = np.zeros(n_bins + 2)  # the area's deposits, one cell per bin
+    # the area's deposits, one cell per bin, of a block of _AREA_BLOCK beams (bin-major: the block's
+    # cumulative sums run side by side, written straight into the image layout)
+    a_dep = np.zeros((n_bins + 2, _AREA_BLOCK))
+    a_acc = np.empty(_AREA_BLOCK)
     a_lo = n_bins + 2
     a_hi = -1
     pad_w = 1e-4 * bin_width
@@ -247,13 +249,14 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                 a_v[2, ic] = dens * f1 - dens
                 a_v[3, ic] = -dens * f1
             # one cell per bin (echo_rows with D = 0); cells past the end are not read
+            jb = j - blk0
             for ia in range(nc):
                 p0 = a_p0[ia]
                 p1 = a_p1[ia]
-                a_dep[p0] += a_v[0, ia]
-                a_dep[p0 + 1] += a_v[1, ia]
-                a_dep[p1] += a_v[2, ia]
-                a_dep[p1 + 1] += a_v[3, ia]
+                a_dep[p0, jb] += a_v[0, ia]
+                a_dep[p0 + 1, jb] += a_v[1, ia]
+                a_dep[p1, jb] += a_v[2, ia]
+                a_dep[p1 + 1, jb] += a_v[3, ia]
                 a_lo = min(a_lo, p0)
                 a_hi = max(a_hi, p1 + 1)
         for ss in range(S):
@@ -265,28 +268,23 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                                               out[ss, j])
         if want_area:
             jb = j - blk0
-            if a_hi < 0:
-                a_rows[jb, :] = 0.0
-            else:
-                # the cumulative sum (zero before the first deposit, constant after the last)
-                ar_row = a_rows[jb]
-                first = min(a_lo, n_bins)
-                last = min(a_hi + 1, n_bins)
-                ar_row[:first] = 0.0
-                acc = 0.0
-                for bb in range(first, last):
-                    acc += a_dep[bb]
-                    ar_row[bb] = acc
-                ar_row[last:] = acc
-                a_dep[a_lo:a_hi + 1] = 0.0
+            if jb == _AREA_BLOCK - 1 or j == j1 - 1:
+                # the block's cumulative sums (each beam's the same additions in the same order as
+                # one beam's alone: zeros before its first deposit and after its last add nothing),
+                # the beams side by side (their running sums interleave: no chain of dependent adds)
+                # and written into the image layout a bin at a time (16 contiguous beams)
+                nb = jb + 1
+                a_acc[:] = 0.0
+                for bb in range(n_bins):
+                    row = a_dep[bb]
+                    dst = area_out[bb]
+                    for t in range(nb):
+                        a_acc[t] += row[t]
+                        dst[blk0 + t] = a_acc[t]
+                if a_hi >= 0:
+                    a_dep[a_lo:a_hi + 1, :] = 0.0
                 a_lo = n_bins + 2
                 a_hi = -1
-            if jb == _AREA_BLOCK - 1 or j == j1 - 1:
-                # the image layout, a block of beams at a time (a column at a time, with the beams'
-                # power-of-two stride, would miss the caches at every bin)
-                for bb in range(n_bins):
-                    for t in range(jb + 1):
-                        area_out[bb, blk0 + t] = a_rows[t, bb]
                 blk0 = j + 1
 
 
