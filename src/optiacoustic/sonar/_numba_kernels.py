@@ -1183,20 +1183,33 @@ def edge_split(kk, jj, h_body, h_dist, body, r, slope, step, S, J, a, b):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def finish_two(parts, scale, thr, r0, r1, intensity, share):
+def finish_two(parts, scale, thr, j0, j1, r0, r1, intensity, share):
     """:func:`finish_echo` for one bottom type (slot 0, the class with most rays) and the targets
     (slot 1), the thesis scenes' case: the bottom type's share ``clip(1 - clip(target / echo))``
-    only (the targets' share is not kept), from a loop without inner loops or data branches."""
+    only (the targets' share is not kept), from loops without inner loops or data branches.
+    The targets' rows are read over the beams ``j0..j1`` only (their live span: zeros outside,
+    where the share is 1 on lit cells, as the zeros give; i14j: the aperture path's mixing no
+    longer writes those zeros, nor this pass reads them)."""
     J = parts.shape[1]
     zero, one = np.float32(0.0), np.float32(1.0)
     for bb in range(r0, r1):
-        for j in range(J):
+        for j in range(j0):
+            tt = parts[0, j, bb] * scale
+            tt = zero if tt < thr else tt
+            intensity[bb, j] = tt
+            share[bb, j] = one if tt > 0 else zero
+        for j in range(j0, j1):
             tt = parts[0, j, bb] * scale
             tt = zero if tt < thr else tt
             intensity[bb, j] = tt
             lit = tt > 0
             v = min(max((parts[1, j, bb] * scale) / (tt if lit else one), zero), one)
             share[bb, j] = min(max(one - v, zero), one) if lit else zero
+        for j in range(j1, J):
+            tt = parts[0, j, bb] * scale
+            tt = zero if tt < thr else tt
+            intensity[bb, j] = tt
+            share[bb, j] = one if tt > 0 else zero
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
