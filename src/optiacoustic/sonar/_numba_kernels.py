@@ -6,6 +6,13 @@ They release the GIL (``nogil=True``) so that the caller can run beam ranges on 
 and are cached on disk (``cache=True``) so that only the first run on a machine compiles.
 They use numpy's error model (``error_model="numpy"``): no zero-division check and branch at each
 division (no kernel divides by zero; under Python's model one that did would have raised).
+
+Why some kernels carry their own ``exp``, ``ln`` and ``(cos, sin)`` (``exp_row`` and the noise's
+polynomials): numba vectorises a loop only when its body makes no libm call, and the vector math
+library that would do it for us (Intel's SVML, which numba uses when present) needs the
+SVML-patched LLVM of conda's llvmlite; PyPI's llvmlite wheels, which ``pip install`` gives, are not
+patched (``python -m numba -s``: "llvmlite Using SVML Patched LLVM: False"). Each such function
+states its error bound, and a test checks it against numpy's.
 """
 
 from __future__ import annotations
