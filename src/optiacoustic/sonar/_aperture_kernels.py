@@ -5,9 +5,11 @@ formed before (issue 10, cost): each hit ray's sub-cells (``formation._subdivide
 their echo with the seabed/target split (``_numba_kernels.bucket_by_beam`` + ``echo_rows``) and
 the seabed area per cell (``formation.cell_area``). The sub-cells of a beam are visited in the
 order the materialised path buckets them (elevation sample, then sub-cell), with the same
-formulas: the areas are the same numbers, bit for bit; the echo is the same linear map of the
+formulas: the areas are the same deposits summed in the same order, each sub-cell's
+``cos(elevation)`` by angle addition (i14j: a few float64 ulp from libm's ``cos``); the echo is the same linear map of the
 same deposits summed in another order (deposit, then convolve: see ``aperture_echo_rows``), the
-same to float64 rounding. The tests compare it with the materialised numba path and with the
+same to float64 rounding; the spreading's ``exp`` is :func:`._numba_kernels.exp_row` (vectorised,
+within an ulp of libm's ``exp`` that the materialised path calls: float64 rounding again). The tests compare it with the materialised numba path and with the
 numpy reference (``OAS_KERNELS=numpy``: materialised sub-cells, ``_form_image``, ``cell_area``).
 numpy's error model, as ``_numba_kernels``: no zero-division checks (the footprints are padded to
 1e-4 of a bin, the pattern table's step is positive).
@@ -18,30 +20,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._numba_kernels import subcell_footprint, table_weight
+from ._numba_kernels import exp_row, subcell_footprint, table_weight
 _AREA_BLOCK = 16  # beams whose area rows are written to the image layout together
-
-
-@njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _box_deposit(f_lo, f_hi, range_min, scale, n, value, k, d_p0, d_p1, d_v):
-    """Row ``k`` of the deposit lists: a box of ``value`` spread uniformly over the footprint
-    ``[f_lo, f_hi]`` (m) on cells of ``1 / scale`` m from ``range_min``, clipped to ``[0, n]``,
-    as the four signed density steps at its two ends (cells ``p0``, ``p0 + 1``, ``p1``, ``p1 + 1``)."""
-    x0 = (f_lo - range_min) * scale
-    x1 = (f_hi - range_min) * scale
-    dens = value / (x1 - x0)
-    x0 = min(max(x0, 0.0), n)
-    x1 = min(max(x1, 0.0), n)
-    p0 = int(x0)
-    f0 = x0 - p0
-    p1 = int(x1)
-    f1 = x1 - p1
-    d_p0[k] = p0
-    d_p1[k] = p1
-    d_v[k, 0] = dens - dens * f0
-    d_v[k, 1] = dens * f0
-    d_v[k, 2] = dens * f1 - dens
-    d_v[k, 3] = -dens * f1
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -75,7 +55,12 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     float64 rounding of the partial sums (``~1e-16`` of the largest running sum of a row, which
     a short footprint's ``+dens``/``-dens`` pair can make ``~1e4`` times its echo).
     The area (no anti-aliasing: one cell per bin) is the cumulative sum of its deposits,
-    the same additions in the same order as ``echo_rows`` with one cell per bin: bit for bit.
+    the same additions in the same order as ``echo_rows`` with one cell per bin; each sub-cell's
+    ``cos(elevation)`` is ``cos(e) cos(t) - sin(e) sin(t)`` from the ray's elevation ``e`` and the
+    ``(cos t, sin t)`` of its footprint (a few float64 ulp from ``cos(e + t)``), and the area's
+    deposits of all the beam's sub-cells (zeros off the seabed) are formed in branch-free loops
+    that vectorise (i14j: the per-sub-cell libm ``cos`` and the compacting loop took ~1/4 of the
+    kernel).
     """
     S = out.shape[0]
     D = (H.shape[1] - 1) // 2
@@ -86,10 +71,12 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     hi_c = np.full(S, -1, np.int64)
     ph = np.zeros((q, n_bins + 2 * D))
     cum = np.empty(n_bins + D + 2)
-    a_rows = np.empty((_AREA_BLOCK, n_bins), np.float32)
     blk0 = j0
     rowbuf = np.zeros(n_bins)
-    a_dep = np.zeros(n_bins + 2)  # the area's deposits, one cell per bin
+    # the area's deposits, one cell per bin, of a block of _AREA_BLOCK beams (bin-major: the block's
+    # cumulative sums run side by side, written straight into the image layout)
+    a_dep = np.zeros((n_bins + 2, _AREA_BLOCK))
+    a_acc = np.empty(_AREA_BLOCK)
     a_lo = n_bins + 2
     a_hi = -1
     pad_w = 1e-4 * bin_width
@@ -122,19 +109,25 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     c_e = np.empty(cap)
     c_s = np.empty(cap, np.int64)
     c_sea = np.empty(cap, np.bool_)
-    c_key = np.empty(cap, np.int64)
-    # cos(elevation) of the sub-cells, remembered per (elevation sample, sub-cell): the grid's cells
-    # (most) give the same elevation, bit for bit, in every beam, so libm is called once per value
-    # (a hit only where the stored elevation is the same number: the same cos)
-    memo_el = np.full(K * max_s, np.nan)
-    memo_cos = np.empty(K * max_s)
-    # a beam's deposits (first cells and values), computed in a loop that does not add them:
-    # neighbouring sub-cells' deposits share cells, and adds that wait on the divisions
-    # before them serialised the loop that did both
-    d_p0 = np.empty(cap, np.int64)
-    d_p1 = np.empty(cap, np.int64)
-    d_v = np.empty((cap, 4))
-    d_s = np.empty(cap, np.int64)
+    c_cos = np.empty(cap)  # cos(elevation) at the sub-cell's centre (for the area)
+    c_x = np.empty(cap)  # the spreading's exponents, exp and scratch (exp_row)
+    c_g = np.empty(cap)
+    c_t = np.empty(cap)
+    # cos(elevation) of a sub-cell by angle addition, cos(e + t) = cos(e) cos(t) - sin(e) sin(t), from
+    # the ray's elevation e and the (cos t, sin t) its footprint uses (i14j; libm's cos per sub-cell,
+    # memoised, kept the area's loop from vectorising). (cos e, sin e) remembered per elevation
+    # sample: the grid's rays give the same elevation, bit for bit, in every beam
+    memo_e = np.full(K, np.nan)
+    memo_ce = np.empty(K)
+    memo_se = np.empty(K)
+    # the area's deposits of every sub-cell of a beam (zeros off the seabed: they add nothing), in
+    # loops without branches or compaction, which vectorise (int32 cells: AVX2 converts to those)
+    a_v = np.empty((4, cap))
+    e_v = np.empty((4, cap))  # the echo's, likewise (then added for the lit sub-cells only)
+    e_p0 = np.empty(cap, np.int32)
+    e_p1 = np.empty(cap, np.int32)
+    a_p0 = np.empty(cap, np.int32)
+    a_p1 = np.empty(cap, np.int32)
     for j in range(j0, j1):
         dth = dtheta[j]
         nc = 0
@@ -160,6 +153,14 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
             ct, st = ct0, st0
             s = slot_of_ray[i]
             seabed = want_area and is_seabed[body[i]]  # a ray with sub-cells is a hit
+            ce = se = 0.0
+            if seabed:
+                e_i = elevation[i]
+                if memo_e[k] == e_i:
+                    ce, se = memo_ce[k], memo_se[k]
+                else:
+                    ce, se = np.cos(e_i), np.sin(e_i)
+                    memo_e[k], memo_ce[k], memo_se[k] = e_i, ce, se
             for kk in range(Sn):
                 if kk > 0:
                     t = -a[i] + (kk + 0.5) * delta
@@ -176,67 +177,86 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                 c_e[nc] = refl[i] * c_mid * delta * w
                 c_s[nc] = s
                 c_sea[nc] = seabed
-                c_key[nc] = k * max_s + kk
+                c_cos[nc] = ce * ct - se * st
                 nc += 1
-        if spreading:
+        if spreading:  # the two-way gain exp(k_abs (r - 1)) / r^2, its exp vectorised (exp_row)
+            for ic in range(nc):
+                c_x[ic] = k_abs * (c_r[ic] - 1.0)
+            exp_row(c_x, nc, c_g, c_t)
             for ic in range(nc):
                 r_mid = c_r[ic]
-                c_e[ic] *= np.exp(k_abs * (r_mid - 1.0)) / (r_mid * r_mid)
+                c_e[ic] *= c_g[ic] / (r_mid * r_mid)
         # the echo: each box's edges as four fine-cell deposits per slot (slot 0, the class's);
         # their places and values first, in a loop without stores to the rows (deposits of
         # neighbouring sub-cells share cells: adds that wait on the divisions serialise the loop)
-        nd_ = 0
-        for ic in range(nc):
+        for ic in range(nc):  # every sub-cell's box as four fine-cell deposits (0 where unlit), branch-free: vectorises
             e = c_e[ic]
-            if not e > 0:  # as bucket_by_beam: footprint in fine cells, density, clipped
+            x0 = (c_lo[ic] - range_min) * scale
+            x1 = (c_hi[ic] - range_min) * scale
+            dens = (e if e > 0 else 0.0) / (x1 - x0)
+            x0 = min(max(x0, 0.0), n_cells)
+            x1 = min(max(x1, 0.0), n_cells)
+            p0 = np.int32(x0)
+            f0 = x0 - p0
+            p1 = np.int32(x1)
+            f1 = x1 - p1
+            e_p0[ic] = p0
+            e_p1[ic] = p1
+            e_v[0, ic] = dens - dens * f0
+            e_v[1, ic] = dens * f0
+            e_v[2, ic] = dens * f1 - dens
+            e_v[3, ic] = -dens * f1
+        for ic in range(nc):  # as bucket_by_beam: the lit sub-cells only
+            if not c_e[ic] > 0:
                 continue
-            _box_deposit(c_lo[ic], c_hi[ic], range_min, scale, n_cells, e, nd_, d_p0, d_p1, d_v)
-            d_s[nd_] = c_s[ic]
-            nd_ += 1
-        for idd in range(nd_):
-            p0 = d_p0[idd]
-            p1 = d_p1[idd]
-            s = d_s[idd]
+            p0 = e_p0[ic]
+            p1 = e_p1[ic]
+            s = c_s[ic]
             ss = 0
             while True:  # slot 0 (the whole echo), then the class's slot when it has one
-                dep[ss, p0] += d_v[idd, 0]
-                dep[ss, p0 + 1] += d_v[idd, 1]
-                dep[ss, p1] += d_v[idd, 2]
-                dep[ss, p1 + 1] += d_v[idd, 3]
+                dep[ss, p0] += e_v[0, ic]
+                dep[ss, p0 + 1] += e_v[1, ic]
+                dep[ss, p1] += e_v[2, ic]
+                dep[ss, p1 + 1] += e_v[3, ic]
                 lo_c[ss] = min(lo_c[ss], p0)
                 hi_c[ss] = max(hi_c[ss], p1 + 1)
                 if ss != 0 or s <= 0:
                     break
                 ss = s
         if want_area:
-            na = 0
-            for ic in range(nc):
-                if not c_sea[ic]:
-                    continue
-                key = c_key[ic]
-                el = c_el[ic]
-                if memo_el[key] == el:
-                    cv = memo_cos[key]
-                else:
-                    cv = np.cos(el)
-                    memo_el[key] = el
-                    memo_cos[key] = cv
+            for ic in range(nc):  # the seabed area of each sub-cell (0 off the seabed)
                 r_mid = c_r[ic]
                 delta = c_d[ic]
+                el = c_el[ic]
                 el_lo = el - 0.5 * delta
                 el_hi = el + 0.5 * delta
-                ar = r_mid * r_mid * cv * dth * (el_hi - el_lo) / max(c_c[ic], 0.05)
-                if ar > 0:
-                    _box_deposit(c_lo[ic], c_hi[ic], range_min, a_scale, n_bins, ar, na, d_p0, d_p1, d_v)
-                    na += 1
+                ar = r_mid * r_mid * c_cos[ic] * dth * (el_hi - el_lo) / max(c_c[ic], 0.05)
+                a_v[0, ic] = ar if (c_sea[ic] and ar > 0) else 0.0
+            for ic in range(nc):  # its box deposit (as the echo's, one cell per bin)
+                x0 = (c_lo[ic] - range_min) * a_scale
+                x1 = (c_hi[ic] - range_min) * a_scale
+                dens = a_v[0, ic] / (x1 - x0)
+                x0 = min(max(x0, 0.0), n_bins)
+                x1 = min(max(x1, 0.0), n_bins)
+                p0 = np.int32(x0)
+                f0 = x0 - p0
+                p1 = np.int32(x1)
+                f1 = x1 - p1
+                a_p0[ic] = p0
+                a_p1[ic] = p1
+                a_v[0, ic] = dens - dens * f0
+                a_v[1, ic] = dens * f0
+                a_v[2, ic] = dens * f1 - dens
+                a_v[3, ic] = -dens * f1
             # one cell per bin (echo_rows with D = 0); cells past the end are not read
-            for ia in range(na):
-                p0 = d_p0[ia]
-                p1 = d_p1[ia]
-                a_dep[p0] += d_v[ia, 0]
-                a_dep[p0 + 1] += d_v[ia, 1]
-                a_dep[p1] += d_v[ia, 2]
-                a_dep[p1 + 1] += d_v[ia, 3]
+            jb = j - blk0
+            for ia in range(nc):
+                p0 = a_p0[ia]
+                p1 = a_p1[ia]
+                a_dep[p0, jb] += a_v[0, ia]
+                a_dep[p0 + 1, jb] += a_v[1, ia]
+                a_dep[p1, jb] += a_v[2, ia]
+                a_dep[p1 + 1, jb] += a_v[3, ia]
                 a_lo = min(a_lo, p0)
                 a_hi = max(a_hi, p1 + 1)
         for ss in range(S):
@@ -248,28 +268,23 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                                               out[ss, j])
         if want_area:
             jb = j - blk0
-            if a_hi < 0:
-                a_rows[jb, :] = 0.0
-            else:
-                # the cumulative sum (zero before the first deposit, constant after the last)
-                ar_row = a_rows[jb]
-                first = min(a_lo, n_bins)
-                last = min(a_hi + 1, n_bins)
-                ar_row[:first] = 0.0
-                acc = 0.0
-                for bb in range(first, last):
-                    acc += a_dep[bb]
-                    ar_row[bb] = acc
-                ar_row[last:] = acc
-                a_dep[a_lo:a_hi + 1] = 0.0
+            if jb == _AREA_BLOCK - 1 or j == j1 - 1:
+                # the block's cumulative sums (each beam's the same additions in the same order as
+                # one beam's alone: zeros before its first deposit and after its last add nothing),
+                # the beams side by side (their running sums interleave: no chain of dependent adds)
+                # and written into the image layout a bin at a time (16 contiguous beams)
+                nb = jb + 1
+                a_acc[:] = 0.0
+                for bb in range(n_bins):
+                    row = a_dep[bb]
+                    dst = area_out[bb]
+                    for t in range(nb):
+                        a_acc[t] += row[t]
+                        dst[blk0 + t] = a_acc[t]
+                if a_hi >= 0:
+                    a_dep[a_lo:a_hi + 1, :] = 0.0
                 a_lo = n_bins + 2
                 a_hi = -1
-            if jb == _AREA_BLOCK - 1 or j == j1 - 1:
-                # the image layout, a block of beams at a time (a column at a time, with the beams'
-                # power-of-two stride, would miss the caches at every bin)
-                for bb in range(n_bins):
-                    for t in range(jb + 1):
-                        area_out[bb, blk0 + t] = a_rows[t, bb]
                 blk0 = j + 1
 
 

@@ -6,6 +6,13 @@ They release the GIL (``nogil=True``) so that the caller can run beam ranges on 
 and are cached on disk (``cache=True``) so that only the first run on a machine compiles.
 They use numpy's error model (``error_model="numpy"``): no zero-division check and branch at each
 division (no kernel divides by zero; under Python's model one that did would have raised).
+
+Why some kernels carry their own ``exp``, ``ln`` and ``(cos, sin)`` (``exp_row`` and the noise's
+polynomials): numba vectorises a loop only when its body makes no libm call, and the vector math
+library that would do it for us (Intel's SVML, which numba uses when present) needs the
+SVML-patched LLVM of conda's llvmlite; PyPI's llvmlite wheels, which ``pip install`` gives, are not
+patched (``python -m numba -s``: "llvmlite Using SVML Patched LLVM: False"). Each such function
+states its error bound, and a test checks it against numpy's.
 """
 
 from __future__ import annotations
@@ -158,13 +165,17 @@ def footprints(body, r, cos_inc, slope, a, b, refl, weight_k, gain, J, pad_width
 def spreading_gain(body, r, k_abs, gain):
     """``propagation.two_way_gain`` of every ray (reference range 1 m): ``exp(k_abs (r - 1)) / r^2``
     with ``k_abs = -0.2 ln(10) alpha`` (alpha in dB/m) where ``body >= 0``, 0 on a miss (the same
-    factor as the aperture kernel's sub-cells; float64 rounding apart, ``10^(-2 alpha (r - 1) / 10) / r^2``)."""
-    for i in range(body.size):
-        if body[i] < 0:
-            gain[i] = 0.0
-        else:
-            ri = r[i]
-            gain[i] = np.exp(k_abs * (ri - 1.0)) / (ri * ri)
+    factor as the aperture kernel's sub-cells; float64 rounding apart, ``10^(-2 alpha (r - 1) / 10) / r^2``;
+    ``exp`` from :func:`exp_row`, within an ulp or two of libm's)."""
+    n = body.size
+    x = np.empty(n)
+    sc = np.empty(n)
+    for i in range(n):
+        x[i] = k_abs * (r[i] - 1.0) if body[i] >= 0 else 0.0
+    exp_row(x, n, gain, sc)  # exp vectorised (within 1 ulp of libm's here)
+    for i in range(n):
+        ri = r[i]
+        gain[i] = gain[i] / (ri * ri) if body[i] >= 0 else 0.0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -727,6 +738,29 @@ def _exp_neg_row(m, mu_clamp, p, scale):
         sb[j] = (np.int64(1023) - k) << 52
 
 
+@njit(cache=True, nogil=True, error_model="numpy", fastmath={"contract"})
+def exp_row(x, n, out, scale):
+    """``out[:n] = exp(x[:n])`` (float64) without a libm call, so that the loops vectorise (issue 14,
+    i14j: the aperture kernel's spreading ran ``exp`` sub-cell by sub-cell, ~5 ns each).
+    ``x = k ln 2 + r``, ``k = floor(x / ln 2 + 1/2)``, ``|r| <= ln 2 / 2`` (``ln 2`` in two parts, as
+    :func:`_exp_neg_row`), ``exp(r)`` by its Taylor series to degree 13 (truncation < 5e-18
+    relative), ``2^k`` built as float64 bits in ``scale`` (float64 scratch of ``n`` at least,
+    written through its int64 view). Within a few ulp of libm's ``exp`` for ``-708 <= x <= 709``
+    (``tests/sonar/test_kernels.py`` bounds it at 8 ulp); 0 below -708 (where ``exp`` is below
+    ``3.4e-308``); inputs above 709 (which overflow) are clamped there."""
+    sb = scale.view(np.int64)
+    for j in range(n):
+        xc = min(max(x[j], -708.0), 709.0)
+        k = np.floor(xc * 1.4426950408889634 + 0.5)
+        r = (xc - k * 6.93147180369123816490e-01) - k * 1.90821492927058770002e-10
+        out[j] = 1.0 + r * (1.0 + r * (1.0 / 2 + r * (1.0 / 6 + r * (1.0 / 24 + r * (1.0 / 120 + r * (1.0 / 720 + r * (
+            1.0 / 5040 + r * (1.0 / 40320 + r * (1.0 / 362880 + r * (1.0 / 3628800 + r * (1.0 / 39916800 + r * (
+                1.0 / 479001600 + r * (1.0 / 6227020800)))))))))))))
+        sb[j] = (np.int64(1023) + np.int64(k)) << 52
+    for j in range(n):
+        out[j] = out[j] * scale[j] * np.float64(x[j] >= -708.0)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def scatterer_field(intensity, gain, back, area, density, k0, k1, mu_max, r0, r1, z, big, mean):
     """``ScattererNoise``'s white complex field, rows ``r0..r1``: per cell the Poisson count ``n``
@@ -1159,20 +1193,33 @@ def edge_split(kk, jj, h_body, h_dist, body, r, slope, step, S, J, a, b):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def finish_two(parts, scale, thr, r0, r1, intensity, share):
+def finish_two(parts, scale, thr, j0, j1, r0, r1, intensity, share):
     """:func:`finish_echo` for one bottom type (slot 0, the class with most rays) and the targets
     (slot 1), the thesis scenes' case: the bottom type's share ``clip(1 - clip(target / echo))``
-    only (the targets' share is not kept), from a loop without inner loops or data branches."""
+    only (the targets' share is not kept), from loops without inner loops or data branches.
+    The targets' rows are read over the beams ``j0..j1`` only (their live span: zeros outside,
+    where the share is 1 on lit cells, as the zeros give; i14j: the aperture path's mixing no
+    longer writes those zeros, nor this pass reads them)."""
     J = parts.shape[1]
     zero, one = np.float32(0.0), np.float32(1.0)
     for bb in range(r0, r1):
-        for j in range(J):
+        for j in range(j0):
+            tt = parts[0, j, bb] * scale
+            tt = zero if tt < thr else tt
+            intensity[bb, j] = tt
+            share[bb, j] = one if tt > 0 else zero
+        for j in range(j0, j1):
             tt = parts[0, j, bb] * scale
             tt = zero if tt < thr else tt
             intensity[bb, j] = tt
             lit = tt > 0
             v = min(max((parts[1, j, bb] * scale) / (tt if lit else one), zero), one)
             share[bb, j] = min(max(one - v, zero), one) if lit else zero
+        for j in range(j1, J):
+            tt = parts[0, j, bb] * scale
+            tt = zero if tt < thr else tt
+            intensity[bb, j] = tt
+            share[bb, j] = one if tt > 0 else zero
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

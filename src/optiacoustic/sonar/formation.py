@@ -176,17 +176,19 @@ def _live_span(live: np.ndarray, spec: SonarSpec):
 _MIX_COLUMNS = 256
 
 
-def _mix_rows(spec: SonarSpec, rows: np.ndarray, out: np.ndarray, span) -> None:
+def _mix_rows(spec: SonarSpec, rows: np.ndarray, out: np.ndarray, span, zero_outside: bool = True) -> None:
     """:func:`_mix_beams` of ``rows`` ``(n_beams, n_bins)`` into ``out``, computed over the beams of
     ``span`` only (:func:`_live_span`; ``None``: all): the rows outside it are zero and take none
     from the rows with echo. The same numbers as the whole array (the rows left out are zeros,
-    which add nothing, with the same zero border)."""
+    which add nothing, with the same zero border). ``zero_outside=False`` leaves ``out``'s rows
+    outside the span unwritten (for a reader that reads the span only)."""
     if span is None:
         _mix_beams(spec, rows, out=out)
         return
     j0, j1 = span
-    out[:j0] = 0.0
-    out[j1:] = 0.0
+    if zero_outside:
+        out[:j0] = 0.0
+        out[j1:] = 0.0
     if j1 > j0:
         _mix_beams(spec, rows[j0:j1], out=out[j0:j1])
 
@@ -561,10 +563,13 @@ def _mix_and_scale(spec: SonarSpec, echo: np.ndarray, options: SonarOptions) -> 
     return echo
 
 
-def _finish_numba(spec: SonarSpec, rows: np.ndarray, bottom_types: dict, slot_of: dict, threads: int):
+def _finish_numba(spec: SonarSpec, rows: np.ndarray, bottom_types: dict, slot_of: dict, threads: int,
+                  targets_span=None):
     """Intensity and seabed shares from :func:`_echo_rows_numba`'s ``(n_slots, n_beams, n_bins)`` rows in
     one pass (``_numba_kernels.finish_echo``): the thesis model's ``_mix_and_scale`` (a scale),
-    threshold and ``shares`` together, with no transposed copy of the class images."""
+    threshold and ``shares`` together, with no transposed copy of the class images.
+    ``targets_span``: ``(j0, j1)``, the only beams whose rows of slot 1 are read (zeros elsewhere, left
+    unwritten by the caller); ``None``: all."""
     scale = np.float32(1.0 / spec.bin_width)
     peak = float(rows[0].max() * scale) if rows.size else 0.0  # rounding is monotonic: max of the scaled
     thr = np.float32(1e-9 * peak)
@@ -574,9 +579,15 @@ def _finish_numba(spec: SonarSpec, rows: np.ndarray, bottom_types: dict, slot_of
     kn = kernels()
     if len(names) == 2 and names[1] is None and rows.shape[0] == 2 and list(table) == [0, 1]:
         share = np.empty((spec.n_bins, spec.n_beams), np.float32)  # one bottom type, most rays: its share only
-        chunked_run(lambda r0, r1: kn.finish_two(rows, scale, thr, r0, r1, intensity, share), spec.n_bins, threads)
+        j0, j1 = targets_span if targets_span is not None else (0, spec.n_beams)
+        chunked_run(lambda r0, r1: kn.finish_two(rows, scale, thr, j0, j1, r0, r1, intensity, share), spec.n_bins,
+                    threads)
         share.setflags(write=False)
         return intensity, {names[0]: share}
+    if targets_span is not None and rows.shape[0] > 1:  # (the general pass reads every slot whole)
+        j0, j1 = targets_span
+        rows[1, :j0] = 0.0
+        rows[1, j1:] = 0.0
     out = np.empty((len(names), spec.n_bins, spec.n_beams), np.float32)
     chunked_run(lambda r0, r1: kn.finish_echo(rows, scale, thr, table, r0, r1, intensity, out), spec.n_bins, threads)
     return intensity, _read_only_shares(out, names)
@@ -1178,7 +1189,7 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
 
         def work():
             for s, c0, c1 in pieces:  # next() on the iterator is atomic under the GIL
-                _mix_rows(spec, out[s][:, c0:c1], mixed[s][:, c0:c1], spans[s])
+                _mix_rows(spec, out[s][:, c0:c1], mixed[s][:, c0:c1], spans[s], s != 1)
 
         from ._kernels import _pool
 
@@ -1189,14 +1200,17 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
     elif threads > 1 and n_slots > 1:  # the class images on the other threads meanwhile (cv2 releases the GIL)
         from ._kernels import _pool
 
-        jobs = [_pool(threads - 1).submit(_mix_rows, spec, out[s], mixed[s], spans[s]) for s in range(1, n_slots)]
+        jobs = [_pool(threads - 1).submit(_mix_rows, spec, out[s], mixed[s], spans[s], s != 1)
+                for s in range(1, n_slots)]
         _mix_rows(spec, out[0], mixed[0], spans[0])
         for job in jobs:
             job.result()
     else:
         for s in range(n_slots):
-            _mix_rows(spec, out[s], mixed[s], spans[s])
-    intensity, shares = _finish_numba(spec, mixed, bottom_types, slot_of, threads)
+            _mix_rows(spec, out[s], mixed[s], spans[s], s != 1)
+    # the targets' slot is mixed over its live span only (the zeros outside are neither written nor read)
+    targets_span = spans[1] if n_slots > 1 else None
+    intensity, shares = _finish_numba(spec, mixed, bottom_types, slot_of, threads, targets_span)
     return intensity, shares, area
 
 
