@@ -456,7 +456,10 @@ def simulate_sonar(
         rays, img_rays = _scan(scene, caster, sspec, pose, options, _aperture_elevation_weights(spec),
                                spec.elevation_pattern(), after_cast=start_draws, materialise=False)
     else:
-        rays = img_rays = _scan(scene, caster, sspec, pose, options, after_cast=start_draws)
+        # the footprints (0.3 ms) on this thread alone while the draws take the other core: split, the
+        # part handed to the pool waited for a core the draws hold (1-1.5 ms at two threads)
+        rays = img_rays = _scan(scene, caster, sspec, pose, options, after_cast=start_draws,
+                                footprint_threads=1 if draw_args is not None else None)
     if draws is None and draw_args is not None:  # one thread: drawn here, in line
         draws = _done(draw_args[0](*draw_args[1:]))
     area = None
@@ -602,7 +605,9 @@ def _echo_rows_numba(spec: SonarSpec, rays: SonarRays, slot: np.ndarray, n_slots
     rec, starts = _bucket(flat(rays.beam_index), flat(rays.footprint_lo), flat(rays.footprint_hi), flat(rays.energy),
                           slot, float(spec.range_min), q / spec.bin_width, n_cells, J)
     out = _workspace(f"echo{n_slots}", (n_slots, J, spec.n_bins), np.float32)  # fresh pages fault: reuse
-    split_run(lambda j0, j1: kn.echo_rows(rec, starts, n_cells, H, V, full, q, spec.n_bins, j0, j1, out), J, threads)
+    # in chunks the threads take as they finish (fixed halves waited for the second core while the noise
+    # draws held it, or the host slowed it); beams are independent: the same numbers
+    chunked_run(lambda j0, j1: kn.echo_rows(rec, starts, n_cells, H, V, full, q, spec.n_bins, j0, j1, out), J, threads)
     return out
 
 
@@ -883,7 +888,7 @@ def _background():
 
 
 def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options: SonarOptions,
-          weights=None, pattern=None, after_cast=None, materialise: bool = True):
+          weights=None, pattern=None, after_cast=None, materialise: bool = True, footprint_threads=None):
     """Cast the beams' rays and compute each ray's echo energy and range footprint (sec. 2.6.1).
 
     ``weights`` (``(elevation_samples,)``) overrides the elevation pattern's weights.
@@ -893,6 +898,7 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     (:func:`_subdivide`), so that the echo's density follows the surface within it.
     ``materialise=False`` (compiled kernels only): ``image_rays`` is an :class:`_ApertureCells`,
     what the fused kernel of :func:`_form_aperture_numba` needs to form the sub-cells itself.
+    ``footprint_threads``: threads of the footprints' pass (default the caster's).
     """
     fast = use_numba()
     K, J = spec.elevation_samples, spec.n_beams
@@ -939,7 +945,7 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
             kn.footprints(body[s], r[s], cos_inc[s], slope[s], a[s], b[s], refl, w_k[k0:k1],
                           np.zeros(0) if gain is None else gain[s], J, 1e-4 * spec.bin_width, energy[s], lo[s], hi[s])
 
-        chunked_run(rows, K, caster.threads)
+        chunked_run(rows, K, caster.threads if footprint_threads is None else footprint_threads)
     else:
         energy = refl[body] * cos_inc * (a + b)
         if weights is not None:
@@ -1370,7 +1376,12 @@ def _truth_maps(spec: SonarSpec, rays: SonarRays, threads: int = 1):
         # written straight into the maps (no scratch pass); beam ranges: disjoint columns
         tk, odd = truth_kernels(), []
         weight = _workspace("truth_weight", (B, J), np.float32)
-        split_run(lambda j0, j1: odd.append(tk.truth_maps_direct(*args, weight, j0, j1)), J, threads)
+        # the grid's beams in chunks that the threads take as they finish, each chunk reading its own rays
+        # (fixed halves, each reading every ray, waited for the slower core)
+        chunked_run(lambda j0, j1: odd.append(tk.truth_maps_grid(*args, weight, j0, j1)), J, threads)
+        if any(o < 0 for o in odd):  # rays not in the grid's order (never from _scan): every ray per part
+            odd = []
+            split_run(lambda j0, j1: odd.append(tk.truth_maps_direct(*args, weight, j0, j1)), J, threads)
         if any(odd):  # a lit ray with a non-finite elevation span: the ray-order kernel's rules for those
             kn = kernels()
             rec = _workspace("truth_cells", (B, J, 4), np.float32)
@@ -1614,7 +1625,28 @@ def _shadow_mask_numba(scene, caster, spec, pose, rays: SonarRays, elevation_min
 
     beam_of = _index_grids(spec)[0]
     elevation_min = np.ascontiguousarray(elevation_min)
-    split_run(follow, n, threads)
+    if front is not None:
+        # one cast per ray: the rays in chunks that the threads take as they finish (fixed halves waited
+        # for the slower core), then the shadow cells in one part per thread
+        def cast(p0, p1):
+            kn.grid_directions(active[p0:p1], cp, sp, a_dir, rz, d_act[p0:p1], dd_act[p0:p1])
+            kn.shadow_front(front.fn, front.scene, front.args, t, eps, origin, d_act, far, body_act, p0, p1, hid_r,
+                            hid_n)
+            kn.shadow_boxes(hid_r[p0:p1], hid_n[p0:p1], d_act[p0:p1], dd_act[p0:p1], spec.elevation_step, min_half,
+                            lo[p0:p1], hi[p0:p1])
+
+        def cells(p0, p1):
+            sel = np.isfinite(hid_r[p0:p1])
+            out = parts[next(part_no)]
+            out.fill(False)
+            if sel.any():
+                kn.shadow_cells(beam_of[active[p0:p1][sel]], lo[p0:p1][sel], hi[p0:p1][sel], float(spec.range_min),
+                                1.0 / spec.bin_width, spec.n_bins, elevation_min, out)
+
+        chunked_run(cast, n, threads)
+        split_run(cells, n, threads)
+    else:
+        split_run(follow, n, threads)
     used = next(part_no)
     # the mask is the frame's: a fresh array, never the scratch
     return parts[0].copy() if used == 1 else np.logical_or.reduce(parts[:used], axis=0)

@@ -168,7 +168,7 @@ class NoiseModel:
         all Gaussian given the mixture component, so the thesis model costs one uniform and
         one exponential variate per cell.
         """
-        from ._kernels import kernels, split_run, use_numba
+        from ._kernels import chunked_run, kernels, use_numba
 
         I = np.asarray(intensity, np.float32)
         shape = I.shape
@@ -194,8 +194,9 @@ class NoiseModel:
             psi = draws.psi if draws.psi is not None else np.zeros((1, 1), np.float32)
             out = np.empty(shape, np.float32)
             kn = kernels()
-            split_run(lambda r0, r1: kn.noise_gaussian(I, sh, noise, cumw, lams, U, draws.e, psi, self.target_speckle,
-                                                       draws.psi is not None, r0, r1, out), shape[0], threads)
+            # rows in chunks that the threads take as they finish (rows are independent: the same numbers)
+            chunked_run(lambda r0, r1: kn.noise_gaussian(I, sh, noise, cumw, lams, U, draws.e, psi, self.target_speckle,
+                                                         draws.psi is not None, r0, r1, out), shape[0], threads)
             return out
         return self._apply_numpy(I, noise[:, None], seabed_share, draws)
 
