@@ -22,6 +22,7 @@ from numba import njit
 
 from ._numba_kernels import exp_row, subcell_footprint, table_weight
 _AREA_BLOCK = 16  # beams whose area rows are written to the image layout together
+_EDGE_CACHE = 256  # entries of the refined cells' trigonometry cache (a power of 2)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -97,6 +98,33 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
         trig[Sn, 4] = np.sin(d_)
         trig[Sn, 5] = np.cos(t0)
         trig[Sn, 6] = np.sin(t0)
+    # the grid cells' centre offsets t and (cos t, sin t) per (S, sub-cell), by the recurrence the
+    # refined cells use (the same numbers as forming them ray by ray)
+    g_ct = np.empty((max_s + 1, max_s))
+    g_st = np.empty((max_s + 1, max_s))
+    g_t = np.empty((max_s + 1, max_s))
+    for Sn in range(1, max_s + 1):
+        d_ = trig[Sn, 0]
+        cd, sd = trig[Sn, 3], trig[Sn, 4]
+        t = -a_g + 0.5 * d_
+        ct, st = trig[Sn, 5], trig[Sn, 6]
+        for kk in range(Sn):
+            if kk > 0:
+                t = -a_g + (kk + 0.5) * d_
+                ct, st = ct * cd - st * sd, st * cd + ct * sd
+            g_ct[Sn, kk] = ct
+            g_st[Sn, kk] = st
+            g_t[Sn, kk] = t
+    # the refined edges' cells take a few (a, b, S) (a few hundred rays, ~150 triples in thesis scene 1):
+    # their trigonometry (the same numbers, the same recurrence) in a direct-mapped cache keyed by
+    # (a, b, S) compared exactly (a collision re-forms it: only slower)
+    ec_a = np.full(_EDGE_CACHE, np.nan)
+    ec_b = np.full(_EDGE_CACHE, np.nan)
+    ec_s = np.zeros(_EDGE_CACHE, np.int64)
+    ec_d = np.empty((_EDGE_CACHE, 3))
+    ec_ct = np.empty((_EDGE_CACHE, max_s))
+    ec_st = np.empty((_EDGE_CACHE, max_s))
+    ec_t = np.empty((_EDGE_CACHE, max_s))
     # one beam's sub-cells, formed in a first pass and deposited after: the exp and cos run in
     # loops of their own (libm calls in the big loop spill its registers)
     cap = K * max_s
@@ -113,6 +141,17 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     c_x = np.empty(cap)  # the spreading's exponents, exp and scratch (exp_row)
     c_g = np.empty(cap)
     c_t = np.empty(cap)
+    u_x = np.empty(cap)  # the sub-cells' inputs (pass 1 of each beam)
+    u_y = np.empty(cap)
+    u_sgn = np.empty(cap)
+    u_base = np.empty(cap)
+    u_ct = np.empty(cap)
+    u_st = np.empty(cap)
+    u_ch = np.empty(cap)
+    u_sh = np.empty(cap)
+    u_refl = np.empty(cap)
+    u_ce = np.empty(cap)
+    u_se = np.empty(cap)
     # cos(elevation) of a sub-cell by angle addition, cos(e + t) = cos(e) cos(t) - sin(e) sin(t), from
     # the ray's elevation e and the (cos t, sin t) its footprint uses (i14j; libm's cos per sub-cell,
     # memoised, kept the area's loop from vectorising). (cos e, sin e) remembered per elevation
@@ -130,55 +169,101 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     a_p1 = np.empty(cap, np.int32)
     for j in range(j0, j1):
         dth = dtheta[j]
+        # (1) each sub-cell's inputs, ray by ray: the per-ray values repeated, the centre offset's
+        # (cos t, sin t) and t from the per-call table for the grid's cells (the same recurrence, the
+        # same numbers), by the recurrence for the refined edges' cells; no division here
         nc = 0
         for k in range(K):
             i = k * J + j
             Sn = n_sub[i]
             if Sn == 0:
                 continue
-            if a[i] == a_g and b[i] == b_g:
-                delta, ch, sh, cd, sd, ct0, st0 = (trig[Sn, 0], trig[Sn, 1], trig[Sn, 2], trig[Sn, 3], trig[Sn, 4],
-                                                   trig[Sn, 5], trig[Sn, 6])
-            else:
-                delta = (a[i] + b[i]) / Sn
-                ch = np.cos(0.5 * delta)
-                sh = np.sin(0.5 * delta)
-                cd, sd = np.cos(delta), np.sin(delta)
-                t0 = -a[i] + 0.5 * delta
-                ct0, st0 = np.cos(t0), np.sin(t0)
             x, y = nd[i], ndd[i]
             sgn = -1.0 if x < 0 else 1.0
             base = rng[i] * abs(x)
-            t = -a[i] + 0.5 * delta
-            ct, st = ct0, st0
+            e_i = elevation[i]
+            r_i = refl[i]
             s = slot_of_ray[i]
             seabed = want_area and is_seabed[body[i]]  # a ray with sub-cells is a hit
             ce = se = 0.0
             if seabed:
-                e_i = elevation[i]
                 if memo_e[k] == e_i:
                     ce, se = memo_ce[k], memo_se[k]
                 else:
                     ce, se = np.cos(e_i), np.sin(e_i)
                     memo_e[k], memo_ce[k], memo_se[k] = e_i, ce, se
-            for kk in range(Sn):
-                if kk > 0:
-                    t = -a[i] + (kk + 0.5) * delta
-                    ct, st = ct * cd - st * sd, st * cd + ct * sd
-                r_mid, c_mid, f_lo, f_hi = subcell_footprint(x, y, ct, st, ch, sh, sgn, base, pad_w)
-                el = elevation[i] + t
-                w = table_weight(el, table_x0, table_dx, table_y)
-                c_r[nc] = r_mid
-                c_lo[nc] = f_lo
-                c_hi[nc] = f_hi
-                c_c[nc] = c_mid
-                c_el[nc] = el
-                c_d[nc] = delta
-                c_e[nc] = refl[i] * c_mid * delta * w
-                c_s[nc] = s
-                c_sea[nc] = seabed
-                c_cos[nc] = ce * ct - se * st
-                nc += 1
+            if a[i] == a_g and b[i] == b_g:
+                delta, ch, sh = trig[Sn, 0], trig[Sn, 1], trig[Sn, 2]
+                for kk in range(Sn):
+                    u_ct[nc + kk] = g_ct[Sn, kk]
+                    u_st[nc + kk] = g_st[Sn, kk]
+                    c_el[nc + kk] = e_i + g_t[Sn, kk]
+            else:  # a refined edge's cell: its trigonometry from the cache, formed on a miss
+                ar, br = a[i], b[i]
+                hv = (ar / a_g * 97.0 + br / a_g * 61.0) * 64.0 + Sn * 13.0
+                ec = (int(hv) & (_EDGE_CACHE - 1)) if (hv >= 0.0 and hv < 1e15) else 0
+                if not (ec_a[ec] == ar and ec_b[ec] == br and ec_s[ec] == Sn):
+                    delta = (ar + br) / Sn
+                    ec_d[ec, 0] = delta
+                    ec_d[ec, 1] = np.cos(0.5 * delta)
+                    ec_d[ec, 2] = np.sin(0.5 * delta)
+                    cd, sd = np.cos(delta), np.sin(delta)
+                    t = -ar + 0.5 * delta
+                    ct, st = np.cos(t), np.sin(t)
+                    for kk in range(Sn):
+                        if kk > 0:
+                            t = -ar + (kk + 0.5) * delta
+                            ct, st = ct * cd - st * sd, st * cd + ct * sd
+                        ec_ct[ec, kk] = ct
+                        ec_st[ec, kk] = st
+                        ec_t[ec, kk] = t
+                    ec_a[ec], ec_b[ec], ec_s[ec] = ar, br, Sn
+                delta, ch, sh = ec_d[ec, 0], ec_d[ec, 1], ec_d[ec, 2]
+                for kk in range(Sn):
+                    u_ct[nc + kk] = ec_ct[ec, kk]
+                    u_st[nc + kk] = ec_st[ec, kk]
+                    c_el[nc + kk] = e_i + ec_t[ec, kk]
+            for kk in range(nc, nc + Sn):
+                u_x[kk] = x
+                u_y[kk] = y
+                u_sgn[kk] = sgn
+                u_base[kk] = base
+                u_ch[kk] = ch
+                u_sh[kk] = sh
+                c_d[kk] = delta
+                u_refl[kk] = r_i
+                c_s[kk] = s
+                c_sea[kk] = seabed
+                u_ce[kk] = ce
+                u_se[kk] = se
+            nc += Sn
+        # (2) every sub-cell of the beam in one loop without recurrence or branches (its divisions
+        # vectorise): footprint, cos(elevation), the pattern table's position
+        for ic in range(nc):
+            ct = u_ct[ic]
+            st = u_st[ic]
+            r_mid, c_mid, f_lo, f_hi = subcell_footprint(u_x[ic], u_y[ic], ct, st, u_ch[ic], u_sh[ic], u_sgn[ic],
+                                                         u_base[ic], pad_w)
+            c_r[ic] = r_mid
+            c_lo[ic] = f_lo
+            c_hi[ic] = f_hi
+            c_c[ic] = c_mid
+            c_e[ic] = u_refl[ic] * c_mid * c_d[ic]
+            c_cos[ic] = u_ce[ic] * ct - u_se[ic] * st
+            c_t[ic] = (c_el[ic] - table_x0) / table_dx
+        # (3) the pattern's weight (table_weight's lookup from its position: a gather, scalar)
+        n_tab = table_y.size
+        for ic in range(nc):
+            pos = c_t[ic]
+            if pos <= 0.0:
+                w = table_y[0]
+            elif pos >= n_tab - 1:
+                w = table_y[n_tab - 1]
+            else:
+                jt = int(pos)
+                f = pos - jt
+                w = table_y[jt] + f * (table_y[jt + 1] - table_y[jt])
+            c_e[ic] *= w
         if spreading:  # the two-way gain exp(k_abs (r - 1)) / r^2, its exp vectorised (exp_row)
             for ic in range(nc):
                 c_x[ic] = k_abs * (c_r[ic] - 1.0)
