@@ -20,9 +20,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._numba_kernels import exp_row, subcell_footprint, table_weight
+from ._numba_kernels import exp_row, subcell_footprint
 _AREA_BLOCK = 16  # beams whose area rows are written to the image layout together
-_EDGE_CACHE = 256  # entries of the refined cells' trigonometry cache (a power of 2)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -62,6 +61,14 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     deposits of all the beam's sub-cells (zeros off the seabed) are formed in branch-free loops
     that vectorise (i14j: the per-sub-cell libm ``cos`` and the compacting loop took ~1/4 of the
     kernel).
+
+    The sub-cells themselves (i14m) are formed in two steps per beam: a pass over the beam's rays
+    lists each sub-cell's inputs (its ray's values, and the ``(cos t, sin t)`` and ``t`` of its
+    centre offset: for the grid's cells from a table built once per call by the same rotation
+    recurrence, for the refined edges' cells by that recurrence ray by ray), then one loop over
+    all of them, without recurrence or branches, forms the footprints (their three divisions and
+    the pattern table's position run 4-wide); the table's lookup follows in a loop of its own. The
+    same operations on the same numbers as forming them ray by ray: bit for bit.
     """
     S = out.shape[0]
     D = (H.shape[1] - 1) // 2
@@ -99,7 +106,7 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
         trig[Sn, 5] = np.cos(t0)
         trig[Sn, 6] = np.sin(t0)
     # the grid cells' centre offsets t and (cos t, sin t) per (S, sub-cell), by the recurrence the
-    # refined cells use (the same numbers as forming them ray by ray)
+    # refined cells use below (the same numbers as forming them ray by ray, bit for bit)
     g_ct = np.empty((max_s + 1, max_s))
     g_st = np.empty((max_s + 1, max_s))
     g_t = np.empty((max_s + 1, max_s))
@@ -115,16 +122,6 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
             g_ct[Sn, kk] = ct
             g_st[Sn, kk] = st
             g_t[Sn, kk] = t
-    # the refined edges' cells take a few (a, b, S) (a few hundred rays, ~150 triples in thesis scene 1):
-    # their trigonometry (the same numbers, the same recurrence) in a direct-mapped cache keyed by
-    # (a, b, S) compared exactly (a collision re-forms it: only slower)
-    ec_a = np.full(_EDGE_CACHE, np.nan)
-    ec_b = np.full(_EDGE_CACHE, np.nan)
-    ec_s = np.zeros(_EDGE_CACHE, np.int64)
-    ec_d = np.empty((_EDGE_CACHE, 3))
-    ec_ct = np.empty((_EDGE_CACHE, max_s))
-    ec_st = np.empty((_EDGE_CACHE, max_s))
-    ec_t = np.empty((_EDGE_CACHE, max_s))
     # one beam's sub-cells, formed in a first pass and deposited after: the exp and cos run in
     # loops of their own (libm calls in the big loop spill its registers)
     cap = K * max_s
@@ -140,7 +137,7 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     c_cos = np.empty(cap)  # cos(elevation) at the sub-cell's centre (for the area)
     c_x = np.empty(cap)  # the spreading's exponents, exp and scratch (exp_row)
     c_g = np.empty(cap)
-    c_t = np.empty(cap)
+    c_t = np.empty(cap)  # (also the pattern table's positions, before the spreading uses it)
     u_x = np.empty(cap)  # the sub-cells' inputs (pass 1 of each beam)
     u_y = np.empty(cap)
     u_sgn = np.empty(cap)
@@ -198,31 +195,20 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                     u_ct[nc + kk] = g_ct[Sn, kk]
                     u_st[nc + kk] = g_st[Sn, kk]
                     c_el[nc + kk] = e_i + g_t[Sn, kk]
-            else:  # a refined edge's cell: its trigonometry from the cache, formed on a miss
-                ar, br = a[i], b[i]
-                hv = (ar / a_g * 97.0 + br / a_g * 61.0) * 64.0 + Sn * 13.0
-                ec = (int(hv) & (_EDGE_CACHE - 1)) if (hv >= 0.0 and hv < 1e15) else 0
-                if not (ec_a[ec] == ar and ec_b[ec] == br and ec_s[ec] == Sn):
-                    delta = (ar + br) / Sn
-                    ec_d[ec, 0] = delta
-                    ec_d[ec, 1] = np.cos(0.5 * delta)
-                    ec_d[ec, 2] = np.sin(0.5 * delta)
-                    cd, sd = np.cos(delta), np.sin(delta)
-                    t = -ar + 0.5 * delta
-                    ct, st = np.cos(t), np.sin(t)
-                    for kk in range(Sn):
-                        if kk > 0:
-                            t = -ar + (kk + 0.5) * delta
-                            ct, st = ct * cd - st * sd, st * cd + ct * sd
-                        ec_ct[ec, kk] = ct
-                        ec_st[ec, kk] = st
-                        ec_t[ec, kk] = t
-                    ec_a[ec], ec_b[ec], ec_s[ec] = ar, br, Sn
-                delta, ch, sh = ec_d[ec, 0], ec_d[ec, 1], ec_d[ec, 2]
+            else:
+                delta = (a[i] + b[i]) / Sn
+                ch = np.cos(0.5 * delta)
+                sh = np.sin(0.5 * delta)
+                cd, sd = np.cos(delta), np.sin(delta)
+                t = -a[i] + 0.5 * delta
+                ct, st = np.cos(t), np.sin(t)
                 for kk in range(Sn):
-                    u_ct[nc + kk] = ec_ct[ec, kk]
-                    u_st[nc + kk] = ec_st[ec, kk]
-                    c_el[nc + kk] = e_i + ec_t[ec, kk]
+                    if kk > 0:
+                        t = -a[i] + (kk + 0.5) * delta
+                        ct, st = ct * cd - st * sd, st * cd + ct * sd
+                    u_ct[nc + kk] = ct
+                    u_st[nc + kk] = st
+                    c_el[nc + kk] = e_i + t
             for kk in range(nc, nc + Sn):
                 u_x[kk] = x
                 u_y[kk] = y
@@ -251,7 +237,7 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
             c_e[ic] = u_refl[ic] * c_mid * c_d[ic]
             c_cos[ic] = u_ce[ic] * ct - u_se[ic] * st
             c_t[ic] = (c_el[ic] - table_x0) / table_dx
-        # (3) the pattern's weight (table_weight's lookup from its position: a gather, scalar)
+        # (3) the pattern's weight: _numba_kernels.table_weight's lookup from its position (a gather: scalar)
         n_tab = table_y.size
         for ic in range(nc):
             pos = c_t[ic]
