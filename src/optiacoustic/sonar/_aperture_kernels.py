@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ._numba_kernels import exp_row, subcell_footprint
+from ._numba_kernels import exp_row, subcell_footprint, table_weight
 _AREA_BLOCK = 16  # beams whose area rows are written to the image layout together
 
 
@@ -61,14 +61,6 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     deposits of all the beam's sub-cells (zeros off the seabed) are formed in branch-free loops
     that vectorise (i14j: the per-sub-cell libm ``cos`` and the compacting loop took ~1/4 of the
     kernel).
-
-    The sub-cells themselves (i14m) are formed in two steps per beam: a pass over the beam's rays
-    lists each sub-cell's inputs (its ray's values, and the ``(cos t, sin t)`` and ``t`` of its
-    centre offset: for the grid's cells from a table built once per call by the same rotation
-    recurrence, for the refined edges' cells by that recurrence ray by ray), then one loop over
-    all of them, without recurrence or branches, forms the footprints (their three divisions and
-    the pattern table's position run 4-wide); the table's lookup follows in a loop of its own. The
-    same operations on the same numbers as forming them ray by ray: bit for bit.
     """
     S = out.shape[0]
     D = (H.shape[1] - 1) // 2
@@ -105,23 +97,6 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
         trig[Sn, 4] = np.sin(d_)
         trig[Sn, 5] = np.cos(t0)
         trig[Sn, 6] = np.sin(t0)
-    # the grid cells' centre offsets t and (cos t, sin t) per (S, sub-cell), by the recurrence the
-    # refined cells use below (the same numbers as forming them ray by ray, bit for bit)
-    g_ct = np.empty((max_s + 1, max_s))
-    g_st = np.empty((max_s + 1, max_s))
-    g_t = np.empty((max_s + 1, max_s))
-    for Sn in range(1, max_s + 1):
-        d_ = trig[Sn, 0]
-        cd, sd = trig[Sn, 3], trig[Sn, 4]
-        t = -a_g + 0.5 * d_
-        ct, st = trig[Sn, 5], trig[Sn, 6]
-        for kk in range(Sn):
-            if kk > 0:
-                t = -a_g + (kk + 0.5) * d_
-                ct, st = ct * cd - st * sd, st * cd + ct * sd
-            g_ct[Sn, kk] = ct
-            g_st[Sn, kk] = st
-            g_t[Sn, kk] = t
     # one beam's sub-cells, formed in a first pass and deposited after: the exp and cos run in
     # loops of their own (libm calls in the big loop spill its registers)
     cap = K * max_s
@@ -137,18 +112,7 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     c_cos = np.empty(cap)  # cos(elevation) at the sub-cell's centre (for the area)
     c_x = np.empty(cap)  # the spreading's exponents, exp and scratch (exp_row)
     c_g = np.empty(cap)
-    c_t = np.empty(cap)  # (also the pattern table's positions, before the spreading uses it)
-    u_x = np.empty(cap)  # the sub-cells' inputs (pass 1 of each beam)
-    u_y = np.empty(cap)
-    u_sgn = np.empty(cap)
-    u_base = np.empty(cap)
-    u_ct = np.empty(cap)
-    u_st = np.empty(cap)
-    u_ch = np.empty(cap)
-    u_sh = np.empty(cap)
-    u_refl = np.empty(cap)
-    u_ce = np.empty(cap)
-    u_se = np.empty(cap)
+    c_t = np.empty(cap)
     # cos(elevation) of a sub-cell by angle addition, cos(e + t) = cos(e) cos(t) - sin(e) sin(t), from
     # the ray's elevation e and the (cos t, sin t) its footprint uses (i14j; libm's cos per sub-cell,
     # memoised, kept the area's loop from vectorising). (cos e, sin e) remembered per elevation
@@ -166,90 +130,55 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     a_p1 = np.empty(cap, np.int32)
     for j in range(j0, j1):
         dth = dtheta[j]
-        # (1) each sub-cell's inputs, ray by ray: the per-ray values repeated, the centre offset's
-        # (cos t, sin t) and t from the per-call table for the grid's cells (the same recurrence, the
-        # same numbers), by the recurrence for the refined edges' cells; no division here
         nc = 0
         for k in range(K):
             i = k * J + j
             Sn = n_sub[i]
             if Sn == 0:
                 continue
-            x, y = nd[i], ndd[i]
-            sgn = -1.0 if x < 0 else 1.0
-            base = rng[i] * abs(x)
-            e_i = elevation[i]
-            r_i = refl[i]
-            s = slot_of_ray[i]
-            seabed = want_area and is_seabed[body[i]]  # a ray with sub-cells is a hit
-            ce = se = 0.0
-            if seabed:
-                if memo_e[k] == e_i:
-                    ce, se = memo_ce[k], memo_se[k]
-                else:
-                    ce, se = np.cos(e_i), np.sin(e_i)
-                    memo_e[k], memo_ce[k], memo_se[k] = e_i, ce, se
             if a[i] == a_g and b[i] == b_g:
-                delta, ch, sh = trig[Sn, 0], trig[Sn, 1], trig[Sn, 2]
-                for kk in range(Sn):
-                    u_ct[nc + kk] = g_ct[Sn, kk]
-                    u_st[nc + kk] = g_st[Sn, kk]
-                    c_el[nc + kk] = e_i + g_t[Sn, kk]
+                delta, ch, sh, cd, sd, ct0, st0 = (trig[Sn, 0], trig[Sn, 1], trig[Sn, 2], trig[Sn, 3], trig[Sn, 4],
+                                                   trig[Sn, 5], trig[Sn, 6])
             else:
                 delta = (a[i] + b[i]) / Sn
                 ch = np.cos(0.5 * delta)
                 sh = np.sin(0.5 * delta)
                 cd, sd = np.cos(delta), np.sin(delta)
-                t = -a[i] + 0.5 * delta
-                ct, st = np.cos(t), np.sin(t)
-                for kk in range(Sn):
-                    if kk > 0:
-                        t = -a[i] + (kk + 0.5) * delta
-                        ct, st = ct * cd - st * sd, st * cd + ct * sd
-                    u_ct[nc + kk] = ct
-                    u_st[nc + kk] = st
-                    c_el[nc + kk] = e_i + t
-            for kk in range(nc, nc + Sn):
-                u_x[kk] = x
-                u_y[kk] = y
-                u_sgn[kk] = sgn
-                u_base[kk] = base
-                u_ch[kk] = ch
-                u_sh[kk] = sh
-                c_d[kk] = delta
-                u_refl[kk] = r_i
-                c_s[kk] = s
-                c_sea[kk] = seabed
-                u_ce[kk] = ce
-                u_se[kk] = se
-            nc += Sn
-        # (2) every sub-cell of the beam in one loop without recurrence or branches (its divisions
-        # vectorise): footprint, cos(elevation), the pattern table's position
-        for ic in range(nc):
-            ct = u_ct[ic]
-            st = u_st[ic]
-            r_mid, c_mid, f_lo, f_hi = subcell_footprint(u_x[ic], u_y[ic], ct, st, u_ch[ic], u_sh[ic], u_sgn[ic],
-                                                         u_base[ic], pad_w)
-            c_r[ic] = r_mid
-            c_lo[ic] = f_lo
-            c_hi[ic] = f_hi
-            c_c[ic] = c_mid
-            c_e[ic] = u_refl[ic] * c_mid * c_d[ic]
-            c_cos[ic] = u_ce[ic] * ct - u_se[ic] * st
-            c_t[ic] = (c_el[ic] - table_x0) / table_dx
-        # (3) the pattern's weight: _numba_kernels.table_weight's lookup from its position (a gather: scalar)
-        n_tab = table_y.size
-        for ic in range(nc):
-            pos = c_t[ic]
-            if pos <= 0.0:
-                w = table_y[0]
-            elif pos >= n_tab - 1:
-                w = table_y[n_tab - 1]
-            else:
-                jt = int(pos)
-                f = pos - jt
-                w = table_y[jt] + f * (table_y[jt + 1] - table_y[jt])
-            c_e[ic] *= w
+                t0 = -a[i] + 0.5 * delta
+                ct0, st0 = np.cos(t0), np.sin(t0)
+            x, y = nd[i], ndd[i]
+            sgn = -1.0 if x < 0 else 1.0
+            base = rng[i] * abs(x)
+            t = -a[i] + 0.5 * delta
+            ct, st = ct0, st0
+            s = slot_of_ray[i]
+            seabed = want_area and is_seabed[body[i]]  # a ray with sub-cells is a hit
+            ce = se = 0.0
+            if seabed:
+                e_i = elevation[i]
+                if memo_e[k] == e_i:
+                    ce, se = memo_ce[k], memo_se[k]
+                else:
+                    ce, se = np.cos(e_i), np.sin(e_i)
+                    memo_e[k], memo_ce[k], memo_se[k] = e_i, ce, se
+            for kk in range(Sn):
+                if kk > 0:
+                    t = -a[i] + (kk + 0.5) * delta
+                    ct, st = ct * cd - st * sd, st * cd + ct * sd
+                r_mid, c_mid, f_lo, f_hi = subcell_footprint(x, y, ct, st, ch, sh, sgn, base, pad_w)
+                el = elevation[i] + t
+                w = table_weight(el, table_x0, table_dx, table_y)
+                c_r[nc] = r_mid
+                c_lo[nc] = f_lo
+                c_hi[nc] = f_hi
+                c_c[nc] = c_mid
+                c_el[nc] = el
+                c_d[nc] = delta
+                c_e[nc] = refl[i] * c_mid * delta * w
+                c_s[nc] = s
+                c_sea[nc] = seabed
+                c_cos[nc] = ce * ct - se * st
+                nc += 1
         if spreading:  # the two-way gain exp(k_abs (r - 1)) / r^2, its exp vectorised (exp_row)
             for ic in range(nc):
                 c_x[ic] = k_abs * (c_r[ic] - 1.0)
