@@ -208,22 +208,34 @@ def test_noise_words_agree_and_are_uniform(monkeypatch):
     assert not np.array_equal(N.cell_words(key + 1, cells[:100]), a[:, :100])
 
 
-@pytest.mark.parametrize("n_r,n_b", [(1, 1), (3, 27), (7, 5), (9, 1)])
-def test_speckle_image_kernel_matches_cv2_filters(n_r, n_b):
+@pytest.mark.parametrize("n_r,n_b,symmetric", [(1, 1, False), (3, 27, False), (7, 5, False), (9, 1, False),
+                                                (7, 27, True), (3, 9, True), (5, 3, True), (11, 19, True),
+                                                (1, 1, True), (7, 27, "r"), (7, 27, "b")])
+def test_speckle_image_kernel_matches_cv2_filters(n_r, n_b, symmetric):
     """The fused one-look image pass against its reference: the field filtered by cv2.sepFilter2D
     (zero borders), the mean by the squared kernels, |f|^2 x mean / expected x TVG (0 where the
-    filtered mean is not positive). Asymmetric kernels (cv2 correlates), images smaller than a
-    kernel's reach on one side, rows of no mean."""
+    filtered mean is not positive). Asymmetric kernels (cv2 correlates), symmetric ones (their taps
+    folded: 1 to 6 pairs, so every remainder of the sweeps of four; "r" / "b": only that one
+    symmetric), images smaller than a kernel's reach on one side, rows of no mean. Tolerance: both
+    sum in float32 in different orders, so ``rtol = 2e-5`` with ``atol = 1e-6`` of the peak (where
+    ``|f|^2`` nearly cancels the relative difference can be larger, measured up to 2e-4 of a cell
+    of 2e-7 of the peak on a realistic frame)."""
     from optiacoustic.sonar._numba_kernels import speckle_image
     from optiacoustic.sonar.speckle import filter_complex, filter_real
 
-    rng = np.random.default_rng(n_r * 100 + n_b)
+    rng = np.random.default_rng(n_r * 100 + n_b + (7 if symmetric else 0))
     B, J = 40, 23
     z = rng.standard_normal((B, J, 2)).astype(np.float32)
     mean = rng.uniform(0.5, 2.0, (B, J)).astype(np.float32)
     mean[10:14] = 0.0  # no echo and no background: expected 0 there when the kernel is short
     h_r = rng.uniform(0.1, 1.0, n_r).astype(np.float32)
     h_b = rng.uniform(0.1, 1.0, n_b).astype(np.float32)
+    if symmetric in (True, "r"):
+        h_r = (h_r + h_r[::-1]) * np.float32(0.5)
+        assert np.array_equal(h_r, h_r[::-1])
+    if symmetric in (True, "b"):
+        h_b = (h_b + h_b[::-1]) * np.float32(0.5)
+        assert np.array_equal(h_b, h_b[::-1])
     tvg = rng.uniform(1.0, 3.0, B).astype(np.float32)
     f = filter_complex(z, h_r, h_b)
     expected = filter_real(mean, h_r**2, h_b**2)
@@ -234,6 +246,18 @@ def test_speckle_image_kernel_matches_cv2_filters(n_r, n_b):
     speckle_image(z, mean, h_r, h_b, tvg, 17, B, out)
     np.testing.assert_allclose(out, ref, rtol=2e-5, atol=1e-6 * float(ref.max()))
     assert np.array_equal(out == 0, ref == 0)
+
+
+def test_device_kernels_are_symmetric_in_float32():
+    """The pulse's and the beam pattern's amplitude kernels of every preset are symmetric to the bit
+    in float32 (``speckle_image`` folds their taps only then: otherwise it takes the general path)."""
+    from optiacoustic import SonarSpec
+    from optiacoustic.sonar.noise import _kernels
+
+    for name in SonarSpec.preset_names():
+        for h in _kernels(SonarSpec.preset(name)):
+            h32 = np.asarray(h, np.float32)
+            assert h32.size % 2 == 1 and np.array_equal(h32, h32[::-1]), name
 
 
 def test_box_muller_normals(monkeypatch):
