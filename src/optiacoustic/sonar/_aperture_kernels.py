@@ -24,6 +24,25 @@ from ._numba_kernels import exp_row, subcell_footprint, table_weight
 _AREA_BLOCK = 16  # beams whose area rows are written to the image layout together
 
 
+@njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _box_edges(lo, hi, value, range_min, scale, n):
+    """The box ``[lo, hi]`` (m) holding ``value`` as its two edges' four deposits on a grid of ``n``
+    cells of ``1 / scale`` m from ``range_min`` (``formation._box_integrate``'s linear two-cell split
+    of each edge): returns the edges' cells ``p0``, ``p1`` (int32) and the four values. Branch-free
+    (clamps by min/max), so that the loops calling it vectorise; the echo's fine cells and the
+    seabed area's bins both use it."""
+    x0 = (lo - range_min) * scale
+    x1 = (hi - range_min) * scale
+    dens = value / (x1 - x0)
+    x0 = min(max(x0, 0.0), n)
+    x1 = min(max(x1, 0.0), n)
+    p0 = np.int32(x0)
+    f0 = x0 - p0
+    p1 = np.int32(x1)
+    f1 = x1 - p1
+    return p0, p1, dens - dens * f0, dens * f0, dens * f1 - dens, -dens * f1
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K, J,
                        table_x0, table_dx, table_y, alpha_db, spreading, bin_width,
@@ -191,21 +210,8 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
         # neighbouring sub-cells share cells: adds that wait on the divisions serialise the loop)
         for ic in range(nc):  # every sub-cell's box as four fine-cell deposits (0 where unlit), branch-free: vectorises
             e = c_e[ic]
-            x0 = (c_lo[ic] - range_min) * scale
-            x1 = (c_hi[ic] - range_min) * scale
-            dens = (e if e > 0 else 0.0) / (x1 - x0)
-            x0 = min(max(x0, 0.0), n_cells)
-            x1 = min(max(x1, 0.0), n_cells)
-            p0 = np.int32(x0)
-            f0 = x0 - p0
-            p1 = np.int32(x1)
-            f1 = x1 - p1
-            e_p0[ic] = p0
-            e_p1[ic] = p1
-            e_v[0, ic] = dens - dens * f0
-            e_v[1, ic] = dens * f0
-            e_v[2, ic] = dens * f1 - dens
-            e_v[3, ic] = -dens * f1
+            e_p0[ic], e_p1[ic], e_v[0, ic], e_v[1, ic], e_v[2, ic], e_v[3, ic] = _box_edges(
+                c_lo[ic], c_hi[ic], e if e > 0 else 0.0, range_min, scale, n_cells)
         for ic in range(nc):  # as bucket_by_beam: the lit sub-cells only
             if not c_e[ic] > 0:
                 continue
@@ -233,21 +239,8 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                 ar = r_mid * r_mid * c_cos[ic] * dth * (el_hi - el_lo) / max(c_c[ic], 0.05)
                 a_v[0, ic] = ar if (c_sea[ic] and ar > 0) else 0.0
             for ic in range(nc):  # its box deposit (as the echo's, one cell per bin)
-                x0 = (c_lo[ic] - range_min) * a_scale
-                x1 = (c_hi[ic] - range_min) * a_scale
-                dens = a_v[0, ic] / (x1 - x0)
-                x0 = min(max(x0, 0.0), n_bins)
-                x1 = min(max(x1, 0.0), n_bins)
-                p0 = np.int32(x0)
-                f0 = x0 - p0
-                p1 = np.int32(x1)
-                f1 = x1 - p1
-                a_p0[ic] = p0
-                a_p1[ic] = p1
-                a_v[0, ic] = dens - dens * f0
-                a_v[1, ic] = dens * f0
-                a_v[2, ic] = dens * f1 - dens
-                a_v[3, ic] = -dens * f1
+                a_p0[ic], a_p1[ic], a_v[0, ic], a_v[1, ic], a_v[2, ic], a_v[3, ic] = _box_edges(
+                    c_lo[ic], c_hi[ic], a_v[0, ic], range_min, a_scale, n_bins)
             # one cell per bin (echo_rows with D = 0); cells past the end are not read
             jb = j - blk0
             for ia in range(nc):
