@@ -43,6 +43,21 @@ def _rig_for(eye, target):
     return Rig.from_poses(sp, cp, camera, spec), sp
 
 
+def _upright_shape(kind: str, rng):
+    """A box, upright cylinder or sphere of :func:`random_scene`'s sizes, drawn from ``rng``, and the
+    height of its centre above the seabed (m) when it stands on it."""
+    from ..scene import Box, Cylinder, Sphere
+
+    if kind == "box":
+        s = rng.uniform(0.3, 1.0, 3)
+        return Box(size=tuple(float(v) for v in s)), s[2] / 2
+    if kind == "cylinder":
+        rad, h = rng.uniform(0.1, 0.35), rng.uniform(0.4, 1.3)
+        return Cylinder(radius=float(rad), height=float(h)), h / 2
+    rad = rng.uniform(0.15, 0.5)
+    return Sphere(radius=float(rad)), rad
+
+
 def random_scene(seed: int, textured: bool = False):
     """Boxes, cylinders and spheres (3-7 of them) on a seabed within 3 m of the origin (seeded).
 
@@ -51,7 +66,7 @@ def random_scene(seed: int, textured: bool = False):
     with visible texture (fouling, rust, sand ripples) that a second camera view can follow.
     """
     from ..frames import Pose
-    from ..scene import Body, Box, Cylinder, Material, Plane, Scene, Sphere, Texture, View
+    from ..scene import Body, Material, Plane, Scene, Texture, View
 
     rng = np.random.default_rng(seed)
     bodies = [Body("seabed", Plane(size=(40.0, 40.0)), Pose.identity(),
@@ -62,15 +77,7 @@ def random_scene(seed: int, textured: bool = False):
         col = tuple(float(c) for c in rng.uniform(0.15, 0.95, 3))
         mat = Material(reflectivity=float(rng.uniform(0.6, 0.95)), color=col)
         yaw = float(rng.uniform(0, 180))
-        if kind == "box":
-            s = rng.uniform(0.3, 1.0, 3)
-            shape, z = Box(size=tuple(float(v) for v in s)), s[2] / 2
-        elif kind == "cylinder":
-            rad, h = rng.uniform(0.1, 0.35), rng.uniform(0.4, 1.3)
-            shape, z = Cylinder(radius=float(rad), height=float(h)), h / 2
-        else:
-            rad = rng.uniform(0.15, 0.5)
-            shape, z = Sphere(radius=float(rad)), rad
+        shape, z = _upright_shape(kind, rng)
         bodies.append(Body(f"{kind}_{i}", shape, Pose.from_euler_deg((x, y, float(z)), (0.0, 0.0, yaw)), mat))
     name = f"random_{seed}"
     if textured:
@@ -96,7 +103,7 @@ def varied_scene(seed: int):
     The camera and sonar are those of :func:`random_scene`'s rig.
     """
     from ..frames import Pose
-    from ..scene import Body, Box, Cylinder, Material, Plane, Scene, Sphere, View
+    from ..scene import Body, Box, Cylinder, Material, Plane, Scene, View
 
     rng = np.random.default_rng(seed)
     d, h = float(rng.uniform(3.5, 6.5)), float(rng.uniform(1.2, 2.5))
@@ -112,15 +119,8 @@ def varied_scene(seed: int):
         col = tuple(float(c) for c in rng.uniform(0.15, 0.95, 3))
         mat = Material(reflectivity=float(rng.uniform(0.6, 0.95)), color=col)
         yaw, roll = float(rng.uniform(0, 180)), 0.0
-        if kind == "box":
-            sz = rng.uniform(0.3, 1.0, 3)
-            shape, z = Box(size=tuple(float(v) for v in sz)), sz[2] / 2
-        elif kind == "cylinder":
-            rad, ht = rng.uniform(0.1, 0.35), rng.uniform(0.4, 1.3)
-            shape, z = Cylinder(radius=float(rad), height=float(ht)), ht / 2
-        elif kind == "sphere":
-            rad = rng.uniform(0.15, 0.5)
-            shape, z = Sphere(radius=float(rad)), rad
+        if kind in ("box", "cylinder", "sphere"):
+            shape, z = _upright_shape(kind, rng)
         elif kind == "bar":
             sz = (rng.uniform(0.8, 2.5), rng.uniform(0.03, 0.1), rng.uniform(0.02, 0.06))
             shape, z = Box(size=tuple(float(v) for v in sz)), sz[2] / 2
