@@ -219,4 +219,13 @@ def test_beam_creases_lie_on_the_top_edge_and_fix_the_plane_alone():
     assert np.max(np.abs(np.degrees(fp.elevations - ph))) < 0.25
     assert (fp.n_inliers < fp.n_creases).all()  # the decoys are left out of the consensus
     without = face_planes(rig, bed, r, th, np.ones(n, int), np.zeros((n, 3)), np.zeros(n, bool), ph, labels)
-    assert not without.found.any()
+    assert not without.found.any() and np.isnan(without.fit_height).all()
+    # Where the arc meets the plane, as a fraction of the top edge's height: the features' own heights.
+    np.testing.assert_allclose(fp.fit_height, fp.height)
+    assert np.all(np.abs(fp.fit_height - (X_s @ bed.normal - bed.offset) / top) < 0.1)
+    # An echo from above the face's top (the plane's extension, 1.1 m up): its arc meets the plane
+    # above the top edge, so it is not on this face (a wrong surface): not found, fraction > 1.
+    X_hi = to_sonar(base + np.array([0.0, 0.0, 1.1]))
+    r_hi, th_hi, ph_hi = spherical_from_sonar(X_hi[None])
+    hi = face_planes(rig, bed, r_hi, th_hi, [1], np.zeros((1, 3)), [False], ph_hi, labels, extra=bc)
+    assert not hi.found[0] and hi.fit_height[0] > 1.3
