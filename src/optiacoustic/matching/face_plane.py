@@ -23,6 +23,14 @@ one with most creases within ``inlier_m`` and refines it on those by
 across (one beam's), the plane is taken square to the sonar's look direction through their median
 (the crease point of :mod:`.contact`).
 
+A face's features give few creases (a median of 4 per plane on the training scenes), but every
+beam that crosses a vertical face starts an echo at its top edge, feature or not:
+:func:`beam_creases` takes one crease per echo start (:func:`echo_run_starts`) of every beam the
+face's features span, where that beam's arc leaves the face's image region going up, and
+:func:`face_planes` fits them beside the features' own (``extra``; a median of 16 inliers). Where the
+arc meets the plane, as a fraction of the face's height (``FacePlaneChoice.fit_height``), also says
+whether the echo fits on the face at all: outside [0, 1] the arc search's surface is a wrong one.
+
 The prior (vertical faces on a seabed) fails on spheres, lying cylinders and tilted faces; the
 score (:mod:`.match`) decides whether the plane's point is taken. Vectorised over features and
 hypotheses; the only Python loop is over faces.
