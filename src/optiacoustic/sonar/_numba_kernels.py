@@ -332,79 +332,130 @@ def shares(parts, intensity, slot_of_share, r0, r1, out):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def noise_gaussian(I, shares, N, cumw, lams, U, E, psi, target_speckle, use_psi, r0, r1, out):
-    """The thesis noise model with Rayleigh-family bottoms, rows ``r0..r1`` (``NoiseModel._apply_numpy``).
+def noise_counter(I, shares, N, cumw, lams, k0, k1, stream, gaussian_bottom, target_speckle, use_psi, r0, r1, out):
+    """The thesis noise model (``NoiseModel``, Rayleigh-family bottoms or none), rows ``r0..r1``, its
+    variates drawn here from a counter stream (``NoiseModel._apply_numpy`` on the same words).
 
-    Per cell: bottom types ``t`` add circular Gaussian power ``I share_t lam_t[c]`` (component
-    ``c`` from ``U[t]`` against the cumulative weights), the noise floor ``N`` and (with
-    target speckle) the target echo add theirs: ``P``. A steady target (no speckle) is
-    ``S``. The intensity is ``S + P E + 2 sqrt(S P E) cos(psi)``.
+    Each cell ``n = i J + j`` has the words of Philox4x32-10 of the counters ``(n, b, stream, 0)``
+    under the key ``(k0, k1)``, ``b = 0 .. n_blocks - 1`` (:func:`_counter_words_row`): word 0 its
+    exponential ``E = -ln x``, ``x = (w0 + 1/2) 2^-32`` (:func:`_radius2_row`'s ``ln``, halved),
+    word 1 its phase ``psi = 2 pi w1 2^-32`` (:func:`_normals_row`'s ``cos``), word ``2 + t`` the
+    mixture component's uniform ``(w + 1/2) 2^-32`` of bottom type ``t``. So a cell's numbers depend
+    on its index alone: any rows, any thread, the same image, and no array of draws.
+
+    Per cell: bottom types ``t`` add their share ``I share_t`` to the bottom; Gaussian bottoms
+    (``gaussian_bottom``) add circular Gaussian power ``I share_t lam_t[c]`` (component ``c``: the
+    cumulative weights ``cumw[t]`` the uniform passes) to ``P``, which starts at the noise floor
+    ``N``; the target echo ``max(I - bottom, 0)`` joins ``P`` (``target_speckle``) or is the steady
+    part ``S``. Without reverberation the bottom is steady (``S = bottom``, the target speckled) or
+    the whole echo is (``S = I``). The intensity is ``max(S + P E + 2 sqrt(S P E) cos psi, 0)``
+    (``use_psi``), or ``P E`` when nothing is steady.
     """
     T = shares.shape[0]
     C = lams.shape[1]
     J = I.shape[1]
+    n_blocks = (2 + T + 3) // 4
+    w = np.empty((4 * n_blocks, J), np.uint32)
+    x = np.empty(J)
+    e = np.empty(J)
+    mant = np.empty(J)
+    r2 = np.empty(J, np.float32)
+    u = np.empty(J)
+    cs = np.empty(2 * J, np.float32)
+    ones = np.ones(J, np.float32)
+    r2_one = np.full(J, np.float32(2.0))  # sqrt(1 x 1/2 x 2) = 1: the unscaled (cos, sin) pair
+    half = np.float32(0.5)
     two = np.float32(2.0)
-    if T == 1 and target_speckle and C <= 4:  # one bottom type, speckled targets: the thesis scenes
-        _noise_one_bottom(I, shares, N, cumw, lams, U, E, r0, r1, out)
-        return
-    for bb in range(r0, r1):
-        n = N[bb]
-        for j in range(J):
-            x = I[bb, j]
-            bottom = np.float32(0.0)
-            P = n
-            for t in range(T):
-                part = x * shares[t, bb, j]
-                bottom += part
-                k = 0
-                if C > 1:  # component: how many cumulative weights u passes (no branch on random data)
-                    uu = U[t, bb, j]
-                    for c in range(C - 1):
-                        k += np.int64(uu >= cumw[t, c])
-                lam = lams[t, k]
-                P += part * np.float32(lam)
-            target = max(x - bottom, np.float32(0.0))
-            e = E[bb, j]
-            if target_speckle:
-                out[bb, j] = (P + target) * e
-            else:
-                pe = P * e
-                v = target + pe
-                if use_psi:
-                    v += two * np.sqrt(target * pe) * np.cos(psi[bb, j])
-                out[bb, j] = max(v, np.float32(0.0))
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _noise_one_bottom(I, shares, N, cumw, lams, U, E, r0, r1, out):
-    """:func:`noise_gaussian` for one bottom type of at most 4 mixture components with target
-    speckle: ``(N + I share lam_c + max(I - I share, 0)) E``, the component by selects (no inner
-    loops, no branches on the data), the same numbers as the general loop."""
-    C = lams.shape[1]
-    two = np.float32(2.0)  # above any uniform: a threshold never passed
-    c0 = cumw[0, 0] if C > 1 else two
-    c1 = cumw[0, 1] if C > 2 else two
-    c2 = cumw[0, 2] if C > 3 else two
-    l0 = np.float32(lams[0, 0])
-    l1 = np.float32(lams[0, 1]) if C > 1 else l0
-    l2 = np.float32(lams[0, 2]) if C > 2 else l0
-    l3 = np.float32(lams[0, 3]) if C > 3 else l0
-    J = I.shape[1]
     zero = np.float32(0.0)
-    for bb in range(r0, r1):
-        n = N[bb]
-        for j in range(J):
-            x = I[bb, j]
-            part = x * shares[0, bb, j]
-            lam = l0
-            if C > 1:
-                uu = U[0, bb, j]
+    fast = T == 1 and gaussian_bottom and target_speckle and C <= 4
+    c0 = cumw[0, 0] if fast and C > 1 else 2.0  # above any uniform: a threshold never passed
+    c1 = cumw[0, 1] if fast and C > 2 else 2.0
+    c2 = cumw[0, 2] if fast and C > 3 else 2.0
+    l0 = np.float32(lams[0, 0]) if fast else zero
+    l1 = np.float32(lams[0, 1]) if fast and C > 1 else l0
+    l2 = np.float32(lams[0, 2]) if fast and C > 2 else l0
+    l3 = np.float32(lams[0, 3]) if fast and C > 3 else l0
+    for i in range(r0, r1):
+        for b in range(n_blocks):
+            _counter_words_row(k0, k1, i * J, b, stream, w[4 * b], w[4 * b + 1], w[4 * b + 2], w[4 * b + 3])
+        _radius2_row(w[0], x, e, mant, r2)  # -2 ln x: E = r2 / 2 (exact in float32)
+        n = N[i]
+        Ii = I[i]
+        oi = out[i]
+        if fast:  # one bottom type, speckled targets (the thesis scenes): selects only, the loop vectorises
+            _uniform_bits_row(w[2], u)
+            si = shares[0, i]
+            for j in range(J):
+                xx = Ii[j]
+                part = xx * si[j]
+                uu = u[j]
+                lam = l0
                 lam = l1 if uu >= c0 else lam
                 lam = l2 if uu >= c1 else lam
                 lam = l3 if uu >= c2 else lam
-            P = n + part * lam
-            target = max(x - part, zero)
-            out[bb, j] = (P + target) * E[bb, j]
+                P = n + part * lam
+                target = max(xx - part, zero)
+                oi[j] = (P + target) * (r2[j] * half)
+            continue
+        if use_psi:
+            _normals_row(w[1], r2_one, ones, cs)
+        for j in range(J):
+            xx = Ii[j]
+            bottom = zero
+            P = n
+            for t in range(T):
+                part = xx * shares[t, i, j]
+                bottom += part
+                if gaussian_bottom:
+                    k = 0
+                    if C > 1:  # component: how many cumulative weights the uniform passes
+                        uu = (np.float64(np.int32(np.int64(w[2 + t, j]) - 2147483648)) + 2147483648.5) * (2.0 ** -32)
+                        for c in range(C - 1):
+                            k += np.int64(uu >= cumw[t, c])
+                    P += part * np.float32(lams[t, k])
+            target = max(xx - bottom, zero)
+            S = zero
+            if gaussian_bottom:
+                if target_speckle:
+                    P += target
+                else:
+                    S = target
+            elif target_speckle:
+                P += target
+                S = bottom
+            else:
+                S = xx
+            pe = P * (r2[j] * half)
+            v = S + pe
+            if use_psi:
+                v += two * np.sqrt(max(S, zero) * pe) * cs[2 * j]
+            oi[j] = max(v, zero)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _counter_words_row(k0, k1, first, block, stream, w0, w1, w2, w3):
+    """Words 0..3 of Philox4x32-10 of the counters ``(cell, block, stream, 0)`` under the key
+    ``(k0, k1)``, cells ``first .. first + len(w0)`` (uint32 rows ``w0 .. w3``)."""
+    z = np.uint32(0)
+    bk = np.uint32(block)
+    st = np.uint32(stream)
+    for j in range(w0.size):
+        a, b, c, d = _philox(np.uint32(first + j), bk, st, z, k0, k1)
+        w0[j] = a
+        w1[j] = b
+        w2[j] = c
+        w3[j] = d
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def counter_words(k0, k1, stream, r0, r1, out):
+    """The words of :func:`noise_counter`, rows ``r0..r1``, into ``out`` (4 n_blocks, B, J) uint32
+    (the tests compare them with ``noise._philox_numpy``)."""
+    J = out.shape[2]
+    for i in range(r0, r1):
+        for b in range(out.shape[0] // 4):
+            _counter_words_row(k0, k1, i * J, b, stream, out[4 * b, i], out[4 * b + 1, i], out[4 * b + 2, i],
+                               out[4 * b + 3, i])
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
