@@ -203,3 +203,18 @@ def test_draws_are_a_key_for_the_thesis_models_and_arrays_for_weibull_and_k():
     with pytest.raises(ValueError, match="draws"):
         NoiseModel(reverberation="k").apply(I, spec=SPEC, seabed_share={}, options=OPT,
                                             draws=NoiseModel().draw(SHAPE, [], rng))
+
+
+def test_numpy_philox_known_answer_and_chunks():
+    """The numpy reference generator (in chunks of 32 768 counters) on Random123's first known-answer
+    vector, and across chunk boundaries against the kernel's words for counters with ``c1``, ``c2``."""
+    from optiacoustic.sonar import _numba_kernels as kn
+
+    assert [int(w[0]) for w in N._philox_numpy(np.array([0]), (0, 0))] == [0x6627E8D5, 0xE169C58D, 0xBC57AC4C,
+                                                                          0x9B00DBD8]
+    cells = np.arange(70_001)
+    ref = np.stack(N._philox_numpy(cells, (31, 4), 2, 1))
+    for k in (0, 32_767, 32_768, 65_536, 70_000):
+        out = np.zeros(4, np.uint32)
+        kn.philox_block(k, 2, 1, 0, 31, 4, out)
+        assert np.array_equal(ref[:, k], out), k

@@ -633,21 +633,42 @@ _PHILOX_W = (0x9E3779B9, 0xBB67AE85)
 
 
 def _philox_numpy(cells: np.ndarray, key, c1: int = 0, c2: int = 0) -> tuple:
-    """Philox4x32-10 of counters ``(cells, c1, c2, 0)`` under ``key``: four uint32 arrays (numpy
-    reference of the kernels' generator)."""
-    c0 = np.asarray(cells).astype(np.uint64) & np.uint64(0xFFFFFFFF)
-    c1 = np.full_like(c0, c1)
-    c2 = np.full_like(c0, c2)
-    c3 = np.zeros_like(c0)
-    k0, k1 = np.uint64(int(key[0])), np.uint64(int(key[1]))
-    mask = np.uint64(0xFFFFFFFF)
+    """Philox4x32-10 of counters ``(cells, c1, c2, 0)`` under ``key``: four uint32 arrays of the shape
+    of ``cells`` (numpy reference of the kernels' generator). In chunks of 32 768 counters whose
+    uint64 scratch stays in cache, every operation in place (issue 14: 5x faster than whole-array
+    temporaries, the same words)."""
+    cells = np.asarray(cells)
+    flat = cells.reshape(-1)
+    n = flat.size
+    out = np.empty((4, n), np.uint32)
+    m0, m1 = np.uint64(_PHILOX_M[0]), np.uint64(_PHILOX_M[1])
+    mask, s32 = np.uint64(0xFFFFFFFF), np.uint64(32)
+    keys, k0, k1 = [], int(key[0]), int(key[1])
     for _ in range(10):
-        p0 = np.uint64(_PHILOX_M[0]) * c0
-        p1 = np.uint64(_PHILOX_M[1]) * c2
-        c0, c1, c2, c3 = (p1 >> np.uint64(32)) ^ c1 ^ k0, p1 & mask, (p0 >> np.uint64(32)) ^ c3 ^ k1, p0 & mask
-        k0 = (k0 + np.uint64(_PHILOX_W[0])) & mask
-        k1 = (k1 + np.uint64(_PHILOX_W[1])) & mask
-    return tuple(c.astype(np.uint32) for c in (c0, c1, c2, c3))
+        keys.append((np.uint64(k0), np.uint64(k1)))
+        k0, k1 = (k0 + _PHILOX_W[0]) & 0xFFFFFFFF, (k1 + _PHILOX_W[1]) & 0xFFFFFFFF
+    chunk = 1 << 15
+    scratch = np.empty((6, min(chunk, n)), np.uint64)
+    for s in range(0, n, chunk):
+        e = min(s + chunk, n)
+        w0, w1, w2, w3, p0, p1 = scratch[:, : e - s]
+        np.bitwise_and(flat[s:e].astype(np.uint64), mask, out=w0)
+        w1.fill(c1)
+        w2.fill(c2)
+        w3.fill(0)
+        for r0, r1 in keys:  # (w0, w1, w2, w3) <- (hi(p1) ^ w1 ^ k0, lo(p1), hi(p0) ^ w3 ^ k1, lo(p0))
+            np.multiply(w0, m0, out=p0)
+            np.multiply(w2, m1, out=p1)
+            np.right_shift(p1, s32, out=w0)
+            w0 ^= w1
+            w0 ^= r0
+            np.bitwise_and(p1, mask, out=w1)
+            np.right_shift(p0, s32, out=w2)
+            w2 ^= w3
+            w2 ^= r1
+            np.bitwise_and(p0, mask, out=w3)
+        out[:, s:e] = scratch[:4, : e - s]
+    return tuple(w.reshape(cells.shape) for w in out)
 
 
 def cell_words(key, cells: np.ndarray) -> np.ndarray:
