@@ -218,3 +218,37 @@ def test_numpy_philox_known_answer_and_chunks():
         out = np.zeros(4, np.uint32)
         kn.philox_block(k, 2, 1, 0, 31, 4, out)
         assert np.array_equal(ref[:, k], out), k
+
+
+@pytest.mark.parametrize("model", [NoiseModel(), NoiseModel(target_speckle=False), NoiseModel(reverberation=None)])
+def test_variates_formed_beside_the_scan_give_the_same_frame(model):
+    """``simulate_sonar`` with two threads forms the variates beside the scan
+    (``draw(_field=True)``, ``noise_variates`` then ``noise_apply``); with one thread ``apply`` forms
+    them in its own pass (``noise_counter``): the same image to the bit, and the same as ``apply``
+    on the frame's intensity with a fresh key from the same seed."""
+    from optiacoustic import Pose, scenes, simulate_sonar
+    from optiacoustic.raycast import caster_for
+
+    sc = scenes.get("flat_seabed")
+    pose = Pose.look_at((0, -6, 2), (0, 0, 0))
+    spec = dataclasses.replace(SPEC, n_bins=300, n_beams=64, elevation_samples=32)
+    caster = caster_for(sc)
+    old = caster.threads
+    try:
+        caster.threads = 2
+        two = simulate_sonar(sc, spec, pose, noise=model, seed=21)
+        two_b = simulate_sonar(sc, spec, pose, noise=model, seed=21)  # pooled buffers reused
+        caster.threads = 1
+        one = simulate_sonar(sc, spec, pose, noise=model, seed=21)
+    finally:
+        caster.threads = old
+    assert np.array_equal(two.image, one.image) and np.array_equal(two_b.image, one.image)
+    d = model.draw(one.intensity.shape, list(one.seabed_share), np.random.default_rng(21))
+    direct = model.apply(one.intensity, spec=spec, seabed_share=dict(one.seabed_share), options=OPT, draws=d)
+    assert np.array_equal(direct, one.image)
+    d2 = model.draw(one.intensity.shape, list(one.seabed_share), np.random.default_rng(21), _reuse=True, _field=True)
+    assert d2.variates is not None
+    beside = model.apply(one.intensity, spec=spec, seabed_share=dict(one.seabed_share), options=OPT, draws=d2,
+                         threads=2)
+    N.release_noise_draws(d2)
+    assert np.array_equal(beside, one.image)

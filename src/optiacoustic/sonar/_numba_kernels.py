@@ -334,102 +334,152 @@ def shares(parts, intensity, slot_of_share, r0, r1, out):
 @njit(cache=True, nogil=True, error_model="numpy")
 def noise_counter(I, shares, N, cumw, lams, k0, k1, stream, gaussian_bottom, target_speckle, use_psi, r0, r1, out):
     """The thesis noise model (``NoiseModel``, Rayleigh-family bottoms or none), rows ``r0..r1``, its
-    variates drawn here from a counter stream (``NoiseModel._apply_numpy`` on the same words).
-
-    Each cell ``n = i J + j`` has the words of Philox4x32-10 of the counters ``(n, b, stream, 0)``
-    under the key ``(k0, k1)``, ``b = 0 .. n_blocks - 1`` (:func:`_counter_words_row`): word 0 its
-    exponential ``E = -ln x``, ``x = (w0 + 1/2) 2^-32`` (:func:`_radius2_row`'s ``ln``, halved),
-    word 1 its phase ``psi = 2 pi w1 2^-32`` (:func:`_normals_row`'s ``cos``), word ``2 + t`` the
-    mixture component's uniform ``(w + 1/2) 2^-32`` of bottom type ``t``. So a cell's numbers depend
-    on its index alone: any rows, any thread, the same image, and no array of draws.
-
-    Per cell: bottom types ``t`` add their share ``I share_t`` to the bottom; Gaussian bottoms
-    (``gaussian_bottom``) add circular Gaussian power ``I share_t lam_t[c]`` (component ``c``: the
-    cumulative weights ``cumw[t]`` the uniform passes) to ``P``, which starts at the noise floor
-    ``N``; the target echo ``max(I - bottom, 0)`` joins ``P`` (``target_speckle``) or is the steady
-    part ``S``. Without reverberation the bottom is steady (``S = bottom``, the target speckled) or
-    the whole echo is (``S = I``). The intensity is ``max(S + P E + 2 sqrt(S P E) cos psi, 0)``
-    (``use_psi``), or ``P E`` when nothing is steady.
-    """
+    variates drawn here from a counter stream (``NoiseModel._apply_numpy`` on the same words): per
+    row :func:`_noise_variates_row` then :func:`_noise_combine_row`, no array of draws. A cell's
+    numbers depend on its index alone: any rows, any thread, the same image."""
     T = shares.shape[0]
-    C = lams.shape[1]
     J = I.shape[1]
-    n_blocks = (2 + T + 3) // 4
-    w = np.empty((4 * n_blocks, J), np.uint32)
-    x = np.empty(J)
-    e = np.empty(J)
-    mant = np.empty(J)
-    r2 = np.empty(J, np.float32)
-    u = np.empty(J)
-    cs = np.empty(2 * J, np.float32)
-    ones = np.ones(J, np.float32)
-    r2_one = np.full(J, np.float32(2.0))  # sqrt(1 x 1/2 x 2) = 1: the unscaled (cos, sin) pair
-    half = np.float32(0.5)
-    two = np.float32(2.0)
-    zero = np.float32(0.0)
-    fast = T == 1 and gaussian_bottom and target_speckle and C <= 4
-    c0 = cumw[0, 0] if fast and C > 1 else 2.0  # above any uniform: a threshold never passed
-    c1 = cumw[0, 1] if fast and C > 2 else 2.0
-    c2 = cumw[0, 2] if fast and C > 3 else 2.0
-    l0 = np.float32(lams[0, 0]) if fast else zero
-    l1 = np.float32(lams[0, 1]) if fast and C > 1 else l0
-    l2 = np.float32(lams[0, 2]) if fast and C > 2 else l0
-    l3 = np.float32(lams[0, 3]) if fast and C > 3 else l0
+    s = _noise_scratch(T, J)
+    E = np.empty(J, np.float32)
+    lam = np.empty((T, J), np.float32)
+    cs = np.empty(J, np.float32)
     for i in range(r0, r1):
-        for b in range(n_blocks):
-            _counter_words_row(k0, k1, i * J, b, stream, w[4 * b], w[4 * b + 1], w[4 * b + 2], w[4 * b + 3])
-        _radius2_row(w[0], x, e, mant, r2)  # -2 ln x: E = r2 / 2 (exact in float32)
-        n = N[i]
-        Ii = I[i]
-        oi = out[i]
-        if fast:  # one bottom type, speckled targets (the thesis scenes): selects only, the loop vectorises
-            _uniform_bits_row(w[2], u)
-            si = shares[0, i]
+        _noise_variates_row(i, k0, k1, stream, cumw, lams, gaussian_bottom, use_psi, s, E, lam, cs)
+        _noise_combine_row(I[i], shares[:, i], N[i], E, lam, cs, gaussian_bottom, target_speckle, use_psi, out[i])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def noise_variates(k0, k1, stream, cumw, lams, gaussian_bottom, use_psi, r0, r1, E, lam, cs):
+    """The echo-free part of :func:`noise_counter`, rows ``r0..r1``: ``E`` (B, J) float32, the
+    component's power ``lam`` (T, B, J) float32 per bottom type (``gaussian_bottom``) and
+    ``cos psi`` ``cs`` (B, J) float32 (``use_psi``), as :func:`_noise_variates_row` forms them.
+    Drawn beside the scan (``NoiseModel.draw(..., _field=True)``); :func:`noise_apply` finishes the
+    image from them, the same numbers as :func:`noise_counter`."""
+    T = lam.shape[0]
+    J = E.shape[1]
+    s = _noise_scratch(T, J)
+    lam_row = np.empty((T, J), np.float32)
+    for i in range(r0, r1):
+        _noise_variates_row(i, k0, k1, stream, cumw, lams, gaussian_bottom, use_psi, s, E[i], lam_row, cs[i])
+        for t in range(T):
+            lam[t, i] = lam_row[t]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def noise_apply(I, shares, N, E, lam, cs, gaussian_bottom, target_speckle, use_psi, r0, r1, out):
+    """:func:`noise_counter` from the variates :func:`noise_variates` formed beforehand (the same numbers)."""
+    for i in range(r0, r1):
+        _noise_combine_row(I[i], shares[:, i], N[i], E[i], lam[:, i], cs[i], gaussian_bottom, target_speckle,
+                           use_psi, out[i])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _noise_scratch(T, J):
+    """Per-call scratch of :func:`_noise_variates_row`: the words (4 a block), the float64 rows of the
+    ``ln`` and of the uniforms, ``-2 ln x``, and the unit pair ``(cos, sin)``."""
+    n_blocks = (2 + T + 3) // 4
+    return (np.empty((4 * n_blocks, J), np.uint32), np.empty(J), np.empty(J), np.empty(J),
+            np.empty(J, np.float32), np.empty(J), np.empty(2 * J, np.float32), np.ones(J, np.float32),
+            np.full(J, np.float32(2.0)))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _noise_variates_row(i, k0, k1, stream, cumw, lams, gaussian_bottom, use_psi, s, E, lam, cs):
+    """The variates of row ``i`` from its counter words. Cell ``n = i J + j`` has the words of
+    Philox4x32-10 of the counters ``(n, b, stream, 0)`` under the key ``(k0, k1)``,
+    ``b = 0 .. n_blocks - 1`` (:func:`_counter_words_row`): word 0 gives ``E = -ln x``,
+    ``x = (w0 + 1/2) 2^-32`` (:func:`_radius2_row`'s ``-2 ln x``, halved: exact), word 1
+    ``cos psi``, ``psi = 2 pi w1 2^-32`` (:func:`_normals_row`'s ``cos``), word ``2 + t`` the
+    uniform ``(w + 1/2) 2^-32`` of bottom type ``t``'s mixture component, whose power
+    ``lams[t, c]`` goes to ``lam[t]`` (``c``: the cumulative weights ``cumw[t]`` it passes)."""
+    w, x, e, mant, r2, u, pair, ones, r2_one = s
+    J = E.size
+    T = lam.shape[0] if gaussian_bottom else 0
+    C = lams.shape[1]
+    for b in range(w.shape[0] // 4):
+        _counter_words_row(k0, k1, i * J, b, stream, w[4 * b], w[4 * b + 1], w[4 * b + 2], w[4 * b + 3])
+    _radius2_row(w[0], x, e, mant, r2)
+    half = np.float32(0.5)
+    for j in range(J):
+        E[j] = r2[j] * half
+    if use_psi:
+        _normals_row(w[1], r2_one, ones, pair)  # sqrt(1 x 1/2 x 2) = 1: the unscaled (cos, sin) pair
+        for j in range(J):
+            cs[j] = pair[2 * j]
+    for t in range(T):
+        lt = lam[t]
+        _uniform_bits_row(w[2 + t], u)
+        if C <= 4:  # thresholds by selects (no inner loop, no branch on the data): the loop vectorises
+            c0 = cumw[t, 0] if C > 1 else 2.0  # above any uniform: a threshold never passed
+            c1 = cumw[t, 1] if C > 2 else 2.0
+            c2 = cumw[t, 2] if C > 3 else 2.0
+            l0 = np.float32(lams[t, 0])
+            l1 = np.float32(lams[t, 1]) if C > 1 else l0
+            l2 = np.float32(lams[t, 2]) if C > 2 else l0
+            l3 = np.float32(lams[t, 3]) if C > 3 else l0
             for j in range(J):
-                xx = Ii[j]
-                part = xx * si[j]
                 uu = u[j]
-                lam = l0
-                lam = l1 if uu >= c0 else lam
-                lam = l2 if uu >= c1 else lam
-                lam = l3 if uu >= c2 else lam
-                P = n + part * lam
-                target = max(xx - part, zero)
-                oi[j] = (P + target) * (r2[j] * half)
-            continue
-        if use_psi:
-            _normals_row(w[1], r2_one, ones, cs)
+                v = l0
+                v = l1 if uu >= c0 else v
+                v = l2 if uu >= c1 else v
+                v = l3 if uu >= c2 else v
+                lt[j] = v
+        else:
+            for j in range(J):
+                k = 0
+                for c in range(C - 1):
+                    k += np.int64(u[j] >= cumw[t, c])
+                lt[j] = np.float32(lams[t, k])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _noise_combine_row(Ii, sh, n, E, lam, cs, gaussian_bottom, target_speckle, use_psi, oi):
+    """One row of the image from its variates (:func:`_noise_variates_row`). Per cell: bottom types
+    ``t`` add their share ``I share_t`` to the bottom; Gaussian bottoms add circular Gaussian power
+    ``I share_t lam_t`` to ``P``, which starts at the noise floor ``n``; the target echo
+    ``max(I - bottom, 0)`` joins ``P`` (``target_speckle``) or is the steady part ``S``. Without
+    reverberation the bottom is steady (``S = bottom``, the target speckled) or the whole echo is
+    (``S = I``). The intensity is ``max(S + P E + 2 sqrt(S P E) cos psi, 0)`` (``use_psi``)."""
+    T = sh.shape[0]
+    J = Ii.size
+    zero = np.float32(0.0)
+    two = np.float32(2.0)
+    if T == 1 and gaussian_bottom and target_speckle:  # the thesis scenes: the loop vectorises
+        s0 = sh[0]
+        l0 = lam[0]
         for j in range(J):
             xx = Ii[j]
-            bottom = zero
-            P = n
-            for t in range(T):
-                part = xx * shares[t, i, j]
-                bottom += part
-                if gaussian_bottom:
-                    k = 0
-                    if C > 1:  # component: how many cumulative weights the uniform passes
-                        uu = (np.float64(np.int32(np.int64(w[2 + t, j]) - 2147483648)) + 2147483648.5) * (2.0 ** -32)
-                        for c in range(C - 1):
-                            k += np.int64(uu >= cumw[t, c])
-                    P += part * np.float32(lams[t, k])
-            target = max(xx - bottom, zero)
-            S = zero
+            part = xx * s0[j]
+            P = n + part * l0[j]
+            target = max(xx - part, zero)
+            oi[j] = (P + target) * E[j]
+        return
+    for j in range(J):
+        xx = Ii[j]
+        bottom = zero
+        P = n
+        for t in range(T):
+            part = xx * sh[t, j]
+            bottom += part
             if gaussian_bottom:
-                if target_speckle:
-                    P += target
-                else:
-                    S = target
-            elif target_speckle:
+                P += part * lam[t, j]
+        target = max(xx - bottom, zero)
+        S = zero
+        if gaussian_bottom:
+            if target_speckle:
                 P += target
-                S = bottom
             else:
-                S = xx
-            pe = P * (r2[j] * half)
-            v = S + pe
-            if use_psi:
-                v += two * np.sqrt(max(S, zero) * pe) * cs[2 * j]
-            oi[j] = max(v, zero)
+                S = target
+        elif target_speckle:
+            P += target
+            S = bottom
+        else:
+            S = xx
+        pe = P * E[j]
+        v = S + pe
+        if use_psi:
+            v += two * np.sqrt(max(S, zero) * pe) * cs[j]
+        oi[j] = max(v, zero)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

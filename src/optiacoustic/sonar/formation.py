@@ -441,17 +441,15 @@ def simulate_sonar(
                                         for m in (ScattererNoise, NoiseModel))
     if pooled:  # its variates in pooled buffers, handed back once the noise has read them (fresh ones fault)
         draw_args = (functools.partial(noise.draw, _reuse=True),) + draw_args[1:]
-    # the thesis model's Rayleigh-family noise draws only a key (its variates come from a counter stream
-    # inside apply's kernel): nothing worth a second core beside the scan
-    beside_scan = draw_args is not None and not (isinstance(noise, NoiseModel) and noise._counter())
 
     def start_draws():
         # the noise variates do not depend on the echo: with a second thread, draw them on the other
         # core once the primary cast (which takes every thread) is done, beside the one-thread stages
-        # (the scatterer noise: the echo-free part of its field too)
+        # (the scatterer noise: the echo-free part of its field too; the thesis model: its variates from
+        # the counter stream, which apply would otherwise form in its own pass)
         nonlocal draws
-        if beside_scan and caster.threads > 1:
-            beside = {"_field": True} if pooled and isinstance(noise, ScattererNoise) else {}
+        if draw_args is not None and caster.threads > 1:
+            beside = {"_field": True} if pooled else {}
             draws = _background().submit(*draw_args, **beside)
 
     sspec = scan_spec(spec, options.beam_model)
@@ -462,8 +460,8 @@ def simulate_sonar(
         # the footprints (0.3 ms) on this thread alone while the draws take the other core: split, the
         # part handed to the pool waited for a core the draws hold (1-1.5 ms at two threads)
         rays = img_rays = _scan(scene, caster, sspec, pose, options, after_cast=start_draws,
-                                footprint_threads=1 if beside_scan else None)
-    if draws is None and draw_args is not None:  # one thread, or only a key to draw: drawn here, in line
+                                footprint_threads=1 if draw_args is not None else None)
+    if draws is None and draw_args is not None:  # one thread: drawn here, in line
         draws = _done(draw_args[0](*draw_args[1:]))
     area = None
     if isinstance(img_rays, _ApertureCells):

@@ -122,7 +122,7 @@ class NoiseModel:
         return self.reverberation is None or self._gaussian_bottom()
 
     def draw(self, shape: tuple, bottom_types, rng: np.random.Generator, *,
-             _reuse: bool = False) -> "NoiseKey | NoiseDraws":
+             _reuse: bool = False, _field: bool = False) -> "NoiseKey | NoiseDraws":
         """The frame's random variates, or the key they are computed from; independent of the echo.
 
         Rayleigh-family bottoms and no reverberation (the thesis's models): a :class:`NoiseKey`, two
@@ -134,12 +134,28 @@ class NoiseModel:
         amplitude ``x``; then ``E``, then the phases), so a seed gives the same image.
         ``_reuse`` (``simulate_sonar``): those arrays go into buffers of
         ``sonar._kernels.pooled`` (the same numbers: ``out=``), which the caller hands back
-        (:func:`release_noise_draws`) once :meth:`apply` has read them.
+        (:func:`release_noise_draws`) once :meth:`apply` has read them. ``_field``
+        (``simulate_sonar`` with a second thread: this runs beside the scan) with ``_reuse``: the
+        key's echo-free variates are formed now, into pooled buffers (``E``, each bottom type's
+        component power, ``cos psi``: ``_numba_kernels.noise_variates``), and :meth:`apply`
+        finishes the image from them, the same numbers as without.
         """
-        from ._kernels import pooled
+        from ._kernels import kernels, pooled, use_numba
 
         if self._counter():
-            return NoiseKey(rng.integers(0, 2**32, size=2, dtype=np.uint32), tuple(shape))
+            key = NoiseKey(rng.integers(0, 2**32, size=2, dtype=np.uint32), tuple(shape))
+            if not (_field and _reuse and use_numba()):
+                return key
+            B, J = key.shape
+            types = tuple(dict.fromkeys(bottom_types))
+            cumw, lams = self._component_tables(types)
+            use_psi = self._needs_psi()
+            T = len(types) if self._gaussian_bottom() else 0
+            v = (pooled((B, J), np.float32), pooled((T, B, J), np.float32),
+                 pooled((B, J) if use_psi else (B, 0), np.float32))
+            kernels().noise_variates(np.uint32(key.key[0]), np.uint32(key.key[1]), _STREAM, cumw, lams,
+                                     self._gaussian_bottom(), use_psi, 0, B, *v)
+            return NoiseKey(key.key, key.shape, types, v)
         shape = tuple(shape)
         buf = (lambda: pooled(shape, np.float32)) if _reuse else (lambda: None)  # noqa: E731
         x = {}
@@ -190,27 +206,38 @@ class NoiseModel:
         noise = self.noise_power(I, spec.ranges, spec.frequency, options.propagation, options.water)
         types = list(seabed_share)
         if isinstance(draws, NoiseKey) and use_numba():
-            T = len(types)
-            tables = [_mixture_table(bottom_model_for(self, t)) for t in types] if self._gaussian_bottom() else []
-            C = max([len(w) for w, _ in tables], default=1)
-            cumw = np.ones((max(T, 1), C))
-            lams = np.zeros((max(T, 1), C))
-            for k, (w, lam) in enumerate(tables):  # pad with zero-weight copies of the last component
-                cumw[k, : len(w) - 1] = np.cumsum(w)[:-1]
-                lams[k, : len(w)] = lam
-                lams[k, len(w):] = lam[-1]
             sh = _stack([np.asarray(seabed_share[t], np.float32) for t in types], shape)
             out = np.empty(shape, np.float32)
             kn = kernels()
-            k0, k1 = np.uint32(draws.key[0]), np.uint32(draws.key[1])
+            gauss, speckle, use_psi = self._gaussian_bottom(), self.target_speckle, self._needs_psi()
             # rows in chunks that the threads take as they finish (a cell's words are its index's: the same numbers)
-            chunked_run(lambda r0, r1: kn.noise_counter(I, sh, noise, cumw, lams, k0, k1, _STREAM,
-                                                        self._gaussian_bottom(), self.target_speckle,
-                                                        self._needs_psi(), r0, r1, out), shape[0], threads)
+            if draws.variates is not None and draws.types == tuple(types):  # formed beside the scan
+                E, lam, cs = draws.variates
+                chunked_run(lambda r0, r1: kn.noise_apply(I, sh, noise, E, lam, cs, gauss, speckle, use_psi, r0, r1,
+                                                          out), shape[0], threads)
+                return out
+            cumw, lams = self._component_tables(types)
+            k0, k1 = np.uint32(draws.key[0]), np.uint32(draws.key[1])
+            chunked_run(lambda r0, r1: kn.noise_counter(I, sh, noise, cumw, lams, k0, k1, _STREAM, gauss, speckle,
+                                                        use_psi, r0, r1, out), shape[0], threads)
             return out
         if isinstance(draws, NoiseKey):
             draws = _counter_draws(draws, types, self._needs_psi())
         return self._apply_numpy(I, noise[:, None], seabed_share, draws)
+
+    def _component_tables(self, types) -> tuple:
+        """``(cumw, lams)`` ``(max(T, 1), C)`` float64 of the bottom types ``types``: each mixture's
+        cumulative weights (1 beyond its last threshold) and component powers (the last repeated),
+        padded to the most components ``C``."""
+        tables = [_mixture_table(bottom_model_for(self, t)) for t in types] if self._gaussian_bottom() else []
+        C = max([len(w) for w, _ in tables], default=1)
+        cumw = np.ones((max(len(types), 1), C))
+        lams = np.zeros((max(len(types), 1), C))
+        for k, (w, lam) in enumerate(tables):  # pad with zero-weight copies of the last component
+            cumw[k, : len(w) - 1] = np.cumsum(w)[:-1]
+            lams[k, : len(w)] = lam
+            lams[k, len(w):] = lam[-1]
+        return cumw, lams
 
     def _apply_numpy(self, I, noise, seabed_share, draws):
         """The reference implementation of :meth:`apply` (``OAS_KERNELS=numpy``)."""
@@ -313,6 +340,8 @@ def release_noise_draws(draws: "NoiseKey | NoiseDraws") -> None:
 
     if isinstance(draws, NoiseDraws):
         give_back(draws.e, *draws.u.values(), draws.phase, draws.psi)
+    elif draws.variates is not None:
+        give_back(*draws.variates)
 
 
 #: Counter word 2 of the thesis model's Philox blocks (the scatterer noise's words have 0 there): the
@@ -324,10 +353,14 @@ _STREAM = 1
 class NoiseKey:
     """The thesis model's draws of one frame (``NoiseModel.draw``): the key ``(2,)`` uint32 of its
     counter stream, for an image of ``shape`` ``(n_bins, n_beams)``. The variates of cell
-    ``(i, j)`` are functions of ``(key, i n_beams + j)`` alone (:func:`counter_words`)."""
+    ``(i, j)`` are functions of ``(key, i n_beams + j)`` alone (:func:`counter_words`). With a second
+    thread ``simulate_sonar`` has them formed beside the scan: ``variates`` (pooled buffers, for the
+    bottom types ``types`` in that order; handed back by :func:`release_noise_draws`)."""
 
     key: np.ndarray
     shape: tuple
+    types: tuple = ()
+    variates: Optional[tuple] = None  # (E, lam, cos psi) formed beside the scan (``draw(_field=True)``)
 
 
 def _n_blocks(n_types: int) -> int:
