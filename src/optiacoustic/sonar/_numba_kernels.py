@@ -340,37 +340,31 @@ def noise_counter(I, shares, N, cumw, lams, k0, k1, stream, gaussian_bottom, tar
     T = shares.shape[0]
     J = I.shape[1]
     s = _noise_scratch(T, J)
-    E = np.empty(J, np.float32)
-    lam = np.empty((T, J), np.float32)
-    cs = np.empty(J, np.float32)
+    E = np.empty((1, J), np.float32)
+    lam = np.empty((T, 1, J), np.float32)
+    cs = np.empty((1, J), np.float32)
     for i in range(r0, r1):
-        _noise_variates_row(i, k0, k1, stream, cumw, lams, gaussian_bottom, use_psi, s, E, lam, cs)
-        _noise_combine_row(I[i], shares[:, i], N[i], E, lam, cs, gaussian_bottom, target_speckle, use_psi, out[i])
+        _noise_variates_row(i, k0, k1, stream, cumw, lams, gaussian_bottom, use_psi, s, E, lam, cs, 0)
+        _noise_combine_row(I, shares, N, i, E, lam, cs, 0, gaussian_bottom, target_speckle, use_psi, out)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def noise_variates(k0, k1, stream, cumw, lams, gaussian_bottom, use_psi, r0, r1, E, lam, cs):
     """The echo-free part of :func:`noise_counter`, rows ``r0..r1``: ``E`` (B, J) float32, the
     component's power ``lam`` (T, B, J) float32 per bottom type (``gaussian_bottom``) and
-    ``cos psi`` ``cs`` (B, J) float32 (``use_psi``), as :func:`_noise_variates_row` forms them.
-    Drawn beside the scan (``NoiseModel.draw(..., _field=True)``); :func:`noise_apply` finishes the
-    image from them, the same numbers as :func:`noise_counter`."""
-    T = lam.shape[0]
-    J = E.shape[1]
-    s = _noise_scratch(T, J)
-    lam_row = np.empty((T, J), np.float32)
+    ``cos psi`` ``cs`` (B, J) float32 (``use_psi``; else (B, 0)), as :func:`_noise_variates_row`
+    forms them. Drawn beside the scan (``NoiseModel.draw(..., _field=True)``); :func:`noise_apply`
+    finishes the image from them, the same numbers as :func:`noise_counter`."""
+    s = _noise_scratch(lam.shape[0], E.shape[1])
     for i in range(r0, r1):
-        _noise_variates_row(i, k0, k1, stream, cumw, lams, gaussian_bottom, use_psi, s, E[i], lam_row, cs[i])
-        for t in range(T):
-            lam[t, i] = lam_row[t]
+        _noise_variates_row(i, k0, k1, stream, cumw, lams, gaussian_bottom, use_psi, s, E, lam, cs, i)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def noise_apply(I, shares, N, E, lam, cs, gaussian_bottom, target_speckle, use_psi, r0, r1, out):
     """:func:`noise_counter` from the variates :func:`noise_variates` formed beforehand (the same numbers)."""
     for i in range(r0, r1):
-        _noise_combine_row(I[i], shares[:, i], N[i], E[i], lam[:, i], cs[i], gaussian_bottom, target_speckle,
-                           use_psi, out[i])
+        _noise_combine_row(I, shares, N, i, E, lam, cs, i, gaussian_bottom, target_speckle, use_psi, out)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -384,30 +378,34 @@ def _noise_scratch(T, J):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _noise_variates_row(i, k0, k1, stream, cumw, lams, gaussian_bottom, use_psi, s, E, lam, cs):
-    """The variates of row ``i`` from its counter words. Cell ``n = i J + j`` has the words of
-    Philox4x32-10 of the counters ``(n, b, stream, 0)`` under the key ``(k0, k1)``,
-    ``b = 0 .. n_blocks - 1`` (:func:`_counter_words_row`): word 0 gives ``E = -ln x``,
-    ``x = (w0 + 1/2) 2^-32`` (:func:`_radius2_row`'s ``-2 ln x``, halved: exact), word 1
-    ``cos psi``, ``psi = 2 pi w1 2^-32`` (:func:`_normals_row`'s ``cos``), word ``2 + t`` the
-    uniform ``(w + 1/2) 2^-32`` of bottom type ``t``'s mixture component, whose power
-    ``lams[t, c]`` goes to ``lam[t]`` (``c``: the cumulative weights ``cumw[t]`` it passes)."""
+def _noise_variates_row(i, k0, k1, stream, cumw, lams, gaussian_bottom, use_psi, s, E, lam, cs, q):
+    """The variates of image row ``i`` from its counter words, into row ``q`` of ``E`` (., J), ``lam``
+    (T, ., J) and ``cs`` (., J) (whole arrays and a row index: their rows are contiguous for the
+    compiler, so the loops vectorise). Cell ``n = i J + j`` has the words of Philox4x32-10 of the
+    counters ``(n, b, stream, 0)`` under the key ``(k0, k1)``, ``b = 0 .. n_blocks - 1``
+    (:func:`_counter_words_row`): word 0 gives ``E = -ln x``, ``x = (w0 + 1/2) 2^-32``
+    (:func:`_radius2_row`'s ``-2 ln x``, halved: exact), word 1 ``cos psi``,
+    ``psi = 2 pi w1 2^-32`` (:func:`_normals_row`'s ``cos``), word ``2 + t`` the uniform
+    ``(w + 1/2) 2^-32`` of bottom type ``t``'s mixture component, whose power ``lams[t, c]`` goes to
+    ``lam[t]`` (``c``: the cumulative weights ``cumw[t]`` it passes)."""
     w, x, e, mant, r2, u, pair, ones, r2_one = s
-    J = E.size
+    J = E.shape[1]
     T = lam.shape[0] if gaussian_bottom else 0
     C = lams.shape[1]
     for b in range(w.shape[0] // 4):
         _counter_words_row(k0, k1, i * J, b, stream, w[4 * b], w[4 * b + 1], w[4 * b + 2], w[4 * b + 3])
     _radius2_row(w[0], x, e, mant, r2)
     half = np.float32(0.5)
+    Eq = E[q]
     for j in range(J):
-        E[j] = r2[j] * half
+        Eq[j] = r2[j] * half
     if use_psi:
         _normals_row(w[1], r2_one, ones, pair)  # sqrt(1 x 1/2 x 2) = 1: the unscaled (cos, sin) pair
+        cq = cs[q]
         for j in range(J):
-            cs[j] = pair[2 * j]
+            cq[j] = pair[2 * j]
     for t in range(T):
-        lt = lam[t]
+        lt = lam[t, q]
         _uniform_bits_row(w[2 + t], u)
         if C <= 4:  # thresholds by selects (no inner loop, no branch on the data): the loop vectorises
             c0 = cumw[t, 0] if C > 1 else 2.0  # above any uniform: a threshold never passed
@@ -433,36 +431,41 @@ def _noise_variates_row(i, k0, k1, stream, cumw, lams, gaussian_bottom, use_psi,
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _noise_combine_row(Ii, sh, n, E, lam, cs, gaussian_bottom, target_speckle, use_psi, oi):
-    """One row of the image from its variates (:func:`_noise_variates_row`). Per cell: bottom types
-    ``t`` add their share ``I share_t`` to the bottom; Gaussian bottoms add circular Gaussian power
-    ``I share_t lam_t`` to ``P``, which starts at the noise floor ``n``; the target echo
-    ``max(I - bottom, 0)`` joins ``P`` (``target_speckle``) or is the steady part ``S``. Without
-    reverberation the bottom is steady (``S = bottom``, the target speckled) or the whole echo is
-    (``S = I``). The intensity is ``max(S + P E + 2 sqrt(S P E) cos psi, 0)`` (``use_psi``)."""
-    T = sh.shape[0]
-    J = Ii.size
+def _noise_combine_row(I, shares, N, i, E, lam, cs, q, gaussian_bottom, target_speckle, use_psi, out):
+    """Image row ``i`` from its variates, row ``q`` of ``E``, ``lam``, ``cs``
+    (:func:`_noise_variates_row`). Per cell: bottom types ``t`` add their share ``I share_t`` to
+    the bottom; Gaussian bottoms add circular Gaussian power ``I share_t lam_t`` to ``P``, which
+    starts at the noise floor ``N[i]``; the target echo ``max(I - bottom, 0)`` joins ``P``
+    (``target_speckle``) or is the steady part ``S``. Without reverberation the bottom is steady
+    (``S = bottom``, the target speckled) or the whole echo is (``S = I``). The intensity is
+    ``max(S + P E + 2 sqrt(S P E) cos psi, 0)`` (``use_psi``)."""
+    T = shares.shape[0]
+    J = I.shape[1]
     zero = np.float32(0.0)
     two = np.float32(2.0)
+    n = N[i]
+    Ii = I[i]
+    oi = out[i]
+    Eq = E[q]
     if T == 1 and gaussian_bottom and target_speckle:  # the thesis scenes: the loop vectorises
-        s0 = sh[0]
-        l0 = lam[0]
+        s0 = shares[0, i]
+        l0 = lam[0, q]
         for j in range(J):
             xx = Ii[j]
             part = xx * s0[j]
             P = n + part * l0[j]
             target = max(xx - part, zero)
-            oi[j] = (P + target) * E[j]
+            oi[j] = (P + target) * Eq[j]
         return
     for j in range(J):
         xx = Ii[j]
         bottom = zero
         P = n
         for t in range(T):
-            part = xx * sh[t, j]
+            part = xx * shares[t, i, j]
             bottom += part
             if gaussian_bottom:
-                P += part * lam[t, j]
+                P += part * lam[t, q, j]
         target = max(xx - bottom, zero)
         S = zero
         if gaussian_bottom:
@@ -475,10 +478,10 @@ def _noise_combine_row(Ii, sh, n, E, lam, cs, gaussian_bottom, target_speckle, u
             S = bottom
         else:
             S = xx
-        pe = P * E[j]
+        pe = P * Eq[j]
         v = S + pe
         if use_psi:
-            v += two * np.sqrt(max(S, zero) * pe) * cs[j]
+            v += two * np.sqrt(max(S, zero) * pe) * cs[q, j]
         oi[j] = max(v, zero)
 
 
