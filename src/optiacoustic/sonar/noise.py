@@ -144,7 +144,8 @@ class NoiseModel:
 
         if self._counter():
             key = NoiseKey(rng.integers(0, 2**32, size=2, dtype=np.uint32), tuple(shape))
-            if not (_field and _reuse and use_numba()):
+            off = self.reverberation is None and not self.target_speckle and self.noise_floor_db is None
+            if not (_field and _reuse and use_numba()) or off:
                 return key
             B, J = key.shape
             types = tuple(dict.fromkeys(bottom_types))
