@@ -979,7 +979,8 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     if pattern is None:
         return rays
     if fast and not materialise:
-        return rays, _aperture_cells(spec, rays, nd, ndd, a, b, refl[body], pattern, options)
+        # the reflectivity per body id (the kernel reads it by the ray's body: no per-ray gather)
+        return rays, _aperture_cells(spec, rays, nd, ndd, a, b, refl, pattern, options)
     if fast:
         return rays, _subdivide_numba(spec, rays, nd, ndd, a, b, refl[body], pattern, options, caster.threads)
     return rays, _subdivide(spec, rays, nd, ndd, a, b, refl[body], pattern, options)
@@ -1140,8 +1141,9 @@ def _subdivide_numba(spec: SonarSpec, rays: SonarRays, nd, ndd, a, b, refl, patt
 class _ApertureCells:
     """What the aperture model's fused kernel needs to form the sub-cells of :func:`_subdivide`
     itself (``_aperture_kernels.aperture_echo_rows``): the primary rays, per ray (flat,
-    ``(K * J,)``) ``n . d``, ``n . d'``, the cell's extents below/above the ray ``a``, ``b`` and
-    the body's reflectivity, and the two-way pattern's table over the scan's elevations."""
+    ``(K * J,)``) ``n . d``, ``n . d'``, the cell's extents below/above the ray ``a``, ``b``, the
+    reflectivity per body id ``refl`` (``(n_bodies + 1,)``, the last entry 0 for a miss: indexed by
+    the ray's body, not per ray) and the two-way pattern's table over the scan's elevations."""
 
     rays: SonarRays
     nd: np.ndarray
@@ -1225,12 +1227,21 @@ def _aperture_rows(spec: SonarSpec, cells: _ApertureCells, options: SonarOptions
     rays = cells.rays
     flat = lambda arr: np.ascontiguousarray(arr).reshape(-1)  # noqa: E731
     body, lo, hi = flat(rays.body), flat(rays.footprint_lo), flat(rays.footprint_hi)
-    n_sub = np.empty(body.size, np.int64)
-    kernels().subcell_counts(body, lo, hi, spec.bin_width, _MAX_SUBCELLS, _SUBCELL_BINS, n_sub)
+    J, B = spec.n_beams, spec.n_bins
+    K = body.size // J
+    # one pass over the rays in the grid's order writes each ray's word (sub-cell count, refined-edge
+    # flag, body) beam-major, so that the kernel's loop over a beam's rays reads them contiguously, and
+    # counts the classes' lit sub-cells (_class_slots_numba with the sub-cell counts as weights)
+    names, cls = _class_table(bottom_types, body)
+    counts = np.zeros(len(names), np.int64)
+    word = _workspace("aperture_word", (body.size,), np.int64)
+    max_s = ak.aperture_words(body, lo, hi, flat(rays.energy), flat(cells.a), flat(cells.b), 0.5 * rays.elevation_step,
+                              cls, spec.bin_width, _MAX_SUBCELLS, _SUBCELL_BINS, K, J, word, counts)
     if not bottom_types:
-        slot, n_slots, slot_of = np.zeros(body.size, np.int8), 1, {}
+        slot_of_body, n_slots, slot_of = np.zeros(cls.size, np.int8), 1, {}
     else:  # the class with most lit sub-cells takes slot 0, as _class_slots on the sub-cells
-        slot, n_slots, slot_of = _class_slots_numba(bottom_types, rays, n_sub)
+        table, n_slots, slot_of = _slot_table(names, counts)
+        slot_of_body = table[cls]
     ids = [i for v in bottom_types.values() for i in v]
     n_bodies = max([int(np.max(body, initial=-1))] + ids) + 1
     is_seabed = np.zeros(n_bodies + 1, np.bool_)
@@ -1238,19 +1249,16 @@ def _aperture_rows(spec: SonarSpec, cells: _ApertureCells, options: SonarOptions
     q = options.range_oversample
     sigma_bins = max(spec.pulse_width / spec.bin_width / 2.3548, 0.5)
     H, V, full = _deposit_tables(spec.n_bins, q, sigma_bins)
-    J, B = spec.n_beams, spec.n_bins
-    K = body.size // J
     out = _workspace(f"echo{n_slots}", (n_slots, J, B), np.float32)
     # written in the image layout into a reused scratch (fresh pages fault on every frame): the
     # caller reads it before the next frame on this thread (simulate_sonar: the noise's counts)
     area = _workspace("aperture_area", (B, J), np.float32) if need_area else np.empty((0, 0), np.float32)
     x0, dx, y = cells.table
     dtheta = np.ascontiguousarray(np.diff(spec.beam_edges), float)
-    bm = flat
-    args = (bm(rays.range), bm(cells.nd), bm(cells.ndd), bm(cells.a), bm(cells.b), 0.5 * rays.elevation_step,
-            bm(cells.refl), bm(rays.elevation), bm(n_sub), K, J, x0, dx, y, cells.alpha_db, cells.spreading, spec.bin_width, bm(slot),
-            body, is_seabed, dtheta, float(spec.range_min), B * q, H, V, full, q, B, bool(need_area),
-            max(1, int(n_sub.max(initial=0))))
+    elevation_k = np.ascontiguousarray(rays.elevation[:, 0], float)  # the grid's rows: one elevation each
+    args = (flat(rays.range), cells.nd, cells.ndd, cells.a, cells.b, 0.5 * rays.elevation_step,
+            cells.refl, elevation_k, word, K, J, x0, dx, y, cells.alpha_db, cells.spreading, spec.bin_width,
+            slot_of_body, is_seabed, dtheta, float(spec.range_min), B * q, H, V, full, q, B, bool(need_area), max_s)
     live = np.empty((n_slots, J), np.bool_)
     chunked_run(lambda j0, j1: ak.aperture_echo_rows(*args, j0, j1, out, area, live), J, threads)
     return out, (area if need_area else None), live, slot_of
