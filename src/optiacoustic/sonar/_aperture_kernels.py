@@ -141,11 +141,12 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl_of_body, elevation_k,
     c_t = np.empty(cap)
     # cos(elevation) of a sub-cell by angle addition, cos(e + t) = cos(e) cos(t) - sin(e) sin(t), from
     # the ray's elevation e and the (cos t, sin t) its footprint uses (i14j; libm's cos per sub-cell,
-    # memoised, kept the area's loop from vectorising). (cos e, sin e) remembered per elevation
-    # sample: the grid's rays give the same elevation, bit for bit, in every beam
-    memo_e = np.full(K, np.nan)
-    memo_ce = np.empty(K)
-    memo_se = np.empty(K)
+    # memoised, kept the area's loop from vectorising). (cos e, sin e) once per elevation sample (row)
+    cos_e = np.empty(K)
+    sin_e = np.empty(K)
+    for k in range(K):
+        cos_e[k] = np.cos(elevation_k[k])
+        sin_e[k] = np.sin(elevation_k[k])
     # the area's deposits of every sub-cell of a beam (zeros off the seabed: they add nothing), in
     # loops without branches or compaction, which vectorise (int32 cells: AVX2 converts to those)
     a_v = np.empty((4, cap))
@@ -188,11 +189,7 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl_of_body, elevation_k,
             r_i = refl_of_body[bid]
             ce = se = 0.0
             if seabed:
-                if memo_e[k] == e_i:
-                    ce, se = memo_ce[k], memo_se[k]
-                else:
-                    ce, se = np.cos(e_i), np.sin(e_i)
-                    memo_e[k], memo_ce[k], memo_se[k] = e_i, ce, se
+                ce, se = cos_e[k], sin_e[k]
             for kk in range(Sn):
                 if kk > 0:
                     t = -a_i + (kk + 0.5) * delta
