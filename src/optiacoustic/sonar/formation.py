@@ -1056,7 +1056,8 @@ def _two_way_lookup(pattern, fov: float):
     return functools.partial(np.interp, xp=x, fp=y)
 
 
-#: At most this many sub-cells per ray in the aperture model's image rays.
+#: At most this many sub-cells per ray in the aperture model's image rays (below 256: the fused
+#: kernel's per-ray word, ``_aperture_kernels.aperture_words``, holds the count in 8 bits).
 _MAX_SUBCELLS = 16
 #: ... each covering at most about this many range bins.
 _SUBCELL_BINS = 3.0
