@@ -450,6 +450,8 @@ def simulate_sonar(
         if draw_args is not None and caster.threads > 1:
             beside = {"_field": True} if pooled and isinstance(noise, ScattererNoise) else {}
             draws = _background().submit(*draw_args, **beside)
+            return True  # a thread of the caller's is taken meanwhile
+        return False
 
     sspec = scan_spec(spec, options.beam_model)
     if options.beam_model == "aperture":
@@ -892,7 +894,9 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     """Cast the beams' rays and compute each ray's echo energy and range footprint (sec. 2.6.1).
 
     ``weights`` (``(elevation_samples,)``) overrides the elevation pattern's weights.
-    ``after_cast`` (no arguments) is called once the primary rays are cast.
+    ``after_cast`` (no arguments) is called once the primary rays are cast; when it returns True it has
+    started work on one of the caster's threads (the noise's draws), and with two threads the edge
+    refinement's cast then stays on the calling thread (:func:`_refine_edges_numba`).
     With ``pattern`` (the aperture model's elevation pattern) returns ``(rays, image_rays)``:
     ``image_rays`` splits every ray whose footprint is long in range into sub-cells
     (:func:`_subdivide`), so that the echo's density follows the surface within it.
@@ -906,8 +910,7 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
         body, r, nd, ndd, cos_inc, slope = _scan_hits_numba(caster, spec, pose)
     else:
         body, r, nd, ndd, cos_inc, slope = _scan_hits_numpy(caster, spec, pose)
-    if after_cast is not None:
-        after_cast()
+    beside = bool(after_cast()) if after_cast is not None else False
     hit = body >= 0
     # angular extent of each ray's elevation cell below (a) and above (b) the ray
     step = spec.elevation_step
@@ -918,7 +921,7 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     else:
         a = np.full(K * J, 0.5 * step)
         b = np.full(K * J, 0.5 * step)
-    _refine_edges(caster, spec, pose, body, r, slope, a, b)
+    _refine_edges(caster, spec, pose, body, r, slope, a, b, split=not (beside and caster.threads <= 2))
 
     refl = np.array([bd.material.reflectivity for bd in scene.bodies] + [0.0])
     beam_grid, elev_grid = _index_grids(spec)
@@ -1282,7 +1285,7 @@ def _cast_fast(caster: RayCaster, origin, d_world, max_distance: float, smooth: 
     return body, r, n
 
 
-def _refine_edges(caster, spec, pose, body, r, slope, a, b) -> None:
+def _refine_edges(caster, spec, pose, body, r, slope, a, b, split: bool = True) -> None:
     """Locate visibility edges between consecutive elevation samples and move the cell boundary there.
 
     Between rays k and k+1 of a beam that see different surfaces (another body, a miss,
@@ -1291,12 +1294,13 @@ def _refine_edges(caster, spec, pose, body, r, slope, a, b) -> None:
     grazing incidence is several range bins (jagged shadow edges). ``_EDGE_SUBRAYS``
     sub-rays between the two classify which surface continues where, and the shared cell
     boundary moves to the transition. ``a`` (extent below) and ``b`` (above) are updated
-    in place; energy follows the cells' widths, so it stays conserved.
+    in place; energy follows the cells' widths, so it stays conserved. ``split=False``: the compiled
+    path casts the sub-rays on the calling thread only.
     """
     K, J = spec.elevation_samples, spec.n_beams
     step = spec.elevation_step
     if use_numba():
-        _refine_edges_numba(caster, spec, pose, body, r, slope, a, b)
+        _refine_edges_numba(caster, spec, pose, body, r, slope, a, b, split)
         return
     B = body.reshape(K, J)
     Rg = r.reshape(K, J)
@@ -1349,7 +1353,7 @@ def _edge_trig(spec: SonarSpec):
     return out
 
 
-def _refine_edges_numba(caster, spec, pose, body, r, slope, a, b) -> None:
+def _refine_edges_numba(caster, spec, pose, body, r, slope, a, b, split: bool = True) -> None:
     """:func:`_refine_edges` with the discontinuities found, the sub-rays' directions formed and the
     sub-rays classified by kernels (the directions from per-spec tables of the numpy path's sines
     and cosines, rotated with its einsum's order of sums: both cast the same float32 rays)."""
@@ -1367,11 +1371,12 @@ def _refine_edges_numba(caster, spec, pose, body, r, slope, a, b) -> None:
     kn.edge_directions32(kk, jj, cp, sp, sth, cth, np.ascontiguousarray(pose.R, float), 0, m, d32)
     o32 = _fill_rows(np.empty_like(d32), pose.t)
     dist32 = np.full(len(d32), min(np.float32(spec.range_max * 1.5), np.float32(1e30)), np.float32)
-    # on the calling thread alone: the sub-rays lie along silhouettes, scattered over the fan, and two
-    # threads cast such rays no faster than one here (i14o: 8 120 sub-rays 1.30 ms on one thread, 1.33-1.58
-    # split; the second vCPU shares the first's caches), while a split puts a chunk beside the noise's
-    # words on the other core (2.8 ms of wall for the edge cast in the realistic frame, 1.3 alone)
-    tfar, h_body, _, _, _, _ = caster.intersect_raw(o32, d32, dist32, normals=False, split=False)
+    # split=False (_scan: two threads, one of them drawing the noise): on the calling thread alone. The
+    # sub-rays lie along silhouettes, scattered over the fan; on the 2-vCPU machine of the benchmarks two
+    # threads cast such rays no faster than one (i14o: 8 120 sub-rays 1.30 ms on one thread, 1.33-1.58
+    # split), and a split put a chunk beside the noise's words on the other vCPU (2.8 ms of wall for the
+    # realistic frame's edge cast at two threads, 1.3 alone). With more threads the split stays.
+    tfar, h_body, _, _, _, _ = caster.intersect_raw(o32, d32, dist32, normals=False, split=split)
     kn.edge_split(kk, jj, h_body, tfar, body, r, slope, step, S, J, a, b)
 
 
