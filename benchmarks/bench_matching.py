@@ -9,7 +9,7 @@ TITLE = "Automatic opti-acoustic matching"
 DESCRIPTION = ("`matching.match` on one simulated pair of `thesis_scene1` (BlueView P900-90 750 x 512 polar "
                "image, 600 x 400 camera, thesis water, default sonar noise), target <= 1 s per pair; against "
                "simulating that pair (`simulate_rig`: both sensors) and against its stages (CFAR sonar features, "
-               "the arc search, the seabed-contact search, the face-plane model, the point above the foot; for the first design, corners and the epipolar gate); and the two-view "
+               "the arc search, the seabed-contact search, the face-plane model with and without every beam's crease, the point above the foot; for the first design, corners and the epipolar gate); and the two-view "
                "matching with a second pair after a known motion.")
 
 
@@ -60,15 +60,21 @@ def run() -> list[dict]:
     ch = search_arcs(rig, sf.ranges, sf.azimuths, lo[sf.bins, sf.beams], hi[sf.bins, sf.beams], grad)
     r_on = np.minimum(echo_start_ranges(s.image, s.ranges, sf.bins, sf.beams), sf.ranges)
 
-    def plane_stage():
+    from optiacoustic.matching.match import _beam_creases
+
+    def plane_stage(beams=False):
         labels = face_labels(grad)
         uv = np.rint(np.nan_to_num(ch.pixels)).astype(int)
         face = np.where(ch.found, labels[np.clip(uv[:, 1], 0, labels.shape[0] - 1),
                                          np.clip(uv[:, 0], 0, labels.shape[1] - 1)], 0)
         C, ok = crease_positions(rig, ch.top_pixels, r_on)
-        return face_planes(rig, plane, sf.ranges, sf.azimuths, face, C, ok, np.nan_to_num(ch.elevations), labels)
+        extra = _beam_creases(rig, (s.image, s.ranges, s.azimuths), face, ok, sf.ranges, sf.azimuths, r_on,
+                              labels) if beams and (ok & (face > 0)).any() else None
+        return face_planes(rig, plane, sf.ranges, sf.azimuths, face, C, ok, np.nan_to_num(ch.elevations), labels,
+                           extra=extra)
 
     t_plane = median_ms(plane_stage, repeat=7, warmup=1)
+    t_plane_beams = median_ms(lambda: plane_stage(True), repeat=7, warmup=1)
     from optiacoustic.matching.contact import echo_end_ranges, foot_points
 
     t_foot = median_ms(lambda: foot_points(rig, plane, sf.ranges, sf.azimuths,
@@ -100,6 +106,9 @@ def run() -> list[dict]:
         dict(name="face-plane model (face labels + plane fits + arc-plane points), all arcs", value=t_plane,
              unit="ms", reference="match", ratio=t_plane / t_match,
              note="connected components of edge-free pixels; a RANSAC over crease pairs per face window"),
+        dict(name="face-plane model fitted to every beam's crease (the default), all arcs", value=t_plane_beams,
+             unit="ms", reference="face-plane model (the features' creases alone)", ratio=t_plane_beams / t_plane,
+             note="one more CFAR map, echo starts of every beam a face spans, one arc per start"),
         dict(name="point above the foot (echo end + seabed plane), all features", value=t_foot, unit="ms",
              reference="match", ratio=t_foot / t_match, note="closed form per feature; one CFAR map"),
         dict(name="match / simulate the pair", value=t_match, unit="ms", reference="simulate_rig (both sensors)",

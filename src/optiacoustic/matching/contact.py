@@ -202,7 +202,12 @@ class CreaseChoice:
     found: np.ndarray
 
 
-def echo_start_ranges(image, ranges, bins, beams, *, factor: float = 3.0) -> np.ndarray:
+#: Echo level (3 x 3 mean over the CFAR background) above which a cell belongs to an echo when looking
+#: for its start (the crease of a face seen from above).
+ECHO_START_FACTOR = 3.0
+
+
+def echo_start_ranges(image, ranges, bins, beams, *, factor: float = ECHO_START_FACTOR) -> np.ndarray:
     """Range (m) where the echo containing each cell ``(bins[i], beams[i])`` starts along its beam.
 
     A cell is part of an echo when its 3 x 3 mean exceeds ``factor`` times its CFAR background

@@ -117,6 +117,10 @@ class MatchOptions:
         Offer each feature the point where its arc meets its face's fitted plane
         (:mod:`.face_plane`) as a third candidate (off: the arc search's pixel or the point below
         the crease only, the previous round's matcher).
+    face_plane_beams : bool
+        Fit each face's plane to the creases of every beam its features span (:func:`.face_plane.beam_creases`:
+        the echo start of each beam, with the top edge where that beam's arc leaves the face's image region),
+        not only to the features' own creases.
     face_plane_min_contrast : float
         The plane is fitted only in images whose contrast (0.5-99.5 percentile range of the mean
         channel over their sum) is at least this: in turbid water the crease between a box's front
@@ -140,6 +144,7 @@ class MatchOptions:
     seabed_contrast: float = 0.0
     face_plane: bool = True
     face_plane_min_contrast: float = 0.65
+    face_plane_beams: bool = True
     cfar: CfarOptions = field(default_factory=CfarOptions)
     keypoints: KeypointOptions = field(default_factory=KeypointOptions)
 
@@ -587,7 +592,7 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
         return _empty("no sonar features: CFAR found no echo standing out of its background")
     if opt.method == "arc":
         intervals = _elevation_intervals(sf, img_s, r_bins, th_beams, rig, opt)
-        out = _match_arcs(sf, cam_img, rig, noise, opt, intervals, sonar=(img_s, r_bins))
+        out = _match_arcs(sf, cam_img, rig, noise, opt, intervals, sonar=(img_s, r_bins, th_beams))
         return _finish(out, cam_img, second, motion, rig, noise, opt, min_score, sf=sf, intervals=intervals)
     cf = detect_camera_features(cam_img, opt.keypoints)
     if len(cf) == 0:
@@ -760,13 +765,15 @@ FACE_SCORE_MODEL = dict(
 #: and an image contrast of at least ``face_plane_min_contrast``): intercept and weights of the
 #: standardised :func:`face_plane_score_features` (those of :func:`face_score_features`, then for
 #: the point on the face's plane: found, log of 1 + its elevation distance from the arc search's in
-#: units of 0.25 deg, agreement within 0.5 deg). Fitted by
+#: units of 0.25 deg, agreement within 0.5 deg; and (round i15h) whether the feature's echo fits on
+#: its face, :func:`_face_fit`: a wrong surface when not). Fitted by
 #: ``experiments.matching.calibrate_face_score()`` on the matches of those scenes where the plane is
-#: offered (thesis water; 2615 matches, 49% correct).
+#: offered (thesis water; 2615 matches, 49% correct), with the planes fitted to every beam's crease
+#: (``MatchOptions.face_plane_beams``).
 FACE_PLANE_SCORE_MODEL = dict(
-    weights=(-0.118, 1.06, 0.583, -0.496, -0.015, 0.19, -0.433, -0.162, 0.605, -0.365, 0.046),
-    mean=(-0.1657, 0.343, 0.5677, 0.073, 0.6845, 0.8164, 0.3239, 0.6834, 0.892, 0.2635),
-    std=(1.0508, 0.4747, 0.8865, 0.2602, 0.4647, 0.7671, 0.468, 0.4652, 0.8231, 0.4405),
+    weights=(-0.141, 1.087, 0.568, -0.5, -0.009, 0.189, -0.36, -0.136, 0.718, -0.622, -0.032, -0.004, -0.33, 0.207),
+    mean=(-0.1657, 0.343, 0.5677, 0.073, 0.6845, 0.8164, 0.3239, 0.6822, 0.9442, 0.2394, 0.9663, 0.4284, 0.6681),
+    std=(1.0508, 0.4747, 0.8865, 0.2602, 0.4647, 0.7671, 0.468, 0.4656, 0.8745, 0.4267, 0.1803, 0.7802, 0.4709),
 )
 
 #: Logistic model of P(correct) of the point below the crease (:func:`.contact.crease_points`):
@@ -777,13 +784,14 @@ FACE_PLANE_SCORE_MODEL = dict(
 #: start (deeper: more likely another object's onset), log run length in px, log of 1 + the
 #: gradient just above the run (the crease's edge), log of the image's contrast (turbid water
 #: washes out the crease between a box's front and top faces, and the run then ends at the top
-#: face's far edge)). Fitted by
+#: face's far edge); and (round i15h) the plane point found and log of 1 + its elevation distance
+#: from the crease point, and whether the feature's echo fits on its face, :func:`_face_fit`). Fitted by
 #: ``experiments.matching.calibrate_face_score()`` on the same scenes (2220 crease points, 61%
 #: correct).
 CREASE_SCORE_MODEL = dict(
-    weights=(0.509, 0.695, -0.198, -0.211, 0.422, -0.054, -0.145, 0.216, 0.393, -0.021),
-    mean=(0.2095, 1.2553, 0.4928, 0.3851, 0.5783, 0.9574, 4.1882, 1.5581, -0.265),
-    std=(0.6089, 0.6647, 0.4999, 0.4866, 0.2249, 0.3099, 0.5883, 1.3793, 0.1888),
+    weights=(0.522, 0.625, -0.237, -0.214, 0.385, -0.158, -0.171, 0.382, 0.245, -0.148, 0.824, -0.471, -0.236, 0.092, 0.059),
+    mean=(0.2095, 1.2553, 0.4928, 0.3851, 0.5783, 0.9574, 4.1882, 1.5581, -0.265, 0.7014, 0.6461, 0.7874, 0.556, 0.6928),
+    std=(0.6089, 0.6647, 0.4999, 0.4866, 0.2249, 0.3099, 0.5883, 1.3793, 0.1888, 0.4577, 0.7214, 0.4092, 0.4478, 0.4613),
 )
 
 
@@ -804,19 +812,33 @@ def face_score_features(feats: dict) -> np.ndarray:
                             *_agreement(feats["crease_found"], feats["crease_dphi_deg"])])
 
 
+def _face_fit(feats):
+    """Whether the feature's echo fits on its face (a wrong surface when not): the arc meets the face's plane,
+    where (its height as a fraction of the face's top edge, clipped to [-1, 2]), and within [-0.05, 1.05]."""
+    h = np.asarray(feats["plane_fit_height"], float)
+    fin = np.isfinite(h)
+    hh = np.nan_to_num(h, nan=0.5)
+    return [fin.astype(float), np.clip(hh, -1.0, 2.0), (fin & (hh >= -0.05) & (hh <= 1.05)).astype(float)]
+
+
 def face_plane_score_features(feats: dict) -> np.ndarray:
-    """:data:`FACE_PLANE_SCORE_MODEL`'s inputs ``(N, 10)``: :func:`face_score_features` and the plane point's agreement."""
-    return np.column_stack([face_score_features(feats), *_agreement(feats["plane_found"], feats["plane_dphi_deg"])])
+    """:data:`FACE_PLANE_SCORE_MODEL`'s inputs ``(N, 13)``: :func:`face_score_features`, the plane point's
+    agreement and whether the feature's echo fits on its face (:func:`_face_fit`)."""
+    return np.column_stack([face_score_features(feats), *_agreement(feats["plane_found"], feats["plane_dphi_deg"]),
+                            *_face_fit(feats)])
 
 
 def crease_score_features(feats: dict) -> np.ndarray:
-    """The crease score model's inputs ``(N, 9)`` (NaN-free; meaningful where ``crease_found``)."""
+    """The crease score model's inputs ``(N, 14)`` (NaN-free; meaningful where ``crease_found``)."""
     d = np.nan_to_num(np.asarray(feats["crease_dphi_deg"], float))
+    dp = np.asarray(feats["plane_crease_dphi_deg"], float)
+    fp = np.isfinite(dp)
     return np.column_stack([_logit(feats["arc_score"]), np.log1p(d / 0.25), feats["kind"],
                             np.asarray(feats["contact_found"], float), np.nan_to_num(feats["crease_position"]),
                             np.log1p(feats["echo_depth_bins"]), np.log(np.maximum(feats["run_px"], 1.0)),
                             np.log1p(np.nan_to_num(feats["top_edge"])),
-                            np.log(np.maximum(feats["image_contrast"], 1e-6))])
+                            np.log(np.maximum(feats["image_contrast"], 1e-6)),
+                            fp.astype(float), np.where(fp, np.log1p(np.nan_to_num(dp) / 0.25), 0.0), *_face_fit(feats)])
 
 
 #: Logistic model of P(correct) of the point on the face's fitted plane (:mod:`.face_plane`):
@@ -828,12 +850,14 @@ def crease_score_features(feats: dict) -> np.ndarray:
 #: inliers' extent along the edge in units of 5 cm; where the point sits in the
 #: run; its height as a fraction of the face's; log of 1 + how many bins the feature lies behind its
 #: echo's start; log of 1 + the gradient just above the run; log of the image's contrast). Fitted by
-#: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model (1787
-#: plane points, all in thesis water where the plane is offered, 64% correct).
+#: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model (1784
+#: plane points, all in thesis water where the plane is offered, 67% correct; the planes fitted to
+#: every beam's crease, ``MatchOptions.face_plane_beams``; with the features' creases alone 64% of
+#: 1787).
 PLANE_SCORE_MODEL = dict(
-    weights=(0.682, 0.769, -0.008, 0.369, -0.34, -0.206, 0.057, 0.785, 0.181, 0.076, -0.101, 0.164, 0.175, 0.005, 0.349, -0.207),
-    mean=(0.1314, 1.3053, 0.8791, 0.5996, 0.4712, 0.9043, 1.5799, 0.9104, 0.2863, 1.6619, 0.4847, 0.573, 0.9903, 1.8913, -0.1779),
-    std=(0.7537, 0.6724, 0.326, 0.6467, 0.4992, 0.2942, 0.3668, 0.1457, 0.3874, 0.8979, 0.4201, 0.2796, 0.3645, 1.2771, 0.0541),
+    weights=(0.857, 0.685, -0.12, 0.422, -0.198, -0.08, 0.091, 0.402, 0.39, -0.034, 0.199, 0.164, 0.161, 0.219, 0.209, -0.264),
+    mean=(0.1374, 1.384, 0.8728, 0.8041, 0.4731, 0.9058, 2.6209, 0.805, 0.5495, 2.0542, 0.5472, 0.586, 0.9891, 1.9265, -0.178),
+    std=(0.7435, 0.7157, 0.3332, 0.7216, 0.4993, 0.2921, 0.731, 0.1774, 0.5543, 0.632, 0.4662, 0.2713, 0.3564, 1.2883, 0.0547),
 )
 
 
@@ -859,21 +883,22 @@ def plane_score_features(feats: dict) -> np.ndarray:
 #: intercept and weights of the standardised :func:`foot_score_features`. Fitted by
 #: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model.
 FOOT_SCORE_MODEL = dict(
-    weights=(0.102, -0.144, -0.098, 0.315, -0.604, 0.377, -0.465, 0.225, 0.002, 0.305, 0.039, -0.129, 0.015, -0.018, -0.089, -0.053, 0.255),
-    mean=(0.1713, 1.7612, 0.8899, 1.6282, 0.7034, 1.2789, 0.6564, 0.4622, 1.5678, 0.9884, 0.3803, 0.7568, 2.8523, -0.2592, 0.8229, 0.3568),
-    std=(0.7078, 0.8023, 0.313, 0.9765, 0.4568, 1.0766, 0.4749, 0.4986, 0.3245, 0.322, 0.1775, 0.7024, 0.6194, 0.1825, 0.3818, 0.4791),
+    weights=(0.099, -0.113, -0.083, 0.253, -0.516, 1.199, -0.8, 0.222, -0.01, 0.303, 0.019, -0.14, 0.038, -0.003, 0.004, -0.202, 0.234, 0.059, 0.025, -0.574),
+    mean=(0.1713, 1.7612, 0.8899, 1.6282, 0.6983, 1.2475, 0.6564, 0.4622, 1.5678, 0.9884, 0.3803, 0.7568, 2.8523, -0.2592, 0.8229, 0.3568, 0.8015, 0.5068, 0.6872),
+    std=(0.7078, 0.8023, 0.313, 0.9765, 0.459, 1.0754, 0.4749, 0.4986, 0.3245, 0.322, 0.1775, 0.7024, 0.6194, 0.1825, 0.3818, 0.4791, 0.3988, 0.481, 0.4637),
 )
 
 
 def foot_score_features(feats: dict) -> np.ndarray:
-    """The foot score model's inputs ``(N, 16)`` (NaN-free; meaningful where ``foot_found``).
+    """The foot score model's inputs ``(N, 19)`` (NaN-free; meaningful where ``foot_found``).
 
     Logit of the arc search's own score; log of 1 + the foot point's elevation distance (units of
     0.25 deg) from the arc search's pixel, and, with whether each exists, from the crease point and
     from the plane point; the point inside the arc search's run; onset or peak; log of 1 + the
     bins between the feature and its echo's end, and between its echo's start and the feature;
     the point's height above the seabed (m); log of 1 + the image gradient at its pixel; log SNR;
-    log of the image's contrast.
+    log of the image's contrast; the plane offered; the foot search found a face; and whether the
+    feature's echo fits on its face's plane (:func:`_face_fit`).
     """
     def dist(key):
         d = np.asarray(feats[key], float)
@@ -888,7 +913,8 @@ def foot_score_features(feats: dict) -> np.ndarray:
                             np.log1p(np.asarray(feats["foot_gradient"], float)),
                             np.log(np.maximum(feats["snr"], 1e-6)),
                             np.log(np.maximum(feats["image_contrast"], 1e-6)),
-                            np.asarray(feats["plane_offered"], float), np.asarray(feats["contact_found"], float)])
+                            np.asarray(feats["plane_offered"], float), np.asarray(feats["contact_found"], float),
+                            *_face_fit(feats)])
 
 
 #: The four candidate pixels of a one-view match, in ``features["face_source"]`` order.
@@ -917,6 +943,25 @@ def _elevation_intervals(sf, img_s, r_bins, th_beams, rig, opt):
             lo, hi = low_map[sf.bins, sf.beams], high_map[sf.bins, sf.beams]
             shadowed = shadow_map[sf.bins, sf.beams]
     return lo, hi, shadowed, seabed
+
+
+def _beam_creases(rig, sonar, face, c_ok, ranges, azimuths, r_on, labels):
+    """:func:`.face_plane.beam_creases` for every face that holds a feature's crease (azimuths within the
+    plane fit's window of its features, ranges from 0.5 m before their echoes' starts to their ranges)."""
+    from .contact import ECHO_START_FACTOR
+    from .face_plane import FACE_WINDOW, beam_creases, echo_run_starts
+
+    img, r_bins, th_beams = sonar
+    smooth, background = cfar_map(img)
+    starts = echo_run_starts(smooth > ECHO_START_FACTOR * background)
+    use = c_ok & (face > 0)
+    labs = np.unique(face[use])
+    lo, hi, r0, r1 = (np.empty(labs.size) for _ in range(4))
+    for k, lab in enumerate(labs):
+        m = use & (face == lab)
+        lo[k], hi[k] = azimuths[m].min() - FACE_WINDOW, azimuths[m].max() + FACE_WINDOW
+        r0[k], r1[k] = np.minimum(r_on, ranges)[m].min() - 0.5, ranges[m].max() + 0.05
+    return beam_creases(rig, starts, r_bins, th_beams, labels, labs, lo, hi, r0, r1)
 
 
 def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Matches:
@@ -959,7 +1004,7 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
                  seabed_contrast=np.nan_to_num(ch.contrast[rows], nan=1.0))
     # The feature's echo in its own beam (:mod:`.contact`): where it starts (the crease of a face seen
     # from above) and where it ends (the foot of a face, where its shadow starts).
-    if sonar is not None:  # (polar image, bin ranges)
+    if sonar is not None:  # (polar image, bin ranges, beam azimuths)
         r_on = echo_start_ranges(sonar[0], sonar[1], sf.bins[rows], sf.beams[rows])
         r_end = echo_end_ranges(sonar[0], sonar[1], sf.bins[rows], sf.beams[rows])
     else:
@@ -996,7 +1041,11 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     offered = opt.face_plane & (feats["image_contrast"] >= opt.face_plane_min_contrast)
     feats["plane_offered"] = offered
     c_ok &= offered
-    fp = face_planes(rig, seabed, sf.ranges[rows], sf.azimuths[rows], face, C, c_ok, ch.elevations[rows], labels)
+    extra = None
+    if opt.face_plane_beams and sonar is not None and seabed and (c_ok & (face > 0)).any():
+        extra = _beam_creases(rig, sonar, face, c_ok, sf.ranges[rows], sf.azimuths[rows], r_on, labels)
+    fp = face_planes(rig, seabed, sf.ranges[rows], sf.azimuths[rows], face, C, c_ok, ch.elevations[rows], labels,
+                     extra=extra)
     feats["plane_u"], feats["plane_v"] = fp.pixels[:, 0], fp.pixels[:, 1]
     feats["plane_found"] = fp.found
     feats["plane_dphi_deg"] = np.where(fp.found, np.rad2deg(np.abs(np.nan_to_num(fp.elevations)
@@ -1006,6 +1055,7 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     feats["plane_n_creases"], feats["plane_n_inliers"] = fp.n_creases, fp.n_inliers
     feats["plane_spread"], feats["plane_own_residual"] = fp.spread, fp.own_residual
     feats["plane_height"], feats["plane_in_face"] = fp.height, fp.in_face
+    feats["plane_fit_height"] = fp.fit_height
     with np.errstate(invalid="ignore", divide="ignore"):
         feats["plane_position"] = np.where(fp.found, (fp.elevations - ch.run_low[rows])
                                            / np.maximum(ch.run_high[rows] - ch.run_low[rows], 1e-9), np.nan)
