@@ -89,7 +89,14 @@ def scan_rays(tfar, geom, prim, u, v, ng, corner_normals, tri_offset, smooth, cp
     as ``RayCaster.cast_raw`` does.
     """
     J = a.shape[0]
+    # the ray's row and beam stepped along (i14o: an integer division per ray was 15 % of this pass)
+    k = i0 // J
+    j = i0 - k * J - 1
     for i in range(i0, i1):
+        j += 1
+        if j == J:
+            j = 0
+            k += 1
         g = geom[i - first]
         if g < 0:
             body[i] = -1
@@ -99,8 +106,6 @@ def scan_rays(tfar, geom, prim, u, v, ng, corner_normals, tri_offset, smooth, cp
             cos_inc[i] = 0.0
             slope[i] = 0.0
             continue
-        k = i // J
-        j = i - k * J
         if smooth:
             t = tri_offset[g] + prim[i - first]
             w1 = u[i - first]
@@ -137,9 +142,16 @@ def scan_rays(tfar, geom, prim, u, v, ng, corner_normals, tri_offset, smooth, cp
 def footprints(body, r, cos_inc, slope, a, b, refl, weight_k, gain, J, pad_width, energy, lo, hi):
     """Energy and range footprint of every ray (``formation._scan``'s last step).
 
-    ``weight_k`` (K,) elevation weights (or empty), ``gain`` (N,) propagation gain (or empty).
+    ``weight_k`` (K,) elevation weights (or empty), ``gain`` (N,) propagation gain (or empty); the
+    arrays hold whole rows of ``J`` rays, the first of them row 0 of ``weight_k``.
     """
+    k = 0  # the ray's row, stepped along (no integer division per ray)
+    j = -1
     for i in range(body.size):
+        j += 1
+        if j == J:
+            j = 0
+            k += 1
         g = body[i]
         if g < 0:
             energy[i] = 0.0
@@ -148,7 +160,7 @@ def footprints(body, r, cos_inc, slope, a, b, refl, weight_k, gain, J, pad_width
             continue
         e = refl[g] * cos_inc[i] * (a[i] + b[i])
         if weight_k.size:
-            e *= weight_k[i // J]
+            e *= weight_k[k]
         if gain.size:
             e *= gain[i]
         energy[i] = e
