@@ -445,10 +445,11 @@ def simulate_sonar(
     def start_draws():
         # the noise variates do not depend on the echo: with a second thread, draw them on the other
         # core once the primary cast (which takes every thread) is done, beside the one-thread stages
-        # (the scatterer noise: the echo-free part of its field too)
+        # (the scatterer noise: the echo-free part of its field too; the thesis model: its variates from
+        # the counter stream, which apply would otherwise form in its own pass)
         nonlocal draws
         if draw_args is not None and caster.threads > 1:
-            beside = {"_field": True} if pooled and isinstance(noise, ScattererNoise) else {}
+            beside = {"_field": True} if pooled else {}
             draws = _background().submit(*draw_args, **beside)
             return True  # a thread of the caller's is taken meanwhile
         return False
