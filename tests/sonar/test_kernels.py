@@ -424,6 +424,41 @@ def test_aperture_rows_independent_of_threads(thesis, monkeypatch):
     assert np.count_nonzero(got[0][1]) > 0
 
 
+@pytest.mark.parametrize("bottom_types", [{}, {"sand/shell": [0], "mud": [1, 2]}])
+def test_aperture_words_are_the_counts_flags_and_bodies_beam_major(bottom_types):
+    """``aperture_words`` against the passes it replaces on the aperture path, on seeded rays of a
+    ``(K, J)`` grid: decoded beam-major, each word is ``subcell_counts``' sub-cell count, the body id
+    of a hit ray and whether ``a`` or ``b`` is not the half step; its class counts are
+    ``class_counts``' with those counts as weights."""
+    from optiacoustic.sonar import _aperture_kernels as ak
+    from optiacoustic.sonar import _numba_kernels as kn
+
+    rng = np.random.default_rng(7)
+    K, J, half, bw = 37, 53, 0.004, 0.05
+    n = K * J
+    body = rng.integers(-1, 4, n).astype(np.int32)
+    lo = rng.uniform(1.0, 20.0, n)
+    hi = lo + rng.exponential(0.4, n)
+    energy = np.where(rng.random(n) < 0.8, rng.random(n), 0.0)
+    a = np.where(rng.random(n) < 0.1, rng.uniform(0, 2 * half, n), half)
+    b = np.where(rng.random(n) < 0.1, rng.uniform(0, 2 * half, n), half)
+    names, cls = F._class_table(bottom_types, body)
+    word, counts = np.empty(n, np.int64), np.zeros(len(names), np.int64)
+    top = ak.aperture_words(body, lo, hi, energy, a, b, half, cls, bw, 16, 2.0, K, J, word, counts)
+    n_sub = np.empty(n, np.int64)
+    kn.subcell_counts(body, lo, hi, bw, 16, 2.0, n_sub)
+    want_counts, ray_cls = np.zeros(len(names), np.int64), np.empty(n, np.int64)
+    ak.class_counts(body, energy, n_sub, cls, want_counts, ray_cls)
+    w = word.reshape(J, K).T.reshape(-1)  # back to the grid's order
+    np.testing.assert_array_equal(w & 255, n_sub)
+    hit = body >= 0
+    np.testing.assert_array_equal(w[hit] >> 16, body[hit])
+    np.testing.assert_array_equal((w[hit] >> 8) & 1, ((a != half) | (b != half))[hit])
+    assert not np.any(w[~hit])
+    np.testing.assert_array_equal(counts, want_counts)
+    assert top == max(1, n_sub.max()) and 1 < top <= 16
+
+
 @pytest.mark.parametrize("q", [2, 3])  # the default two phases, and the general path
 def test_aperture_rows_match_deposit_by_deposit(thesis, monkeypatch, q):
     """The aperture kernel's rows (per beam: the boxes' fine-cell deposits, then one pass of the

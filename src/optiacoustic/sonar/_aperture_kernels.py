@@ -44,24 +44,31 @@ def _box_edges(lo, hi, value, range_min, scale, n):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K, J,
+def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl_of_body, elevation_k, word, K, J,
                        table_x0, table_dx, table_y, alpha_db, spreading, bin_width,
-                       slot_of_ray, body, is_seabed, dtheta, range_min, n_cells, H, V, full, q, n_bins,
+                       slot_of_body, is_seabed, dtheta, range_min, n_cells, H, V, full, q, n_bins,
                        want_area, max_s, j0, j1, out, area_out, live):
     """Echo rows (``(S, n_beams, n_bins)`` float32, as ``echo_rows``) and the seabed area
     (``(n_bins, n_beams)`` float32, the image layout, one cell per bin, no anti-aliasing, as
     ``cell_area``; beams ``j0..j1`` are its columns) of the
     aperture model's sub-cells, for beams ``j0..j1``, straight from the primary rays.
 
-    Per ray ``i = k J + j`` (flat ``(K * J,)`` arrays in the grid's layout; ``half_step`` the
-    cells' extents ``a``, ``b`` but at refined edges): ``n_sub[i]`` sub-cells
-    (``subcell_counts``), each with the range, footprint, Lambert factor, two-way pattern weight
-    and gain of ``_numba_kernels.subdivide``; a sub-cell of energy ``> 0`` deposits its box
-    into slot 0 and its class's slot ``slot_of_ray[i]``; a seabed sub-cell
-    (``is_seabed[body[i]]``, per body id) deposits its area ``r^2 cos(phi) dtheta_j dphi / max(cos, 0.05)`` into
-    ``area_out`` (when ``want_area``). ``max_s``: the largest ``n_sub`` (1 at least).
-    ``live[s, j]`` (bool ``(S, n_beams)``) tells whether row
-    ``out[s, j]`` has deposits (a row without is written as zeros).
+    Per ray ``i = k J + j`` (flat ``(K * J,)`` arrays ``rng``, ``nd``, ``ndd``, ``a``, ``b`` in the
+    grid's layout; ``half_step`` the cells' extents ``a``, ``b`` but at refined edges) the
+    ray's word ``word[j K + k]`` (int64, **beam-major**: :func:`aperture_words`) holds its
+    sub-cell count ``Sn`` (bits 0-7, 0 for a miss), whether its cell was refined (bit 8: then
+    ``a[i]``, ``b[i]`` are read) and its body id (bits 16 on); the body's reflectivity, output slot
+    and seabed flag come from tables per body id (``refl_of_body``, ``slot_of_body``,
+    ``is_seabed``), the ray's elevation from ``elevation_k[k]`` (the grid's row). So the beam's
+    loop over its ``K`` rays reads one contiguous array, and the per-ray values at the grid's
+    stride of ``J`` only for hit rays (i14o: ten strided per-ray reads were most of the sub-cells'
+    formation). Each ray has ``Sn`` sub-cells, each with the range, footprint, Lambert factor,
+    two-way pattern weight and gain of ``_numba_kernels.subdivide``; a sub-cell of energy ``> 0``
+    deposits its box into slot 0 and its class's slot ``slot_of_body[body]``; a seabed sub-cell
+    deposits its area ``r^2 cos(phi) dtheta_j dphi / max(cos, 0.05)`` into ``area_out`` (when
+    ``want_area``). ``max_s``: the largest ``Sn`` (1 at least). ``live[s, j]`` (bool
+    ``(S, n_beams)``) tells whether row ``out[s, j]`` has deposits (a row without is written as
+    zeros).
 
     Deposit, then convolve: a box's two edges each put their two fine-cell values (the
     linear two-cell split of ``formation._box_integrate``) into the beam's per-slot array of
@@ -134,11 +141,12 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     c_t = np.empty(cap)
     # cos(elevation) of a sub-cell by angle addition, cos(e + t) = cos(e) cos(t) - sin(e) sin(t), from
     # the ray's elevation e and the (cos t, sin t) its footprint uses (i14j; libm's cos per sub-cell,
-    # memoised, kept the area's loop from vectorising). (cos e, sin e) remembered per elevation
-    # sample: the grid's rays give the same elevation, bit for bit, in every beam
-    memo_e = np.full(K, np.nan)
-    memo_ce = np.empty(K)
-    memo_se = np.empty(K)
+    # memoised, kept the area's loop from vectorising). (cos e, sin e) once per elevation sample (row)
+    cos_e = np.empty(K)
+    sin_e = np.empty(K)
+    for k in range(K):
+        cos_e[k] = np.cos(elevation_k[k])
+        sin_e[k] = np.sin(elevation_k[k])
     # the area's deposits of every sub-cell of a beam (zeros off the seabed: they add nothing), in
     # loops without branches or compaction, which vectorise (int32 cells: AVX2 converts to those)
     a_v = np.empty((4, cap))
@@ -150,42 +158,44 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
     for j in range(j0, j1):
         dth = dtheta[j]
         nc = 0
+        jK = j * K
         for k in range(K):
-            i = k * J + j
-            Sn = n_sub[i]
+            w = word[jK + k]  # the ray's word, beam-major: read contiguously (most rays stop here)
+            Sn = w & 255
             if Sn == 0:
                 continue
-            if a[i] == a_g and b[i] == b_g:
-                delta, ch, sh, cd, sd, ct0, st0 = (trig[Sn, 0], trig[Sn, 1], trig[Sn, 2], trig[Sn, 3], trig[Sn, 4],
-                                                   trig[Sn, 5], trig[Sn, 6])
-            else:
-                delta = (a[i] + b[i]) / Sn
+            i = k * J + j
+            bid = w >> 16
+            if (w >> 8) & 1:  # a refined edge's cell (a, b not the grid's)
+                a_i = a[i]
+                delta = (a_i + b[i]) / Sn
                 ch = np.cos(0.5 * delta)
                 sh = np.sin(0.5 * delta)
                 cd, sd = np.cos(delta), np.sin(delta)
-                t0 = -a[i] + 0.5 * delta
+                t0 = -a_i + 0.5 * delta
                 ct0, st0 = np.cos(t0), np.sin(t0)
+            else:
+                a_i = a_g
+                delta, ch, sh, cd, sd, ct0, st0 = (trig[Sn, 0], trig[Sn, 1], trig[Sn, 2], trig[Sn, 3], trig[Sn, 4],
+                                                   trig[Sn, 5], trig[Sn, 6])
             x, y = nd[i], ndd[i]
             sgn = -1.0 if x < 0 else 1.0
             base = rng[i] * abs(x)
-            t = -a[i] + 0.5 * delta
+            t = -a_i + 0.5 * delta
             ct, st = ct0, st0
-            s = slot_of_ray[i]
-            seabed = want_area and is_seabed[body[i]]  # a ray with sub-cells is a hit
+            s = slot_of_body[bid]
+            seabed = want_area and is_seabed[bid]  # a ray with sub-cells is a hit
+            e_i = elevation_k[k]
+            r_i = refl_of_body[bid]
             ce = se = 0.0
             if seabed:
-                e_i = elevation[i]
-                if memo_e[k] == e_i:
-                    ce, se = memo_ce[k], memo_se[k]
-                else:
-                    ce, se = np.cos(e_i), np.sin(e_i)
-                    memo_e[k], memo_ce[k], memo_se[k] = e_i, ce, se
+                ce, se = cos_e[k], sin_e[k]
             for kk in range(Sn):
                 if kk > 0:
-                    t = -a[i] + (kk + 0.5) * delta
+                    t = -a_i + (kk + 0.5) * delta
                     ct, st = ct * cd - st * sd, st * cd + ct * sd
                 r_mid, c_mid, f_lo, f_hi = subcell_footprint(x, y, ct, st, ch, sh, sgn, base, pad_w)
-                el = elevation[i] + t
+                el = e_i + t
                 w = table_weight(el, table_x0, table_dx, table_y)
                 c_r[nc] = r_mid
                 c_lo[nc] = f_lo
@@ -193,7 +203,7 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl, elevation, n_sub, K,
                 c_c[nc] = c_mid
                 c_el[nc] = el
                 c_d[nc] = delta
-                c_e[nc] = refl[i] * c_mid * delta * w
+                c_e[nc] = r_i * c_mid * delta * w
                 c_s[nc] = s
                 c_sea[nc] = seabed
                 c_cos[nc] = ce * ct - se * st
@@ -383,6 +393,36 @@ def _rows_from_deposits(dep, c_lo, c_top, H, V, full, q, n_bins, ph, cum, rowbuf
     ph[:, D + lo:D + hi + 1] = 0.0
     return True
 
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def aperture_words(body, lo, hi, energy, a, b, half_step, cls, bin_width, max_sub, sub_bins, K, J, word, counts):
+    """The per-ray words of :func:`aperture_echo_rows`, written **beam-major** (``word[j K + k]`` for the
+    grid's ray ``i = k J + j``, read here in the grid's order): ``Sn | refined << 8 | body << 16``, with
+    ``Sn`` the ray's sub-cells (``_numba_kernels.subcell_counts``: 0 for a miss, then the word is 0)
+    and ``refined`` 1 where ``a[i]`` or ``b[i]`` is not ``half_step`` (a refined edge's cell). Also
+    ``formation._class_slots_numba``'s counts: ``counts[cls[body]]`` += ``Sn`` over the lit rays
+    (``energy > 0``; body -1 reads ``cls``' last entry), as ``class_counts`` with the sub-cell counts as
+    weights. Returns the largest ``Sn`` (1 at least). ``max_sub`` must be below 256."""
+    n_cls = cls.size
+    top = 1
+    for k in range(K):
+        for j in range(J):
+            i = k * J + j
+            bd = body[i]
+            s = 0
+            if bd >= 0:
+                s = int(np.ceil((hi[i] - lo[i]) / bin_width / sub_bins))
+                s = min(max(s, 1), max_sub)
+                top = max(top, s)
+            if energy[i] > 0:
+                counts[cls[bd if bd >= 0 else n_cls + bd]] += s
+            w = np.int64(0)
+            if s > 0:
+                refined = 0 if (a[i] == half_step and b[i] == half_step) else 1
+                w = np.int64(s) | (np.int64(refined) << 8) | (np.int64(bd) << 16)
+            word[j * K + k] = w
+    return top
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

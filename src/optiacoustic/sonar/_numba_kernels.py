@@ -89,7 +89,14 @@ def scan_rays(tfar, geom, prim, u, v, ng, corner_normals, tri_offset, smooth, cp
     as ``RayCaster.cast_raw`` does.
     """
     J = a.shape[0]
+    # the ray's row and beam stepped along (i14o: an integer division per ray was 15 % of this pass)
+    k = i0 // J
+    j = i0 - k * J - 1
     for i in range(i0, i1):
+        j += 1
+        if j == J:
+            j = 0
+            k += 1
         g = geom[i - first]
         if g < 0:
             body[i] = -1
@@ -99,8 +106,6 @@ def scan_rays(tfar, geom, prim, u, v, ng, corner_normals, tri_offset, smooth, cp
             cos_inc[i] = 0.0
             slope[i] = 0.0
             continue
-        k = i // J
-        j = i - k * J
         if smooth:
             t = tri_offset[g] + prim[i - first]
             w1 = u[i - first]
@@ -137,9 +142,16 @@ def scan_rays(tfar, geom, prim, u, v, ng, corner_normals, tri_offset, smooth, cp
 def footprints(body, r, cos_inc, slope, a, b, refl, weight_k, gain, J, pad_width, energy, lo, hi):
     """Energy and range footprint of every ray (``formation._scan``'s last step).
 
-    ``weight_k`` (K,) elevation weights (or empty), ``gain`` (N,) propagation gain (or empty).
+    ``weight_k`` (K,) elevation weights (or empty), ``gain`` (N,) propagation gain (or empty); the
+    arrays hold whole rows of ``J`` rays, the first of them row 0 of ``weight_k``.
     """
+    k = 0  # the ray's row, stepped along (no integer division per ray)
+    j = -1
     for i in range(body.size):
+        j += 1
+        if j == J:
+            j = 0
+            k += 1
         g = body[i]
         if g < 0:
             energy[i] = 0.0
@@ -148,7 +160,7 @@ def footprints(body, r, cos_inc, slope, a, b, refl, weight_k, gain, J, pad_width
             continue
         e = refl[g] * cos_inc[i] * (a[i] + b[i])
         if weight_k.size:
-            e *= weight_k[i // J]
+            e *= weight_k[k]
         if gain.size:
             e *= gain[i]
         energy[i] = e
@@ -332,79 +344,183 @@ def shares(parts, intensity, slot_of_share, r0, r1, out):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def noise_gaussian(I, shares, N, cumw, lams, U, E, psi, target_speckle, use_psi, r0, r1, out):
-    """The thesis noise model with Rayleigh-family bottoms, rows ``r0..r1`` (``NoiseModel._apply_numpy``).
-
-    Per cell: bottom types ``t`` add circular Gaussian power ``I share_t lam_t[c]`` (component
-    ``c`` from ``U[t]`` against the cumulative weights), the noise floor ``N`` and (with
-    target speckle) the target echo add theirs: ``P``. A steady target (no speckle) is
-    ``S``. The intensity is ``S + P E + 2 sqrt(S P E) cos(psi)``.
-    """
+def noise_counter(I, shares, N, cumw, lams, k0, k1, stream, gaussian_bottom, target_speckle, use_psi, r0, r1, out):
+    """The thesis noise model (``NoiseModel``, Rayleigh-family bottoms or none), rows ``r0..r1``, its
+    variates drawn here from a counter stream (``NoiseModel._apply_numpy`` on the same words): per
+    row :func:`_noise_variates_row` then :func:`_noise_combine_row`, no array of draws. A cell's
+    numbers depend on its index alone: any rows, any thread, the same image."""
     T = shares.shape[0]
-    C = lams.shape[1]
     J = I.shape[1]
-    two = np.float32(2.0)
-    if T == 1 and target_speckle and C <= 4:  # one bottom type, speckled targets: the thesis scenes
-        _noise_one_bottom(I, shares, N, cumw, lams, U, E, r0, r1, out)
-        return
-    for bb in range(r0, r1):
-        n = N[bb]
-        for j in range(J):
-            x = I[bb, j]
-            bottom = np.float32(0.0)
-            P = n
-            for t in range(T):
-                part = x * shares[t, bb, j]
-                bottom += part
-                k = 0
-                if C > 1:  # component: how many cumulative weights u passes (no branch on random data)
-                    uu = U[t, bb, j]
-                    for c in range(C - 1):
-                        k += np.int64(uu >= cumw[t, c])
-                lam = lams[t, k]
-                P += part * np.float32(lam)
-            target = max(x - bottom, np.float32(0.0))
-            e = E[bb, j]
-            if target_speckle:
-                out[bb, j] = (P + target) * e
-            else:
-                pe = P * e
-                v = target + pe
-                if use_psi:
-                    v += two * np.sqrt(target * pe) * np.cos(psi[bb, j])
-                out[bb, j] = max(v, np.float32(0.0))
+    s = _noise_scratch(T, J)
+    E = np.empty((1, J), np.float32)
+    lam = np.empty((T, 1, J), np.float32)
+    cs = np.empty((1, J), np.float32)
+    for i in range(r0, r1):
+        _noise_variates_row(i, k0, k1, stream, cumw, lams, gaussian_bottom, use_psi, s, E, lam, cs, 0)
+        _noise_combine_row(I, shares, N, i, E, lam, cs, 0, gaussian_bottom, target_speckle, use_psi, out)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _noise_one_bottom(I, shares, N, cumw, lams, U, E, r0, r1, out):
-    """:func:`noise_gaussian` for one bottom type of at most 4 mixture components with target
-    speckle: ``(N + I share lam_c + max(I - I share, 0)) E``, the component by selects (no inner
-    loops, no branches on the data), the same numbers as the general loop."""
+def noise_variates(k0, k1, stream, cumw, lams, gaussian_bottom, use_psi, r0, r1, E, lam, cs):
+    """The echo-free part of :func:`noise_counter`, rows ``r0..r1``: ``E`` (B, J) float32, the
+    component's power ``lam`` (T, B, J) float32 per bottom type (``gaussian_bottom``) and
+    ``cos psi`` ``cs`` (B, J) float32 (``use_psi``; else (B, 0)), as :func:`_noise_variates_row`
+    forms them. Drawn beside the scan (``NoiseModel.draw(..., _field=True)``); :func:`noise_apply`
+    finishes the image from them, the same numbers as :func:`noise_counter`."""
+    s = _noise_scratch(lam.shape[0], E.shape[1])
+    for i in range(r0, r1):
+        _noise_variates_row(i, k0, k1, stream, cumw, lams, gaussian_bottom, use_psi, s, E, lam, cs, i)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def noise_apply(I, shares, N, E, lam, cs, gaussian_bottom, target_speckle, use_psi, r0, r1, out):
+    """:func:`noise_counter` from the variates :func:`noise_variates` formed beforehand (the same numbers)."""
+    for i in range(r0, r1):
+        _noise_combine_row(I, shares, N, i, E, lam, cs, i, gaussian_bottom, target_speckle, use_psi, out)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _noise_scratch(T, J):
+    """Per-call scratch of :func:`_noise_variates_row`: the words (4 a block), the float64 rows of the
+    ``ln`` and of the uniforms, ``-2 ln x``, and the unit pair ``(cos, sin)``."""
+    n_blocks = (2 + T + 3) // 4
+    return (np.empty((4 * n_blocks, J), np.uint32), np.empty(J), np.empty(J), np.empty(J),
+            np.empty(J, np.float32), np.empty(J), np.empty(2 * J, np.float32), np.ones(J, np.float32),
+            np.full(J, np.float32(2.0)))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _noise_variates_row(i, k0, k1, stream, cumw, lams, gaussian_bottom, use_psi, s, E, lam, cs, q):
+    """The variates of image row ``i`` from its counter words, into row ``q`` of ``E`` (., J), ``lam``
+    (T, ., J) and ``cs`` (., J) (whole arrays and a row index: their rows are contiguous for the
+    compiler, so the loops vectorise). Cell ``n = i J + j`` has the words of Philox4x32-10 of the
+    counters ``(n, b, stream, 0)`` under the key ``(k0, k1)``, ``b = 0 .. n_blocks - 1``
+    (:func:`_counter_words_row`): word 0 gives ``E = -ln x``, ``x = (w0 + 1/2) 2^-32``
+    (:func:`_radius2_row`'s ``-2 ln x``, halved: exact), word 1 ``cos psi``,
+    ``psi = 2 pi w1 2^-32`` (:func:`_normals_row`'s ``cos``), word ``2 + t`` the uniform
+    ``(w + 1/2) 2^-32`` of bottom type ``t``'s mixture component, whose power ``lams[t, c]`` goes to
+    ``lam[t]`` (``c``: the cumulative weights ``cumw[t]`` it passes)."""
+    w, x, e, mant, r2, u, pair, ones, r2_one = s
+    J = E.shape[1]
+    T = lam.shape[0] if gaussian_bottom else 0
     C = lams.shape[1]
-    two = np.float32(2.0)  # above any uniform: a threshold never passed
-    c0 = cumw[0, 0] if C > 1 else two
-    c1 = cumw[0, 1] if C > 2 else two
-    c2 = cumw[0, 2] if C > 3 else two
-    l0 = np.float32(lams[0, 0])
-    l1 = np.float32(lams[0, 1]) if C > 1 else l0
-    l2 = np.float32(lams[0, 2]) if C > 2 else l0
-    l3 = np.float32(lams[0, 3]) if C > 3 else l0
+    for b in range(w.shape[0] // 4):
+        _counter_words_row(k0, k1, i * J, b, stream, w[4 * b], w[4 * b + 1], w[4 * b + 2], w[4 * b + 3])
+    _radius2_row(w[0], x, e, mant, r2)
+    half = np.float32(0.5)
+    Eq = E[q]
+    for j in range(J):
+        Eq[j] = r2[j] * half
+    if use_psi:
+        _normals_row(w[1], r2_one, ones, pair)  # sqrt(1 x 1/2 x 2) = 1: the unscaled (cos, sin) pair
+        cq = cs[q]
+        for j in range(J):
+            cq[j] = pair[2 * j]
+    for t in range(T):
+        lt = lam[t, q]
+        _uniform_bits_row(w[2 + t], u)
+        if C <= 4:  # thresholds by selects (no inner loop, no branch on the data): the loop vectorises
+            c0 = cumw[t, 0] if C > 1 else 2.0  # above any uniform: a threshold never passed
+            c1 = cumw[t, 1] if C > 2 else 2.0
+            c2 = cumw[t, 2] if C > 3 else 2.0
+            l0 = np.float32(lams[t, 0])
+            l1 = np.float32(lams[t, 1]) if C > 1 else l0
+            l2 = np.float32(lams[t, 2]) if C > 2 else l0
+            l3 = np.float32(lams[t, 3]) if C > 3 else l0
+            for j in range(J):
+                uu = u[j]
+                v = l0
+                v = l1 if uu >= c0 else v
+                v = l2 if uu >= c1 else v
+                v = l3 if uu >= c2 else v
+                lt[j] = v
+        else:
+            for j in range(J):
+                k = 0
+                for c in range(C - 1):
+                    k += np.int64(u[j] >= cumw[t, c])
+                lt[j] = np.float32(lams[t, k])
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _noise_combine_row(I, shares, N, i, E, lam, cs, q, gaussian_bottom, target_speckle, use_psi, out):
+    """Image row ``i`` from its variates, row ``q`` of ``E``, ``lam``, ``cs``
+    (:func:`_noise_variates_row`). Per cell: bottom types ``t`` add their share ``I share_t`` to
+    the bottom; Gaussian bottoms add circular Gaussian power ``I share_t lam_t`` to ``P``, which
+    starts at the noise floor ``N[i]``; the target echo ``max(I - bottom, 0)`` joins ``P``
+    (``target_speckle``) or is the steady part ``S``. Without reverberation the bottom is steady
+    (``S = bottom``, the target speckled) or the whole echo is (``S = I``). The intensity is
+    ``max(S + P E + 2 sqrt(S P E) cos psi, 0)`` (``use_psi``)."""
+    T = shares.shape[0]
     J = I.shape[1]
     zero = np.float32(0.0)
-    for bb in range(r0, r1):
-        n = N[bb]
+    two = np.float32(2.0)
+    n = N[i]
+    Ii = I[i]
+    oi = out[i]
+    Eq = E[q]
+    if T == 1 and gaussian_bottom and target_speckle:  # the thesis scenes: the loop vectorises
+        s0 = shares[0, i]
+        l0 = lam[0, q]
         for j in range(J):
-            x = I[bb, j]
-            part = x * shares[0, bb, j]
-            lam = l0
-            if C > 1:
-                uu = U[0, bb, j]
-                lam = l1 if uu >= c0 else lam
-                lam = l2 if uu >= c1 else lam
-                lam = l3 if uu >= c2 else lam
-            P = n + part * lam
-            target = max(x - part, zero)
-            out[bb, j] = (P + target) * E[bb, j]
+            xx = Ii[j]
+            part = xx * s0[j]
+            P = n + part * l0[j]
+            target = max(xx - part, zero)
+            oi[j] = (P + target) * Eq[j]
+        return
+    for j in range(J):
+        xx = Ii[j]
+        bottom = zero
+        P = n
+        for t in range(T):
+            part = xx * shares[t, i, j]
+            bottom += part
+            if gaussian_bottom:
+                P += part * lam[t, q, j]
+        target = max(xx - bottom, zero)
+        S = zero
+        if gaussian_bottom:
+            if target_speckle:
+                P += target
+            else:
+                S = target
+        elif target_speckle:
+            P += target
+            S = bottom
+        else:
+            S = xx
+        pe = P * Eq[j]
+        v = S + pe
+        if use_psi:
+            v += two * np.sqrt(max(S, zero) * pe) * cs[q, j]
+        oi[j] = max(v, zero)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _counter_words_row(k0, k1, first, block, stream, w0, w1, w2, w3):
+    """Words 0..3 of Philox4x32-10 of the counters ``(cell, block, stream, 0)`` under the key
+    ``(k0, k1)``, cells ``first .. first + len(w0)`` (uint32 rows ``w0 .. w3``)."""
+    z = np.uint32(0)
+    bk = np.uint32(block)
+    st = np.uint32(stream)
+    for j in range(w0.size):
+        a, b, c, d = _philox(np.uint32(first + j), bk, st, z, k0, k1)
+        w0[j] = a
+        w1[j] = b
+        w2[j] = c
+        w3[j] = d
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def counter_words(k0, k1, stream, r0, r1, out):
+    """The words of :func:`noise_counter`, rows ``r0..r1``, into ``out`` (4 n_blocks, B, J) uint32
+    (the tests compare them with ``noise._philox_numpy``)."""
+    J = out.shape[2]
+    for i in range(r0, r1):
+        for b in range(out.shape[0] // 4):
+            _counter_words_row(k0, k1, i * J, b, stream, out[4 * b, i], out[4 * b + 1, i], out[4 * b + 2, i],
+                               out[4 * b + 3, i])
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -445,11 +445,14 @@ def simulate_sonar(
     def start_draws():
         # the noise variates do not depend on the echo: with a second thread, draw them on the other
         # core once the primary cast (which takes every thread) is done, beside the one-thread stages
-        # (the scatterer noise: the echo-free part of its field too)
+        # (the scatterer noise: the echo-free part of its field too; the thesis model: its variates from
+        # the counter stream, which apply would otherwise form in its own pass)
         nonlocal draws
         if draw_args is not None and caster.threads > 1:
-            beside = {"_field": True} if pooled and isinstance(noise, ScattererNoise) else {}
+            beside = {"_field": True} if pooled else {}
             draws = _background().submit(*draw_args, **beside)
+            return True  # a thread of the caller's is taken meanwhile
+        return False
 
     sspec = scan_spec(spec, options.beam_model)
     if options.beam_model == "aperture":
@@ -892,7 +895,9 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     """Cast the beams' rays and compute each ray's echo energy and range footprint (sec. 2.6.1).
 
     ``weights`` (``(elevation_samples,)``) overrides the elevation pattern's weights.
-    ``after_cast`` (no arguments) is called once the primary rays are cast.
+    ``after_cast`` (no arguments) is called once the primary rays are cast; when it returns True it has
+    started work on one of the caster's threads (the noise's draws), and with two threads the edge
+    refinement's cast then stays on the calling thread (:func:`_refine_edges_numba`).
     With ``pattern`` (the aperture model's elevation pattern) returns ``(rays, image_rays)``:
     ``image_rays`` splits every ray whose footprint is long in range into sub-cells
     (:func:`_subdivide`), so that the echo's density follows the surface within it.
@@ -906,8 +911,7 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
         body, r, nd, ndd, cos_inc, slope = _scan_hits_numba(caster, spec, pose)
     else:
         body, r, nd, ndd, cos_inc, slope = _scan_hits_numpy(caster, spec, pose)
-    if after_cast is not None:
-        after_cast()
+    beside = bool(after_cast()) if after_cast is not None else False
     hit = body >= 0
     # angular extent of each ray's elevation cell below (a) and above (b) the ray
     step = spec.elevation_step
@@ -918,7 +922,7 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     else:
         a = np.full(K * J, 0.5 * step)
         b = np.full(K * J, 0.5 * step)
-    _refine_edges(caster, spec, pose, body, r, slope, a, b)
+    _refine_edges(caster, spec, pose, body, r, slope, a, b, split=not (beside and caster.threads <= 2))
 
     refl = np.array([bd.material.reflectivity for bd in scene.bodies] + [0.0])
     beam_grid, elev_grid = _index_grids(spec)
@@ -979,7 +983,8 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     if pattern is None:
         return rays
     if fast and not materialise:
-        return rays, _aperture_cells(spec, rays, nd, ndd, a, b, refl[body], pattern, options)
+        # the reflectivity per body id (the kernel reads it by the ray's body: no per-ray gather)
+        return rays, _aperture_cells(spec, rays, nd, ndd, a, b, refl, pattern, options)
     if fast:
         return rays, _subdivide_numba(spec, rays, nd, ndd, a, b, refl[body], pattern, options, caster.threads)
     return rays, _subdivide(spec, rays, nd, ndd, a, b, refl[body], pattern, options)
@@ -1055,7 +1060,8 @@ def _two_way_lookup(pattern, fov: float):
     return functools.partial(np.interp, xp=x, fp=y)
 
 
-#: At most this many sub-cells per ray in the aperture model's image rays.
+#: At most this many sub-cells per ray in the aperture model's image rays (below 256: the fused
+#: kernel's per-ray word, ``_aperture_kernels.aperture_words``, holds the count in 8 bits).
 _MAX_SUBCELLS = 16
 #: ... each covering at most about this many range bins.
 _SUBCELL_BINS = 3.0
@@ -1140,8 +1146,9 @@ def _subdivide_numba(spec: SonarSpec, rays: SonarRays, nd, ndd, a, b, refl, patt
 class _ApertureCells:
     """What the aperture model's fused kernel needs to form the sub-cells of :func:`_subdivide`
     itself (``_aperture_kernels.aperture_echo_rows``): the primary rays, per ray (flat,
-    ``(K * J,)``) ``n . d``, ``n . d'``, the cell's extents below/above the ray ``a``, ``b`` and
-    the body's reflectivity, and the two-way pattern's table over the scan's elevations."""
+    ``(K * J,)``) ``n . d``, ``n . d'``, the cell's extents below/above the ray ``a``, ``b``, the
+    reflectivity per body id ``refl`` (``(n_bodies + 1,)``, the last entry 0 for a miss: indexed by
+    the ray's body, not per ray) and the two-way pattern's table over the scan's elevations."""
 
     rays: SonarRays
     nd: np.ndarray
@@ -1225,12 +1232,21 @@ def _aperture_rows(spec: SonarSpec, cells: _ApertureCells, options: SonarOptions
     rays = cells.rays
     flat = lambda arr: np.ascontiguousarray(arr).reshape(-1)  # noqa: E731
     body, lo, hi = flat(rays.body), flat(rays.footprint_lo), flat(rays.footprint_hi)
-    n_sub = np.empty(body.size, np.int64)
-    kernels().subcell_counts(body, lo, hi, spec.bin_width, _MAX_SUBCELLS, _SUBCELL_BINS, n_sub)
+    J, B = spec.n_beams, spec.n_bins
+    K = body.size // J
+    # one pass over the rays in the grid's order writes each ray's word (sub-cell count, refined-edge
+    # flag, body) beam-major, so that the kernel's loop over a beam's rays reads them contiguously, and
+    # counts the classes' lit sub-cells (_class_slots_numba with the sub-cell counts as weights)
+    names, cls = _class_table(bottom_types, body)
+    counts = np.zeros(len(names), np.int64)
+    word = _workspace("aperture_word", (body.size,), np.int64)
+    max_s = ak.aperture_words(body, lo, hi, flat(rays.energy), flat(cells.a), flat(cells.b), 0.5 * rays.elevation_step,
+                              cls, spec.bin_width, _MAX_SUBCELLS, _SUBCELL_BINS, K, J, word, counts)
     if not bottom_types:
-        slot, n_slots, slot_of = np.zeros(body.size, np.int8), 1, {}
+        slot_of_body, n_slots, slot_of = np.zeros(cls.size, np.int8), 1, {}
     else:  # the class with most lit sub-cells takes slot 0, as _class_slots on the sub-cells
-        slot, n_slots, slot_of = _class_slots_numba(bottom_types, rays, n_sub)
+        table, n_slots, slot_of = _slot_table(names, counts)
+        slot_of_body = table[cls]
     ids = [i for v in bottom_types.values() for i in v]
     n_bodies = max([int(np.max(body, initial=-1))] + ids) + 1
     is_seabed = np.zeros(n_bodies + 1, np.bool_)
@@ -1238,19 +1254,16 @@ def _aperture_rows(spec: SonarSpec, cells: _ApertureCells, options: SonarOptions
     q = options.range_oversample
     sigma_bins = max(spec.pulse_width / spec.bin_width / 2.3548, 0.5)
     H, V, full = _deposit_tables(spec.n_bins, q, sigma_bins)
-    J, B = spec.n_beams, spec.n_bins
-    K = body.size // J
     out = _workspace(f"echo{n_slots}", (n_slots, J, B), np.float32)
     # written in the image layout into a reused scratch (fresh pages fault on every frame): the
     # caller reads it before the next frame on this thread (simulate_sonar: the noise's counts)
     area = _workspace("aperture_area", (B, J), np.float32) if need_area else np.empty((0, 0), np.float32)
     x0, dx, y = cells.table
     dtheta = np.ascontiguousarray(np.diff(spec.beam_edges), float)
-    bm = flat
-    args = (bm(rays.range), bm(cells.nd), bm(cells.ndd), bm(cells.a), bm(cells.b), 0.5 * rays.elevation_step,
-            bm(cells.refl), bm(rays.elevation), bm(n_sub), K, J, x0, dx, y, cells.alpha_db, cells.spreading, spec.bin_width, bm(slot),
-            body, is_seabed, dtheta, float(spec.range_min), B * q, H, V, full, q, B, bool(need_area),
-            max(1, int(n_sub.max(initial=0))))
+    elevation_k = np.ascontiguousarray(rays.elevation[:, 0], float)  # the grid's rows: one elevation each
+    args = (flat(rays.range), cells.nd, cells.ndd, cells.a, cells.b, 0.5 * rays.elevation_step,
+            cells.refl, elevation_k, word, K, J, x0, dx, y, cells.alpha_db, cells.spreading, spec.bin_width,
+            slot_of_body, is_seabed, dtheta, float(spec.range_min), B * q, H, V, full, q, B, bool(need_area), max_s)
     live = np.empty((n_slots, J), np.bool_)
     chunked_run(lambda j0, j1: ak.aperture_echo_rows(*args, j0, j1, out, area, live), J, threads)
     return out, (area if need_area else None), live, slot_of
@@ -1273,7 +1286,7 @@ def _cast_fast(caster: RayCaster, origin, d_world, max_distance: float, smooth: 
     return body, r, n
 
 
-def _refine_edges(caster, spec, pose, body, r, slope, a, b) -> None:
+def _refine_edges(caster, spec, pose, body, r, slope, a, b, split: bool = True) -> None:
     """Locate visibility edges between consecutive elevation samples and move the cell boundary there.
 
     Between rays k and k+1 of a beam that see different surfaces (another body, a miss,
@@ -1282,12 +1295,13 @@ def _refine_edges(caster, spec, pose, body, r, slope, a, b) -> None:
     grazing incidence is several range bins (jagged shadow edges). ``_EDGE_SUBRAYS``
     sub-rays between the two classify which surface continues where, and the shared cell
     boundary moves to the transition. ``a`` (extent below) and ``b`` (above) are updated
-    in place; energy follows the cells' widths, so it stays conserved.
+    in place; energy follows the cells' widths, so it stays conserved. ``split=False``: the compiled
+    path casts the sub-rays on the calling thread only.
     """
     K, J = spec.elevation_samples, spec.n_beams
     step = spec.elevation_step
     if use_numba():
-        _refine_edges_numba(caster, spec, pose, body, r, slope, a, b)
+        _refine_edges_numba(caster, spec, pose, body, r, slope, a, b, split)
         return
     B = body.reshape(K, J)
     Rg = r.reshape(K, J)
@@ -1340,7 +1354,7 @@ def _edge_trig(spec: SonarSpec):
     return out
 
 
-def _refine_edges_numba(caster, spec, pose, body, r, slope, a, b) -> None:
+def _refine_edges_numba(caster, spec, pose, body, r, slope, a, b, split: bool = True) -> None:
     """:func:`_refine_edges` with the discontinuities found, the sub-rays' directions formed and the
     sub-rays classified by kernels (the directions from per-spec tables of the numpy path's sines
     and cosines, rotated with its einsum's order of sums: both cast the same float32 rays)."""
@@ -1358,7 +1372,12 @@ def _refine_edges_numba(caster, spec, pose, body, r, slope, a, b) -> None:
     kn.edge_directions32(kk, jj, cp, sp, sth, cth, np.ascontiguousarray(pose.R, float), 0, m, d32)
     o32 = _fill_rows(np.empty_like(d32), pose.t)
     dist32 = np.full(len(d32), min(np.float32(spec.range_max * 1.5), np.float32(1e30)), np.float32)
-    tfar, h_body, _, _, _, _ = caster.intersect_raw(o32, d32, dist32, normals=False)
+    # split=False (_scan: two threads, one of them drawing the noise): on the calling thread alone. The
+    # sub-rays lie along silhouettes, scattered over the fan; on the 2-vCPU machine of the benchmarks two
+    # threads cast such rays no faster than one (i14o: 8 120 sub-rays 1.30 ms on one thread, 1.33-1.58
+    # split), and a split put a chunk beside the noise's words on the other vCPU (2.8 ms of wall for the
+    # realistic frame's edge cast at two threads, 1.3 alone). With more threads the split stays.
+    tfar, h_body, _, _, _, _ = caster.intersect_raw(o32, d32, dist32, normals=False, split=split)
     kn.edge_split(kk, jj, h_body, tfar, body, r, slope, step, S, J, a, b)
 
 

@@ -115,50 +115,73 @@ class NoiseModel:
             return self.target_speckle or self.noise_floor_db is not None
         return not self._gaussian_bottom() or not self.target_speckle
 
-    def draw(self, shape: tuple, bottom_types, rng: np.random.Generator, *, _reuse: bool = False) -> "NoiseDraws":
-        """Draw every random variate the image needs; independent of the echo itself.
+    def _counter(self) -> bool:
+        """Whether the variates come from the counter stream (:class:`NoiseKey`): every model but
+        Weibull and K, whose amplitudes have no per-cell form here (their ``sample``: gamma
+        variates for K) and are drawn from the generator as before (:class:`NoiseDraws`)."""
+        return self.reverberation is None or self._gaussian_bottom()
 
-        ``simulate_sonar`` runs this in a background thread while it scans the scene.
-        The draws come in a fixed order (per bottom type its mixture component ``u`` or,
-        for Weibull and K, its amplitude ``x``; then ``E``, then the phases), so a seed
-        gives the same image. ``_reuse`` (``simulate_sonar``): the uniforms, ``E`` and the
-        phases go into buffers of ``sonar._kernels.pooled`` (the same numbers: ``out=``), which
-        the caller hands back (:func:`release_noise_draws`) once :meth:`apply` has read them.
+    def draw(self, shape: tuple, bottom_types, rng: np.random.Generator, *,
+             _reuse: bool = False, _field: bool = False) -> "NoiseKey | NoiseDraws":
+        """The frame's random variates, or the key they are computed from; independent of the echo.
+
+        Rayleigh-family bottoms and no reverberation (the thesis's models): a :class:`NoiseKey`, two
+        words drawn from ``rng``; each cell's uniforms, exponential and phase are words of
+        Philox4x32-10 of its index under that key (:func:`counter_words`; docs/physics.md, "The
+        thesis model's noise from a counter stream"), computed by :meth:`apply` row by row (the
+        compiled path inside its kernel, on every thread: no array of draws). Weibull and K
+        bottoms: a :class:`NoiseDraws` from ``rng`` in a fixed order (per bottom type its
+        amplitude ``x``; then ``E``, then the phases), so a seed gives the same image.
+        ``_reuse`` (``simulate_sonar``): those arrays go into buffers of
+        ``sonar._kernels.pooled`` (the same numbers: ``out=``), which the caller hands back
+        (:func:`release_noise_draws`) once :meth:`apply` has read them. ``_field``
+        (``simulate_sonar`` with a second thread: this runs beside the scan) with ``_reuse``: the
+        key's echo-free variates are formed now, into pooled buffers (``E``, each bottom type's
+        component power, ``cos psi``: ``_numba_kernels.noise_variates``), and :meth:`apply`
+        finishes the image from them, the same numbers as without.
         """
-        from ._kernels import pooled
-        from .distributions import bottom_model
+        from ._kernels import kernels, pooled, use_numba
 
+        if self._counter():
+            key = NoiseKey(rng.integers(0, 2**32, size=2, dtype=np.uint32), tuple(shape))
+            off = self.reverberation is None and not self.target_speckle and self.noise_floor_db is None
+            if not (_field and _reuse and use_numba()) or off:
+                return key
+            B, J = key.shape
+            types = tuple(dict.fromkeys(bottom_types))
+            cumw, lams = self._component_tables(types)
+            use_psi = self._needs_psi()
+            T = len(types) if self._gaussian_bottom() else 0
+            v = (pooled((B, J), np.float32), pooled((T, B, J), np.float32),
+                 pooled((B, J) if use_psi else (B, 0), np.float32))
+            kernels().noise_variates(np.uint32(key.key[0]), np.uint32(key.key[1]), _STREAM, cumw, lams,
+                                     self._gaussian_bottom(), use_psi, 0, B, *v)
+            return NoiseKey(key.key, key.shape, types, v)
         shape = tuple(shape)
         buf = (lambda: pooled(shape, np.float32)) if _reuse else (lambda: None)  # noqa: E731
-        u, x = {}, {}
-        if self.reverberation is not None:
-            for b in bottom_types:
-                if b in u or b in x:
-                    continue
-                model = bottom_model(self.bottom_type or b, self.reverberation)
-                if self._gaussian_bottom():
-                    w, _ = _mixture_table(model)
-                    u[b] = rng.random(shape, dtype=np.float32, out=buf()) if len(w) > 1 else None
-                else:
-                    x[b] = model.sample(shape, rng, dtype=np.float32)
+        x = {}
+        for b in bottom_types:
+            if b not in x:
+                x[b] = bottom_model_for(self, b).sample(shape, rng, dtype=np.float32)
         e = rng.standard_exponential(shape, dtype=np.float32, out=buf())
         phase = None
-        if self.reverberation is not None and not self._gaussian_bottom() and not self.target_speckle:
+        if not self.target_speckle:
             phase = rng.random(shape, dtype=np.float32, out=buf())
             phase *= np.float32(2 * np.pi)
         psi = None
         if self._needs_psi():
             psi = rng.random(shape, dtype=np.float32, out=buf())
             psi *= np.float32(2 * np.pi)
-        return NoiseDraws(e, u, x, phase, psi)
+        return NoiseDraws(e, {}, x, phase, psi)
 
     def apply(self, intensity: np.ndarray, *, spec, seabed_share: dict, rng: np.random.Generator | None = None,
-              options, draws: "NoiseDraws | None" = None, threads: int = 1) -> np.ndarray:
+              options, draws: "NoiseKey | NoiseDraws | None" = None, threads: int = 1) -> np.ndarray:
         """The noisy image ``(n_bins, n_beams)`` float32 from the noise-free ``intensity``.
 
         ``seabed_share[bottom_type]`` is the share of each cell's echo returned by seabed
         bodies of that bottom type (``SonarFrame.seabed_share``). Pass either ``draws``
-        (from :meth:`draw`) or ``rng``. ``threads``: rows are split over this many threads.
+        (from :meth:`draw`) or ``rng``. ``threads``: rows are split over this many threads
+        (the counter stream makes the image the same for any number).
 
         Every cell is ``|a + g|^2``: ``a`` its steady (non-Gaussian given the draws) part of
         power ``S``, ``g`` its circular Gaussian part of power ``P``; with ``|g|^2 = P E``
@@ -176,29 +199,46 @@ class NoiseModel:
             draws = self.draw(shape, list(seabed_share), rng)
         if self.reverberation is None and not self.target_speckle and self.noise_floor_db is None:
             return I.copy()
+        if isinstance(draws, NoiseKey) != self._counter():
+            raise ValueError(f"NoiseModel.apply: draws of type {type(draws).__name__} do not belong to "
+                             f"reverberation={self.reverberation!r} (draw them with this model's draw)")
+        if isinstance(draws, NoiseKey) and draws.shape != shape:
+            raise ValueError(f"NoiseModel.apply: draws for shape {draws.shape}, intensity has shape {shape}")
         noise = self.noise_power(I, spec.ranges, spec.frequency, options.propagation, options.water)
-        if self._gaussian_bottom() and use_numba():
-            types = list(seabed_share)
-            T = len(types)
-            tables = [_mixture_table(bottom_model_for(self, t)) for t in types]
-            C = max([len(w) for w, _ in tables], default=1)
-            cumw = np.ones((max(T, 1), C))
-            lams = np.zeros((max(T, 1), C))
-            for k, (w, lam) in enumerate(tables):  # pad with zero-weight copies of the last component
-                cumw[k, : len(w) - 1] = np.cumsum(w)[:-1]
-                lams[k, : len(w)] = lam
-                lams[k, len(w):] = lam[-1]
+        types = list(seabed_share)
+        if isinstance(draws, NoiseKey) and use_numba():
             sh = _stack([np.asarray(seabed_share[t], np.float32) for t in types], shape)
-            U = _stack([draws.u[t] if draws.u.get(t) is not None else np.zeros(shape, np.float32) for t in types],
-                       shape) if C > 1 else np.zeros((max(T, 1), 1, 1), np.float32)
-            psi = draws.psi if draws.psi is not None else np.zeros((1, 1), np.float32)
             out = np.empty(shape, np.float32)
             kn = kernels()
-            # rows in chunks that the threads take as they finish (rows are independent: the same numbers)
-            chunked_run(lambda r0, r1: kn.noise_gaussian(I, sh, noise, cumw, lams, U, draws.e, psi, self.target_speckle,
-                                                         draws.psi is not None, r0, r1, out), shape[0], threads)
+            gauss, speckle, use_psi = self._gaussian_bottom(), self.target_speckle, self._needs_psi()
+            # rows in chunks that the threads take as they finish (a cell's words are its index's: the same numbers)
+            if draws.variates is not None and draws.types == tuple(types):  # formed beside the scan
+                E, lam, cs = draws.variates
+                chunked_run(lambda r0, r1: kn.noise_apply(I, sh, noise, E, lam, cs, gauss, speckle, use_psi, r0, r1,
+                                                          out), shape[0], threads)
+                return out
+            cumw, lams = self._component_tables(types)
+            k0, k1 = np.uint32(draws.key[0]), np.uint32(draws.key[1])
+            chunked_run(lambda r0, r1: kn.noise_counter(I, sh, noise, cumw, lams, k0, k1, _STREAM, gauss, speckle,
+                                                        use_psi, r0, r1, out), shape[0], threads)
             return out
+        if isinstance(draws, NoiseKey):
+            draws = _counter_draws(draws, types, self._needs_psi())
         return self._apply_numpy(I, noise[:, None], seabed_share, draws)
+
+    def _component_tables(self, types) -> tuple:
+        """``(cumw, lams)`` ``(max(T, 1), C)`` float64 of the bottom types ``types``: each mixture's
+        cumulative weights (1 beyond its last threshold) and component powers (the last repeated),
+        padded to the most components ``C``."""
+        tables = [_mixture_table(bottom_model_for(self, t)) for t in types] if self._gaussian_bottom() else []
+        C = max([len(w) for w, _ in tables], default=1)
+        cumw = np.ones((max(len(types), 1), C))
+        lams = np.zeros((max(len(types), 1), C))
+        for k, (w, lam) in enumerate(tables):  # pad with zero-weight copies of the last component
+            cumw[k, : len(w) - 1] = np.cumsum(w)[:-1]
+            lams[k, : len(w)] = lam
+            lams[k, len(w):] = lam[-1]
+        return cumw, lams
 
     def _apply_numpy(self, I, noise, seabed_share, draws):
         """The reference implementation of :meth:`apply` (``OAS_KERNELS=numpy``)."""
@@ -293,22 +333,75 @@ def _mixture_table(model):
     return np.ones(1), np.array([float(model.lam)])
 
 
-def release_noise_draws(draws: "NoiseDraws") -> None:
+def release_noise_draws(draws: "NoiseKey | NoiseDraws") -> None:
     """Hand the buffers of ``NoiseModel.draw(..., _reuse=True)`` back to the pool; the caller must
-    not read ``draws`` afterwards (the amplitudes ``x`` are fresh arrays and are left alone)."""
+    not read ``draws`` afterwards (the amplitudes ``x`` are fresh arrays and are left alone; a
+    :class:`NoiseKey` holds none)."""
     from ._kernels import give_back
 
-    give_back(draws.e, *draws.u.values(), draws.phase, draws.psi)
+    if isinstance(draws, NoiseDraws):
+        give_back(draws.e, *draws.u.values(), draws.phase, draws.psi)
+    elif draws.variates is not None:
+        give_back(*draws.variates)
+
+
+#: Counter word 2 of the thesis model's Philox blocks (the scatterer noise's words have 0 there): the
+#: two models' streams stay apart under one key.
+_STREAM = 1
+
+
+@dataclass(frozen=True, eq=False)
+class NoiseKey:
+    """The thesis model's draws of one frame (``NoiseModel.draw``): the key ``(2,)`` uint32 of its
+    counter stream, for an image of ``shape`` ``(n_bins, n_beams)``. The variates of cell
+    ``(i, j)`` are functions of ``(key, i n_beams + j)`` alone (:func:`counter_words`). With a second
+    thread ``simulate_sonar`` has them formed beside the scan: ``variates`` (pooled buffers, for the
+    bottom types ``types`` in that order; handed back by :func:`release_noise_draws`)."""
+
+    key: np.ndarray
+    shape: tuple
+    types: tuple = ()
+    variates: Optional[tuple] = None  # (E, lam, cos psi) formed beside the scan (``draw(_field=True)``)
+
+
+def _n_blocks(n_types: int) -> int:
+    """Philox blocks (of 4 words) per cell: ``E``, ``psi`` and one uniform per bottom type."""
+    return (2 + n_types + 3) // 4
+
+
+def counter_words(draws: NoiseKey, n_types: int) -> np.ndarray:
+    """The thesis model's random words ``(4 n_blocks, n_bins, n_beams)`` uint32 of a frame (numpy
+    reference of ``_numba_kernels.noise_counter``'s): row ``4 b + k`` is word ``k`` of
+    Philox4x32-10 of the counters ``(cell, b, 1, 0)`` under ``draws.key``, ``cell = i n_beams + j``
+    the flat index. Word 0: ``E``, word 1: ``psi``, word ``2 + t``: the component's uniform of
+    bottom type ``t`` (``n_types`` of them)."""
+    B, J = draws.shape
+    cells = np.arange(B * J)
+    words = [w for b in range(_n_blocks(n_types)) for w in _philox_numpy(cells, draws.key, b, _STREAM)]
+    return np.stack(words).reshape(-1, B, J)
+
+
+def _counter_draws(draws: NoiseKey, types: list, psi: bool) -> "NoiseDraws":
+    """The variates of :class:`NoiseDraws` from the counter words (the numpy reference path):
+    ``E = -ln x``, ``x = (w0 + 1/2) 2^-32``; ``psi = 2 pi w1 2^-32`` (float64); the component
+    uniforms ``(w + 1/2) 2^-32`` (float64) of each bottom type, in the order of ``types``."""
+    words = counter_words(draws, len(types))
+    e = (-np.log(_uniforms(words[0]))).astype(np.float32)
+    u = {t: _uniforms(words[2 + k]) for k, t in enumerate(types)}
+    phase = (2.0 * np.pi * 2.0**-32) * words[1].astype(np.float64) if psi else None
+    return NoiseDraws(e, u, {}, None, phase)
 
 
 @dataclass(frozen=True, eq=False)
 class NoiseDraws:
-    """Random variates of one frame, each ``(n_bins, n_beams)`` float32: ``e ~ Exp(1)`` (the power
+    """Random variates of one frame, each ``(n_bins, n_beams)``: ``e ~ Exp(1)`` (float32, the power
     of the Gaussian part), per bottom type the mixture component's uniform ``u[bottom_type]``
-    (Rayleigh-family models; ``None`` for one component) or the amplitude ``x[bottom_type]``
-    with ``E[x^2] = 1`` (Weibull, K), the phase of steady target echoes (only when
-    ``target_speckle`` is off and the seabed is not Gaussian) and the relative phase ``psi``
-    of steady and Gaussian parts (``None`` when no cell has both)."""
+    (Rayleigh-family models, float64, from the counter words: :func:`_counter_draws`) or the
+    amplitude ``x[bottom_type]`` with ``E[x^2] = 1`` (Weibull, K, float32 from the generator), the
+    phase of steady target echoes (only when ``target_speckle`` is off and the seabed is not
+    Gaussian) and the relative phase ``psi`` of steady and Gaussian parts (``None`` when no
+    cell has both). ``NoiseModel.draw`` returns one for Weibull and K bottoms; the other
+    models' numpy path makes one from their :class:`NoiseKey`."""
 
     e: np.ndarray
     u: dict
@@ -573,22 +666,43 @@ _PHILOX_M = (0xD2511F53, 0xCD9E8D57)
 _PHILOX_W = (0x9E3779B9, 0xBB67AE85)
 
 
-def _philox_numpy(cells: np.ndarray, key) -> tuple:
-    """Philox4x32-10 of counters ``(cells, 0, 0, 0)`` under ``key``: four uint32 arrays (numpy
-    reference of the kernels' generator)."""
-    c0 = np.asarray(cells).astype(np.uint64) & np.uint64(0xFFFFFFFF)
-    c1 = np.zeros_like(c0)
-    c2 = np.zeros_like(c0)
-    c3 = np.zeros_like(c0)
-    k0, k1 = np.uint64(int(key[0])), np.uint64(int(key[1]))
-    mask = np.uint64(0xFFFFFFFF)
+def _philox_numpy(cells: np.ndarray, key, c1: int = 0, c2: int = 0) -> tuple:
+    """Philox4x32-10 of counters ``(cells, c1, c2, 0)`` under ``key``: four uint32 arrays of the shape
+    of ``cells`` (numpy reference of the kernels' generator). In chunks of 32 768 counters whose
+    uint64 scratch stays in cache, every operation in place (issue 14: 5x faster than whole-array
+    temporaries, the same words)."""
+    cells = np.asarray(cells)
+    flat = cells.reshape(-1)
+    n = flat.size
+    out = np.empty((4, n), np.uint32)
+    m0, m1 = np.uint64(_PHILOX_M[0]), np.uint64(_PHILOX_M[1])
+    mask, s32 = np.uint64(0xFFFFFFFF), np.uint64(32)
+    keys, k0, k1 = [], int(key[0]), int(key[1])
     for _ in range(10):
-        p0 = np.uint64(_PHILOX_M[0]) * c0
-        p1 = np.uint64(_PHILOX_M[1]) * c2
-        c0, c1, c2, c3 = (p1 >> np.uint64(32)) ^ c1 ^ k0, p1 & mask, (p0 >> np.uint64(32)) ^ c3 ^ k1, p0 & mask
-        k0 = (k0 + np.uint64(_PHILOX_W[0])) & mask
-        k1 = (k1 + np.uint64(_PHILOX_W[1])) & mask
-    return tuple(c.astype(np.uint32) for c in (c0, c1, c2, c3))
+        keys.append((np.uint64(k0), np.uint64(k1)))
+        k0, k1 = (k0 + _PHILOX_W[0]) & 0xFFFFFFFF, (k1 + _PHILOX_W[1]) & 0xFFFFFFFF
+    chunk = 1 << 15
+    scratch = np.empty((6, min(chunk, n)), np.uint64)
+    for s in range(0, n, chunk):
+        e = min(s + chunk, n)
+        w0, w1, w2, w3, p0, p1 = scratch[:, : e - s]
+        np.bitwise_and(flat[s:e].astype(np.uint64), mask, out=w0)
+        w1.fill(c1)
+        w2.fill(c2)
+        w3.fill(0)
+        for r0, r1 in keys:  # (w0, w1, w2, w3) <- (hi(p1) ^ w1 ^ k0, lo(p1), hi(p0) ^ w3 ^ k1, lo(p0))
+            np.multiply(w0, m0, out=p0)
+            np.multiply(w2, m1, out=p1)
+            np.right_shift(p1, s32, out=w0)
+            w0 ^= w1
+            w0 ^= r0
+            np.bitwise_and(p1, mask, out=w1)
+            np.right_shift(p0, s32, out=w2)
+            w2 ^= w3
+            w2 ^= r1
+            np.bitwise_and(p0, mask, out=w3)
+        out[:, s:e] = scratch[:4, : e - s]
+    return tuple(w.reshape(cells.shape) for w in out)
 
 
 def cell_words(key, cells: np.ndarray) -> np.ndarray:
