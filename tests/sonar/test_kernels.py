@@ -20,15 +20,9 @@ from optiacoustic.sonar import noise as N
 from optiacoustic.sonar.gain import DeviceGain
 from optiacoustic.sonar.noise import NoiseModel, ScattererNoise
 
+from .conftest import both_kernel_paths
+
 SPEC = dataclasses.replace(SonarSpec.preset("blueview-p900-90"), n_beams=96, n_bins=240, elevation_samples=48)
-
-
-def _both(monkeypatch, fn):
-    out = {}
-    for k in ("numba", "numpy"):
-        monkeypatch.setenv("OAS_KERNELS", k)
-        out[k] = fn()
-    return out["numba"], out["numpy"]
 
 
 def _close(a, b, rtol=1e-5):
@@ -53,7 +47,7 @@ def test_switch_is_validated(monkeypatch):
 @pytest.mark.parametrize("options", [SonarOptions(), SonarOptions(elevation_pattern="gaussian", propagation="spreading")])
 def test_thesis_frame_rays_echo_shares_and_truth_agree(thesis, options, monkeypatch):
     sc, pose = thesis
-    a, b = _both(monkeypatch, lambda: simulate_sonar(sc, SPEC, pose, seed=4, options=options))
+    a, b = both_kernel_paths(monkeypatch, lambda: simulate_sonar(sc, SPEC, pose, seed=4, options=options))
     for name in ("range", "energy", "footprint_lo", "footprint_hi", "cos_incidence", "elevation_lo", "elevation_hi"):
         x, y = getattr(a.rays, name), getattr(b.rays, name)
         assert np.array_equal(np.isfinite(x), np.isfinite(y)), name
@@ -74,7 +68,7 @@ def test_thesis_frame_rays_echo_shares_and_truth_agree(thesis, options, monkeypa
 def test_aperture_model_subcells_area_and_image_agree(thesis, monkeypatch):
     sc, pose = thesis
     opts = SonarOptions(beam_model="aperture", propagation="spreading")
-    a, b = _both(monkeypatch, lambda: simulate_sonar(sc, SPEC, pose, noise=False, options=opts))
+    a, b = both_kernel_paths(monkeypatch, lambda: simulate_sonar(sc, SPEC, pose, noise=False, options=opts))
     _close(a.intensity, b.intensity)
     sspec = F.scan_spec(SPEC, "aperture")
     caster = F.caster_for(sc)
@@ -83,7 +77,7 @@ def test_aperture_model_subcells_area_and_image_agree(thesis, monkeypatch):
         _, img = F._scan(sc, caster, sspec, pose, opts, F._aperture_elevation_weights(SPEC), SPEC.elevation_pattern())
         return img, F.cell_area(SPEC, img, F._bottom_types(sc))
 
-    (ia, aa), (ib, ab) = _both(monkeypatch, area)
+    (ia, aa), (ib, ab) = both_kernel_paths(monkeypatch, area)
     assert ia.energy.size == ib.energy.size
     _close(ia.energy, ib.energy, rtol=1e-7)
     _close(aa, ab)
@@ -96,7 +90,7 @@ def test_aperture_model_subcells_area_and_image_agree(thesis, monkeypatch):
         return noise.apply(b.intensity, spec=SPEC, seabed_share=b.seabed_share, options=opts, draws=d,
                            cell_area=area_big, threads=2)
 
-    x, y = _both(monkeypatch, image)
+    x, y = both_kernel_paths(monkeypatch, image)
     _close(x, y, rtol=1e-4)
 
 
@@ -126,12 +120,12 @@ def test_echo_kernel_matches_box_integration_and_conserves_energy(monkeypatch):
     e = rng.uniform(0.0, 1.0, n)
     e[::7] = 0.0
     rays = _boxes(spec, lo, hi, e, rng)
-    a, b = _both(monkeypatch, lambda: _echo(spec, rays))
+    a, b = both_kernel_paths(monkeypatch, lambda: _echo(spec, rays))
     _close(a, b)
     lo = rng.uniform(spec.range_min + 0.3, spec.range_max - 0.6, n)
     hi = lo + np.minimum(rng.exponential(0.05, n), 0.3) + 1e-6
     inner = _boxes(spec, lo, hi, e, rng)
-    a, b = _both(monkeypatch, lambda: _echo(spec, inner))
+    a, b = both_kernel_paths(monkeypatch, lambda: _echo(spec, inner))
     _close(a, b)
     assert float(a.astype(float).sum()) * spec.bin_width == pytest.approx(float(e.sum()), rel=1e-5)
 
@@ -154,7 +148,7 @@ def test_noise_model_paths_agree(model, monkeypatch):
         d = model.draw(shape, list(shares), np.random.default_rng(11))
         return model.apply(I, spec=SPEC, seabed_share=shares, options=SonarOptions(), draws=d, threads=2)
 
-    a, b = _both(monkeypatch, image)
+    a, b = both_kernel_paths(monkeypatch, image)
     _close(a, b, rtol=1e-5)
     assert a.dtype == np.float32 and np.all(a >= 0)
 
@@ -163,7 +157,7 @@ def test_poisson_inversion_is_scipys_quantile_and_poisson(monkeypatch):
     rng = np.random.default_rng(3)
     mu = np.concatenate([rng.uniform(0, 29.9, 4000), [0.0, 31.0, 80.0]])
     u = rng.random(mu.size)
-    a, b = _both(monkeypatch, lambda: N._poisson_counts(mu, u, np.random.default_rng(1)))
+    a, b = both_kernel_paths(monkeypatch, lambda: N._poisson_counts(mu, u, np.random.default_rng(1)))
     assert np.array_equal(a, b)
     assert np.array_equal(a[:4000], stats.poisson.ppf(u[:4000], mu[:4000]).astype(np.int64))
     # and it is Poisson: mean and variance of many counts of one mean
@@ -196,7 +190,7 @@ def test_noise_words_agree_and_are_uniform(monkeypatch):
     words; each word's uniform passes KS, and the three words of a cell are uncorrelated."""
     key = np.array([12345, 678910], np.uint32)
     cells = np.arange(200_000)
-    a, b = _both(monkeypatch, lambda: N.cell_words(key, cells))
+    a, b = both_kernel_paths(monkeypatch, lambda: N.cell_words(key, cells))
     assert a.dtype == np.uint32 and a.shape == (3, cells.size)
     assert np.array_equal(a, b)
     assert np.array_equal(N.cell_words(key, cells[::7]), a[:, ::7])  # a cell's words depend on it alone
@@ -268,7 +262,7 @@ def test_box_muller_normals(monkeypatch):
     bits[1, 0, :4] = [0, 1, 2**32 - 1, 2**31]
     bits[2, 0, :4] = [0, 2**30, 2**31, 3 * 2**30]  # phases 0, 1/4, 1/2, 3/4 of a turn
     scale = np.full((300, 200), 2.0, np.float32)
-    a, b = _both(monkeypatch, lambda: N._complex_normals(bits, scale))
+    a, b = both_kernel_paths(monkeypatch, lambda: N._complex_normals(bits, scale))
     _close(a, b, rtol=1e-5)
     for c in (0, 1):
         assert stats.kstest(a[..., c].ravel() / 2.0, "norm").pvalue > 1e-3
@@ -325,7 +319,7 @@ def test_fan_kernel_matches_cv2_remap(table, monkeypatch):
     spec = SPEC.with_beam_table(SonarSpec.equal_sine_azimuths(SPEC.n_beams, SPEC.fov_azimuth)) if table else SPEC
     img = np.random.default_rng(6).exponential(1.0, (spec.n_bins, spec.n_beams)).astype(np.float32)
     for width in (64, 301):
-        a, b = _both(monkeypatch, lambda: polar_to_fan(img, spec, width=width))
+        a, b = both_kernel_paths(monkeypatch, lambda: polar_to_fan(img, spec, width=width))
         assert np.array_equal(a.mask, b.mask)
         np.testing.assert_allclose(a.data, b.data, rtol=1e-5, atol=1e-6)
         assert np.all(a.data[~a.mask] == 0)

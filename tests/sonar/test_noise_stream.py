@@ -18,17 +18,11 @@ from optiacoustic.sonar import SonarOptions, SonarSpec
 from optiacoustic.sonar import noise as N
 from optiacoustic.sonar.noise import NoiseKey, NoiseModel
 
+from .conftest import both_kernel_paths
+
 SPEC = dataclasses.replace(SonarSpec.preset("blueview-p900-90"), n_bins=400, n_beams=250)
 SHAPE = (SPEC.n_bins, SPEC.n_beams)
 OPT = SonarOptions()
-
-
-def _both(monkeypatch, fn):
-    out = {}
-    for k in ("numba", "numpy"):
-        monkeypatch.setenv("OAS_KERNELS", k)
-        out[k] = fn()
-    return out["numba"], out["numpy"]
 
 
 def _image(model, I, shares, seed=3, threads=1):
@@ -117,7 +111,7 @@ def test_kernel_and_reference_agree_on_the_same_words(model, n_types, monkeypatc
     for t in names:
         shares[t] = (left * rng.random(SHAPE)).astype(np.float32)
         left = left - shares[t]
-    a, b = _both(monkeypatch, lambda: _image(model, I, shares, threads=2))
+    a, b = both_kernel_paths(monkeypatch, lambda: _image(model, I, shares, threads=2))
     assert a.dtype == np.float32 and np.all(a >= 0)
     np.testing.assert_allclose(a, b, rtol=2e-5, atol=2e-6 * float(b.max()))
     assert not np.array_equal(a, I)
