@@ -675,25 +675,19 @@ def _box_image_numba(spec: SonarSpec, beam, lo_m, hi_m, energy) -> np.ndarray:
     return np.ascontiguousarray(out[0].T)
 
 
-def _class_slots(bottom_types: dict, rays: SonarRays, weight=None):
+def _class_slots(bottom_types: dict, rays: SonarRays):
     """Output slot of every ray's class for :func:`_echo_numba`: the class with most lit rays
     (a bottom type or ``None``, the targets) has slot 0, the whole echo; the others 1, 2, ...
 
-    ``weight`` (N,): how many times each ray counts (the aperture model's sub-cells per ray).
     Returns ``(slot per ray (N,) int8, n_slots, {class: slot})``.
     """
-    if weight is None and use_numba():
-        # the two kernel passes of the aperture path, every ray counted once, into per-thread scratch (the
-        # fancy indexing and bincount below cost 0.5-0.8 ms and three fresh grid-sized temporaries a frame)
-        ones = _workspace("class_weight", (rays.body.size,), np.int64)
-        ones.fill(1)  # (a writable array: the aperture path's compiled signature, no second one)
-        return _class_slots_numba(bottom_types, rays, ones,
-                                  ray_cls=_workspace("class_of_ray", (rays.body.size,), np.int64))
+    if use_numba():
+        return _class_slots_numba(bottom_types, rays)
     body = rays.body.reshape(-1)
     names, cls = _class_table(bottom_types, body)
     lit = rays.energy.reshape(-1) > 0
     ray_cls = cls[body]  # body -1 reads the last entry: unlit anyway
-    counts = np.bincount(ray_cls[lit], weights=None if weight is None else weight[lit], minlength=len(names))
+    counts = np.bincount(ray_cls[lit], minlength=len(names))
     table, k, slot_of = _slot_table(names, counts)
     return table[ray_cls], k, slot_of
 
@@ -725,18 +719,20 @@ def _slot_table(names: list, counts: np.ndarray):
     return np.array([slot_of[n] for n in names], np.int8), k, slot_of
 
 
-def _class_slots_numba(bottom_types: dict, rays: SonarRays, weight: np.ndarray, ray_cls=None):
-    """:func:`_class_slots` with ``weight`` by two kernel passes (the aperture model's path; the same
-    slots: integer counts, the first largest class takes slot 0). ``ray_cls``: ``(N,)`` int64 scratch
-    for every ray's class (default a fresh array)."""
+def _class_slots_numba(bottom_types: dict, rays: SonarRays):
+    """:func:`_class_slots` by two kernel passes (the same slots: integer counts, the first largest
+    class takes slot 0), every ray counted once, into per-thread scratch (the fancy indexing and
+    bincount of the numpy path cost 0.5-0.8 ms and three fresh grid-sized temporaries a frame). The
+    aperture model counts its classes' sub-cells in its own pass (``_aperture_kernels.aperture_words``)."""
     from . import _aperture_kernels as ak
 
     body = np.ascontiguousarray(rays.body).reshape(-1)
     names, cls = _class_table(bottom_types, body)
     counts = np.zeros(len(names), np.int64)
-    ray_cls = np.empty(body.size, np.int64) if ray_cls is None else ray_cls
-    ak.class_counts(body, np.ascontiguousarray(rays.energy).reshape(-1), np.asarray(weight, np.int64), cls, counts,
-                    ray_cls)
+    ones = _workspace("class_weight", (body.size,), np.int64)
+    ones.fill(1)  # (class_counts takes a weight per ray: one here)
+    ray_cls = _workspace("class_of_ray", (body.size,), np.int64)
+    ak.class_counts(body, np.ascontiguousarray(rays.energy).reshape(-1), ones, cls, counts, ray_cls)
     table, k, slot_of = _slot_table(names, counts)
     slot = np.empty(body.size, np.int8)
     ak.class_slots(ray_cls, table, slot)
@@ -1236,7 +1232,7 @@ def _aperture_rows(spec: SonarSpec, cells: _ApertureCells, options: SonarOptions
     K = body.size // J
     # one pass over the rays in the grid's order writes each ray's word (sub-cell count, refined-edge
     # flag, body) beam-major, so that the kernel's loop over a beam's rays reads them contiguously, and
-    # counts the classes' lit sub-cells (_class_slots_numba with the sub-cell counts as weights)
+    # counts the classes' lit sub-cells (as _class_slots counts lit rays, each weighted by its sub-cells)
     names, cls = _class_table(bottom_types, body)
     counts = np.zeros(len(names), np.int64)
     word = _workspace("aperture_word", (body.size,), np.int64)
