@@ -61,6 +61,7 @@ def run() -> list[dict]:
     r_on = np.minimum(echo_start_ranges(s.image, s.ranges, sf.bins, sf.beams), sf.ranges)
 
     from optiacoustic.matching.match import _beam_creases
+    from optiacoustic.matching.sonar_features import cfar_map
 
     def plane_stage(beams=False):
         labels = face_labels(grad)
@@ -68,7 +69,9 @@ def run() -> list[dict]:
         face = np.where(ch.found, labels[np.clip(uv[:, 1], 0, labels.shape[0] - 1),
                                          np.clip(uv[:, 0], 0, labels.shape[1] - 1)], 0)
         C, ok = crease_positions(rig, ch.top_pixels, r_on)
-        extra = _beam_creases(rig, (s.image, s.ranges, s.azimuths), face, ok, sf.ranges, sf.azimuths, r_on,
+        # (the CFAR maps are computed here, though match() shares them with the other stages)
+        sonar = (s.image, s.ranges, s.azimuths, cfar_map(np.asarray(s.image, np.float64))) if beams else None
+        extra = _beam_creases(rig, sonar, face, ok, sf.ranges, sf.azimuths, r_on,
                               labels) if beams and (ok & (face > 0)).any() else None
         return face_planes(rig, plane, sf.ranges, sf.azimuths, face, C, ok, np.nan_to_num(ch.elevations), labels,
                            extra=extra)

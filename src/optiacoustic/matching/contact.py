@@ -207,19 +207,20 @@ class CreaseChoice:
 ECHO_START_FACTOR = 3.0
 
 
-def echo_start_ranges(image, ranges, bins, beams, *, factor: float = ECHO_START_FACTOR) -> np.ndarray:
+def echo_start_ranges(image, ranges, bins, beams, *, factor: float = ECHO_START_FACTOR, maps=None) -> np.ndarray:
     """Range (m) where the echo containing each cell ``(bins[i], beams[i])`` starts along its beam.
 
     A cell is part of an echo when its 3 x 3 mean exceeds ``factor`` times its CFAR background
     (:func:`.sonar_features.cfar_map`); the start is the first cell of the unbroken run of such
     cells that ends at or beyond the feature, walking back toward the sonar (the cell's own range
-    when it is not part of an echo). Shape (N,).
+    when it is not part of an echo). Shape (N,). ``maps``: ``cfar_map(image)`` when the caller has it
+    (the same numbers; computed here otherwise).
     """
     from .sonar_features import cfar_map
 
     img = np.asarray(image, float)
     r = np.asarray(ranges, float)
-    smooth, background = cfar_map(img)
+    smooth, background = cfar_map(img) if maps is None else maps
     echo = smooth > factor * background
     idx = np.arange(img.shape[0])[:, None]
     last_quiet = np.maximum.accumulate(np.where(~echo, idx, -1), axis=0)
@@ -304,19 +305,20 @@ def crease_points(rig, seabed, ranges, azimuths, onset_ranges, top_pixels, run_l
 ECHO_END_FACTOR = 1.5
 
 
-def echo_end_ranges(image, ranges, bins, beams, *, factor: float = ECHO_END_FACTOR) -> np.ndarray:
+def echo_end_ranges(image, ranges, bins, beams, *, factor: float = ECHO_END_FACTOR, maps=None) -> np.ndarray:
     """Range (m) where the echo containing each cell ``(bins[i], beams[i])`` ends along its beam.
 
     The mirror of :func:`echo_start_ranges`: the last cell of the unbroken run of cells whose 3 x 3
     mean exceeds ``factor`` times their CFAR background that starts at or before the feature,
     walking away from the sonar (the cell's own range when it is not part of an echo). On a face
     standing on the seabed this is its foot: behind it the object's shadow starts. Shape (N,).
+    ``maps``: ``cfar_map(image)`` when the caller has it (the same numbers; computed here otherwise).
     """
     from .sonar_features import cfar_map
 
     img = np.asarray(image, float)
     r = np.asarray(ranges, float)
-    smooth, background = cfar_map(img)
+    smooth, background = cfar_map(img) if maps is None else maps
     echo = smooth > factor * background
     n = img.shape[0]
     idx = np.arange(n)[:, None]

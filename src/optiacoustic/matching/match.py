@@ -587,13 +587,17 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     if not _camera_sees_fan(rig, r_bins, th_beams):
         return _empty("the camera sees nothing of the sonar's fan: no epipolar curve enters the image")
 
+    # the CFAR maps of the detector's options, computed once here for every stage that reads them
+    maps = cfar_map(np.asarray(img_s, np.float64), opt.cfar)
     sf = detect_sonar_features(img_s, r_bins, th_beams, range_resolution=range_res, beamwidth=beamwidth,
-                               options=opt.cfar)
+                               options=opt.cfar, maps=maps)
     if len(sf) == 0:
         return _empty("no sonar features: CFAR found no echo standing out of its background")
     if opt.method == "arc":
         intervals = _elevation_intervals(sf, img_s, r_bins, th_beams, rig, opt)
-        out = _match_arcs(sf, cam_img, rig, noise, opt, intervals, sonar=(img_s, r_bins, th_beams))
+        # the echo's start and end and the faces' beam creases read the default options' maps
+        echo_maps = maps if opt.cfar == CfarOptions() else cfar_map(np.asarray(img_s, np.float64))
+        out = _match_arcs(sf, cam_img, rig, noise, opt, intervals, sonar=(img_s, r_bins, th_beams, echo_maps))
         return _finish(out, cam_img, second, motion, rig, noise, opt, min_score, sf=sf, intervals=intervals)
     cf = detect_camera_features(cam_img, opt.keypoints)
     if len(cf) == 0:
@@ -620,7 +624,7 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     if opt.use_acoustic:
         seabed = fit_seabed(img_s, r_bins, th_beams, rig.fov_elevation)
         if seabed:
-            smooth, background = cfar_map(img_s, opt.cfar)
+            smooth, background = maps
             detected = smooth > opt.occupancy_factor * background
             cells = detected.copy()
             cells[sf.bins, sf.beams] = True
@@ -952,8 +956,7 @@ def _beam_creases(rig, sonar, face, c_ok, ranges, azimuths, r_on, labels):
     from .contact import ECHO_START_FACTOR
     from .face_plane import FACE_WINDOW, beam_creases, echo_run_starts
 
-    img, r_bins, th_beams = sonar
-    smooth, background = cfar_map(img)
+    _, r_bins, th_beams, (smooth, background) = sonar
     starts = echo_run_starts(smooth > ECHO_START_FACTOR * background)
     use = c_ok & (face > 0)
     labs = np.unique(face[use])
@@ -1005,9 +1008,9 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
                  seabed_contrast=np.nan_to_num(ch.contrast[rows], nan=1.0))
     # The feature's echo in its own beam (:mod:`.contact`): where it starts (the crease of a face seen
     # from above) and where it ends (the foot of a face, where its shadow starts).
-    if sonar is not None:  # (polar image, bin ranges, beam azimuths)
-        r_on = echo_start_ranges(sonar[0], sonar[1], sf.bins[rows], sf.beams[rows])
-        r_end = echo_end_ranges(sonar[0], sonar[1], sf.bins[rows], sf.beams[rows])
+    if sonar is not None:  # (polar image, bin ranges, beam azimuths, its default-options cfar_map)
+        r_on = echo_start_ranges(sonar[0], sonar[1], sf.bins[rows], sf.beams[rows], maps=sonar[3])
+        r_end = echo_end_ranges(sonar[0], sonar[1], sf.bins[rows], sf.beams[rows], maps=sonar[3])
     else:
         r_on = r_end = sf.ranges[rows]
     bin_m = float(np.median(np.diff(sonar[1]))) if sonar is not None else 1.0

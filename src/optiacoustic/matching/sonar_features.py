@@ -117,7 +117,7 @@ def _parabolic(lm, l0, lp):
 
 
 def detect_sonar_features(image, ranges, azimuths, *, range_resolution: float, beamwidth: float,
-                          options: CfarOptions = CfarOptions()) -> SonarFeatures:
+                          options: CfarOptions = CfarOptions(), maps=None) -> SonarFeatures:
     """CFAR detections, one per NMS window, refined to sub-bin and sub-beam precision.
 
     Parameters
@@ -133,6 +133,9 @@ def detect_sonar_features(image, ranges, azimuths, *, range_resolution: float, b
     beamwidth : float
         The sonar's azimuth beamwidth (rad, -3 dB).
     options : CfarOptions
+    maps : tuple of ndarray, optional
+        ``cfar_map(image, options)`` when the caller already has it (the same numbers; computed here
+        otherwise).
 
     Returns
     -------
@@ -149,7 +152,7 @@ def detect_sonar_features(image, ranges, azimuths, *, range_resolution: float, b
     empty = SonarFeatures(*([np.zeros(0)] * 4), np.zeros(0, int), np.zeros(0, int), np.zeros(0), np.zeros(0, int))
     if img.shape[0] < 3 or img.shape[1] < 3 or not np.any(img > 0):
         return empty
-    smooth, background = cfar_map(img, options)
+    smooth, background = cfar_map(img, options) if maps is None else maps
     floor = np.percentile(img[img > 0], 1) if np.any(img > 0) else 0.0
     bg = np.maximum(background, max(floor, 1e-30))
     detected = smooth > options.factor * bg
