@@ -216,10 +216,11 @@ def echo_start_ranges(image, ranges, bins, beams, *, factor: float = ECHO_START_
     when it is not part of an echo). Shape (N,). ``maps``: ``cfar_map(image)`` when the caller has it
     (the same numbers; computed here otherwise).
     """
-    from .sonar_features import cfar_map
+    from .sonar_features import cfar_map, given_maps
 
     img = np.asarray(image, float)
     r = np.asarray(ranges, float)
+    maps = given_maps(maps, img.shape, "echo_start_ranges")
     smooth, background = cfar_map(img) if maps is None else maps
     echo = smooth > factor * background
     idx = np.arange(img.shape[0])[:, None]
@@ -314,10 +315,11 @@ def echo_end_ranges(image, ranges, bins, beams, *, factor: float = ECHO_END_FACT
     standing on the seabed this is its foot: behind it the object's shadow starts. Shape (N,).
     ``maps``: ``cfar_map(image)`` when the caller has it (the same numbers; computed here otherwise).
     """
-    from .sonar_features import cfar_map
+    from .sonar_features import cfar_map, given_maps
 
     img = np.asarray(image, float)
     r = np.asarray(ranges, float)
+    maps = given_maps(maps, img.shape, "echo_end_ranges")
     smooth, background = cfar_map(img) if maps is None else maps
     echo = smooth > factor * background
     n = img.shape[0]

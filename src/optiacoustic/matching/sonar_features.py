@@ -92,6 +92,17 @@ def _box_sum(a, half):
     return ndi.uniform_filter(a, size, mode="nearest") * (size[0] * size[1])
 
 
+def given_maps(maps, shape: tuple, what: str):
+    """``maps`` (a caller's ``cfar_map`` of the image, or None) checked against the image's ``shape``."""
+    if maps is None:
+        return None
+    if not (isinstance(maps, tuple) and len(maps) == 2 and all(np.shape(m) == tuple(shape) for m in maps)):
+        got = [np.shape(m) for m in maps] if isinstance(maps, tuple) else type(maps).__name__
+        raise ValueError(f"{what}: maps must be cfar_map's (smooth, background), each of the image's shape "
+                         f"{tuple(shape)}; got {got}")
+    return maps
+
+
 def cfar_map(image, options: CfarOptions = CfarOptions()) -> tuple[np.ndarray, np.ndarray]:
     """Smoothed image and its CFAR background level, both ``(n_bins, n_beams)``.
 
@@ -152,6 +163,7 @@ def detect_sonar_features(image, ranges, azimuths, *, range_resolution: float, b
     empty = SonarFeatures(*([np.zeros(0)] * 4), np.zeros(0, int), np.zeros(0, int), np.zeros(0), np.zeros(0, int))
     if img.shape[0] < 3 or img.shape[1] < 3 or not np.any(img > 0):
         return empty
+    maps = given_maps(maps, img.shape, "detect_sonar_features")
     smooth, background = cfar_map(img, options) if maps is None else maps
     floor = np.percentile(img[img > 0], 1) if np.any(img > 0) else 0.0
     bg = np.maximum(background, max(floor, 1e-30))
