@@ -9,7 +9,7 @@ TITLE = "Automatic opti-acoustic matching"
 DESCRIPTION = ("`matching.match` on one simulated pair of `thesis_scene1` (BlueView P900-90 750 x 512 polar "
                "image, 600 x 400 camera, thesis water, default sonar noise), target <= 1 s per pair; against "
                "simulating that pair (`simulate_rig`: both sensors) and against its stages (CFAR sonar features, "
-               "the arc search, the seabed-contact search, the face-plane model with and without every beam's crease, the point above the foot; for the first design, corners and the epipolar gate); and the two-view "
+               "the arc search, the seabed-contact search, the face-plane model with and without every beam's crease, the point above the foot, the candidates' foot-edge evidence, the seabed point; for the first design, corners and the epipolar gate); and the two-view "
                "matching with a second pair after a known motion.")
 
 
@@ -84,6 +84,14 @@ def run() -> list[dict]:
                                            echo_end_ranges(s.image, s.ranges, sf.bins, sf.beams)), repeat=7, warmup=1)
     m = match(s, o.image, rig, min_score=0.0)
     note = f"{len(sf)} sonar features, {len(m)} matches (arc search)"
+    from optiacoustic.matching.contact import foot_edges
+
+    m_r, m_th = m.ranges, m.azimuths
+    m_el = [np.asarray(m.features[f"{k}_elevation"], float) for k in ("arc", "crease", "plane", "foot")]
+    t_edges = median_ms(lambda: [foot_edges(rig, m.seabed, m_r, m_th, el, grad) for el in m_el], repeat=7, warmup=1)
+    from optiacoustic.matching.acoustic import seabed_points
+
+    t_seabed = median_ms(lambda: seabed_points(rig, m.seabed, m_r, m_th, rig.fov_elevation), repeat=7, warmup=1)
     from optiacoustic.experiments.matching import moved_view
     from optiacoustic.matching.optical_two_view import flow_field
 
@@ -114,6 +122,11 @@ def run() -> list[dict]:
              note="one more CFAR map, echo starts of every beam a face spans, one arc per start"),
         dict(name="point above the foot (echo end + seabed plane), all features", value=t_foot, unit="ms",
              reference="match", ratio=t_foot / t_match, note="closed form per feature; one CFAR map"),
+        dict(name="foot-edge evidence of every candidate (round i15j), all matches", value=t_edges, unit="ms",
+             reference="match", ratio=t_edges / t_match,
+             note="4 candidates x (5 x 5 dilation + 16 segment samples)"),
+        dict(name="seabed point (round i15k), all matches", value=t_seabed, unit="ms", reference="match",
+             ratio=t_seabed / t_match, note="closed form per match: the arc meets the sonar's seabed plane"),
         dict(name="match / simulate the pair", value=t_match, unit="ms", reference="simulate_rig (both sensors)",
              ratio=t_match / t_sim, note=f"simulate_rig {t_sim:.0f} ms"),
         dict(name="camera corners (OpenCV)", value=t_cam, unit="ms", reference="match (arc search)",

@@ -4,8 +4,8 @@ import numpy as np
 
 from optiacoustic.frames import Pose, sonar_from_spherical, spherical_from_sonar
 from optiacoustic.matching.acoustic import SeabedPlane
-from optiacoustic.matching.contact import (crease_points, echo_end_ranges, echo_start_ranges, foot_points,
-                                          search_contacts)
+from optiacoustic.matching.contact import (crease_points, echo_end_ranges, echo_start_ranges, foot_edges,
+                                          foot_points, search_contacts)
 
 
 def _rig():
@@ -127,3 +127,72 @@ def test_echo_end_ranges_find_the_trailing_edge_of_a_block_echo():
                                ranges[127], atol=1e-9)
     # A cell outside any echo ends where it is.
     np.testing.assert_allclose(echo_end_ranges(img, ranges, np.array([200]), np.array([5])), ranges[200])
+
+
+def test_foot_edges_see_the_foot_on_an_edge_and_an_edge_on_the_way_down():
+    """Candidates on an arc; the foot of one of them (dropped by hand onto the world's seabed) drawn as an edge."""
+    rig, sp = _rig()
+    bed = _seabed(sp)
+    r, th = np.full(3, 6.2), np.full(3, 0.03)
+    phi = np.deg2rad([4.0, 1.0, np.nan])  # the second candidate 3 deg lower; the third: no candidate
+    X_s = sonar_from_spherical(r[:1], th[:1], phi[:1])
+    X_w = X_s @ sp.R.T + sp.t  # sonar -> world
+    F_w = X_w * [1.0, 1.0, 0.0]  # straight down onto z = 0
+    q = rig.camera.project(rig.camera_from_sonar((F_w - sp.t) @ sp.R))[0]
+    p = rig.camera.project(rig.camera_from_sonar(X_s))[0]
+    H, W = rig.camera.height, rig.camera.width
+    g = np.zeros((H, W), np.float32)
+    row = int(round(q[1]))
+    g[row, :] = 20.0  # the foot line's edge, one pixel thick
+    fe, ce = foot_edges(rig, bed, r, th, phi, g)
+    assert fe[0] == 20.0 and ce[0] == 0.0  # on the edge (within 2 px), nothing on the way down
+    assert np.isnan(fe[2]) and np.isnan(ce[2])
+    # The lower candidate (0.3 m lower on the arc) stands in front of the first one's foot: its own
+    # foot is nearer the camera, lower in the image, off the edge, and its way down crosses the edge.
+    X1 = sonar_from_spherical(r[1:2], th[1:2], phi[1:2])
+    p1 = rig.camera.project(rig.camera_from_sonar(X1))[0]
+    q1 = rig.camera.project(rig.camera_from_sonar(((X1 @ sp.R.T + sp.t) * [1.0, 1.0, 0.0] - sp.t) @ sp.R))[0]
+    assert p1[1] < row - 1 and q1[1] > row + 3  # by hand: the point above the edge, its foot below it
+    assert fe[1] == 0.0 and ce[1] == 20.0
+    # An edge across the face, halfway between the point and its foot, is seen on the way down (a
+    # band as wide as the 16 samples' spacing, as a blurred image's edges are).
+    mid, step = int(round((p[1] + q[1]) / 2)), int(np.ceil(0.85 * abs(q[1] - p[1]) / 15))
+    g[mid - step // 2:mid + step // 2 + 1, :] = 7.0
+    fe, ce = foot_edges(rig, bed, r, th, phi, g)
+    assert fe[0] == 20.0 and ce[0] == 7.0
+    # No seabed: nothing; mismatched lengths: a clear error.
+    no_bed = SeabedPlane(np.full(3, np.nan), np.nan, np.nan, 0)
+    assert np.isnan(foot_edges(rig, no_bed, r, th, phi, g)[0]).all()
+    import pytest
+
+    with pytest.raises(ValueError, match="one length"):
+        foot_edges(rig, bed, r, th[:2], phi, g)
+
+
+def test_seabed_points_lie_on_the_seabed_plane_and_project_to_their_pixels():
+    """The seabed point (round i15k): world points of the z = 0 seabed, seen from the rig, are recovered."""
+    import pytest
+
+    from optiacoustic.matching.acoustic import seabed_points
+
+    rig, sp = _rig()
+    bed = _seabed(sp)
+    rng = np.random.default_rng(11)
+    X_w = np.column_stack([rng.uniform(-1.5, 1.5, 30), rng.uniform(-1.0, 1.5, 30), np.zeros(30)])
+    X_s = (X_w - sp.t) @ sp.R  # world -> sonar frame
+    r, th, ph = spherical_from_sonar(X_s)
+    el, px, found = seabed_points(rig, bed, r, th, rig.fov_elevation)
+    inside = np.abs(ph) <= rig.fov_elevation / 2
+    expected_px = rig.camera.project(rig.camera_from_sonar(X_s))
+    seen = inside & rig.camera.in_image(expected_px)
+    assert seen.sum() >= 10
+    np.testing.assert_array_equal(found, seen)
+    np.testing.assert_allclose(el[found], ph[found], atol=1e-9)
+    np.testing.assert_allclose(px[found], expected_px[found], atol=1e-6)
+    np.testing.assert_allclose(bed.height(sonar_from_spherical(r[found], th[found], el[found])), 0.0, atol=1e-9)
+    # Nothing without a seabed; a range shorter than the sonar's height never meets it.
+    assert not seabed_points(rig, SeabedPlane(np.full(3, np.nan), np.nan, np.nan, 0), r, th,
+                             rig.fov_elevation)[2].any()
+    assert not seabed_points(rig, bed, np.full(3, 1.0), np.zeros(3), rig.fov_elevation)[2].any()
+    with pytest.raises(ValueError, match="one length"):  # mismatched features: named, not broadcast
+        seabed_points(rig, bed, r, th[:1], rig.fov_elevation)

@@ -22,12 +22,12 @@ def test_matching_experiment(tmp_path):
     assert n["precision_all_assigned"] > n["baseline_precision"]
     assert n["median_error_true_matches_m"] < n["median_error_auto_m"]
     assert n["target_met"] == bool(np.any((prec >= 0.95) & (rec >= 0.5)))
-    # The face-plane figure's numbers: the chosen pixel is one of the four candidates, so "any of
-    # the four" is right at least as often as the choice, which is the headline precision.
+    # The face-plane figure's numbers: the chosen pixel is one of the five candidates, so "any of
+    # the five" is right at least as often as the choice, which is the headline precision.
     fp = n["face_plane"]
     assert fp["chosen"] == n["precision_all_assigned"]
-    assert fp["any"] >= fp["chosen"] and all(0 <= fp[k] <= 1 for k in ("arc", "crease", "plane", "foot", "any"))
-    assert sum(fp["source_counts"]) == fp["n"][4]
+    assert fp["any"] >= fp["chosen"] and all(0 <= fp[k] <= 1 for k in ("arc", "crease", "plane", "foot", "seabed", "any"))
+    assert sum(fp["source_counts"]) == fp["n"][5]
     # One view and two views reported side by side, on plain and textured scenes.
     tv = n["two_view"]
     for kind in ("plain", "textured"):

@@ -218,6 +218,31 @@ def test_two_view_match(pairs):
         match(s, o.image, rig, second=(s2, o2.image[:10]), motion=mo)
 
 
+def test_two_views_keep_the_seabed_points_one_view_score():
+    """A seabed point (one view's fifth candidate) keeps its one-view score with a second view; others are re-scored.
+
+    Varied scene 8300 (never used to fit) with its seed's random vehicle motion: its unshadowed
+    bars give seabed points. The two-view arc model was fitted before the seabed point existed
+    (docs/matching.md, round i15m), so its score must pass through unchanged, while the arc
+    search's other choices get the two-view model's score.
+    """
+    from optiacoustic.experiments.matching import moved_view, varied_scene, vehicle_motion
+
+    sc = varied_scene(8300)
+    s, o, rig = simulate_pair(sc, "thesis", "default", 8300)
+    s2, o2, mo = moved_view(sc, vehicle_motion(8300), 8300)
+    one = match(s, o.image, rig, min_score=0.0)
+    two = match(s, o.image, rig, min_score=0.0, second=(s2, o2.image), motion=mo)
+    source_1 = dict(zip(one.sonar_index.tolist(), one.features["face_source"].tolist()))
+    score_1 = dict(zip(one.sonar_index.tolist(), one.score.tolist()))
+    arc = two.features["source"] == 0
+    seabed = arc & np.array([source_1.get(i, -1) == 4 for i in two.sonar_index.tolist()])
+    assert seabed.sum() >= 3
+    np.testing.assert_allclose(two.score[seabed], [score_1[i] for i in two.sonar_index[seabed].tolist()])
+    others = arc & ~seabed
+    assert others.sum() >= 3 and np.any(np.abs(two.score[others] - two.features["single_view_score"][others]) > 1e-3)
+
+
 def test_two_views_beat_one_view_on_textured_scenes():
     """On checkered surfaces a second view (known motion) finds more right matches than one view."""
     from optiacoustic.experiments.matching import evaluate_two_views, moved_view  # noqa: F401

@@ -242,6 +242,83 @@ def test_speckle_image_kernel_matches_cv2_filters(n_r, n_b, symmetric):
     assert np.array_equal(out == 0, ref == 0)
 
 
+@pytest.mark.parametrize("have_words,n_r", [(False, 7), (True, 7), (True, 81)])
+def test_scatterer_speckle_is_the_two_passes_bit_for_bit(have_words, n_r):
+    """``scatterer_speckle`` (the field and the speckle image in one pass over row blocks, i14q) against
+    the two kernels it fuses, ``scatterer_field`` (or ``field_words`` + ``scatterer_field_words``) and then
+    ``speckle_image``, on seeded echo and areas: the same image to the bit for row ranges that split the
+    image anywhere (one range, 8 as two threads take them, ranges shorter than the range kernel's reach,
+    ranges across the block size; the device's 7-tap range kernel and an asymmetric one of 81 taps, longer
+    than a block) and the same count of cells of large mean (0 here; with a few large areas it counts them,
+    and ``ScattererNoise.apply`` then takes the two passes)."""
+    from optiacoustic.sonar import _numba_kernels as K
+
+    rng = np.random.default_rng(41)
+    B, J = 150, 37
+    I = rng.exponential(1.0, (B, J)).astype(np.float32)
+    I[:, :5] = 0.0  # beams of no echo
+    area = rng.uniform(0.0, 4e-3, (B, J)).astype(np.float32)
+    area[20:30] = 0.0  # off the seabed
+    back = rng.uniform(1e-3, 2e-3, B).astype(np.float32)
+    tvg = rng.uniform(1.0, 3.0, B).astype(np.float32)
+    h_r = (np.array([0.2, 0.5, 0.8, 1.0, 0.8, 0.5, 0.2], np.float32) if n_r == 7
+           else rng.uniform(0.1, 1.0, n_r).astype(np.float32))
+    h_b = rng.uniform(0.1, 1.0, 27).astype(np.float32)
+    h_b = (h_b + h_b[::-1]) * np.float32(0.5)
+    gain, density, mu_max = np.float32(3.0), 500.0, 30.0
+    k0, k1 = np.uint32(1234), np.uint32(98765)
+    words = (np.empty((B, J), np.uint32), np.empty((B, J), np.float32), np.empty((B, J, 2), np.float32))
+    K.field_words(k0, k1, 0, B, *words)
+    z = np.empty((B, J, 2), np.float32)
+    big = np.empty((B, J), np.bool_)
+    mean = np.empty((B, J), np.float32)
+    if have_words:
+        K.scatterer_field_words(I, gain, back, area, density, mu_max, 0, B, *words, z, big, mean)
+    else:
+        K.scatterer_field(I, gain, back, area, density, k0, k1, mu_max, 0, B, z, big, mean)
+    assert not big.any()
+    ref = np.empty((B, J), np.float32)
+    K.speckle_image(z, mean, h_r, h_b, tvg, 0, B, ref)
+    for cuts in ([0, B], [0, 19, 38, 57, 76, 95, 114, 133, B], [0, 1, 3, 4, 70, 71, 72, B], [0, 32, 33, 65, 97, B]):
+        out = np.full((B, J), np.nan, np.float32)
+        n_big = sum(K.scatterer_speckle(I, gain, back, area, density, mu_max, k0, k1, have_words, *words,
+                                        h_r, h_b, tvg, r0, r1, out) for r0, r1 in zip(cuts[:-1], cuts[1:]))
+        assert n_big == 0
+        assert np.array_equal(out, ref), cuts
+    area[70, 3:6] = 0.1  # mean 50 > mu_max: three cells whose counts the caller must draw
+    out = np.empty((B, J), np.float32)
+    assert K.scatterer_speckle(I, gain, back, area, density, mu_max, k0, k1, have_words, *words,
+                               h_r, h_b, tvg, 0, B, out) == 3
+
+
+def test_scatterer_noise_with_large_means_takes_the_two_passes(monkeypatch):
+    """A frame with cells of large mean (their counts drawn by the generator): ``ScattererNoise.apply``
+    gives the image of the two-pass path (``_FUSED`` off), not the fused pass's."""
+    from optiacoustic import SonarSpec
+    from optiacoustic.sonar import SonarOptions
+    from optiacoustic.sonar.gain import DeviceGain
+    from optiacoustic.sonar.noise import ScattererNoise
+
+    spec = SonarSpec.preset("blueview-p900-90")
+    rng = np.random.default_rng(5)
+    I = rng.exponential(1e-3, (spec.n_bins, spec.n_beams)).astype(np.float32)
+    area = rng.uniform(0.0, 2e-3, I.shape).astype(np.float32)
+    area[300:303, 100:110] = 0.2  # density x area = 100 > 30
+    nz = ScattererNoise(density=500.0, gain=DeviceGain(noise_db=-60.0, volume_db=-50.0, spreading_db=30.0))
+    opts = SonarOptions(beam_model="aperture", propagation="spreading")
+
+    def image():
+        return nz.apply(I, spec=spec, seabed_share={}, options=opts, rng=3, cell_area=area, threads=2)
+
+    fused = image()
+    monkeypatch.setattr(N, "_FUSED", False)
+    assert np.array_equal(fused, image())
+    area[300:303, 100:110] = 0.01
+    two = image()
+    monkeypatch.setattr(N, "_FUSED", True)
+    assert np.array_equal(two, image())
+
+
 def test_device_kernels_are_symmetric_in_float32():
     """The pulse's and the beam pattern's amplitude kernels of every preset are symmetric to the bit
     in float32 (``speckle_image`` folds their taps only then: otherwise it takes the general path)."""

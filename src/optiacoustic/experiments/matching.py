@@ -394,12 +394,12 @@ def _arc_profiles_figure(path, sonar, optical, rig, m, n_rows: int = 6):
 
 
 def _candidate_truth(m, sonar, optical, rig) -> dict:
-    """Which of each one-view match's candidates (arc search, crease, face plane, foot) is right (evaluation only)."""
+    """Which of each one-view match's candidates (arc search, crease, face plane, foot, seabed) is right (evaluation only)."""
     from ..matching import truth
 
     bw, aw = float(np.median(np.diff(sonar.ranges))), float(np.median(np.diff(sonar.azimuths)))
     out = {}
-    for name in ("arc", "crease", "plane", "foot"):
+    for name in ("arc", "crease", "plane", "foot", "seabed"):
         has = np.zeros(len(m), bool)
         ok = np.zeros(len(m), bool)
         if m and f"{name}_u" in m.features:
@@ -431,7 +431,7 @@ def _face_plane_figure(path, scene_name, sonar, optical, rig, m, cand, pooled):
     ax[0].imshow(shown)
     f = m.features
     styles = (("arc", "o", "run's middle"), ("crease", "^", "below the crease"), ("plane", "s", "on the face plane"),
-              ("foot", "D", "above the foot"))
+              ("foot", "D", "above the foot"), ("seabed", "v", "on the seabed"))
     for name, marker, label in styles:
         u, v = np.asarray(f[f"{name}_u"], float), np.asarray(f[f"{name}_v"], float)
         has, ok = cand[f"has_{name}"], cand[f"ok_{name}"]
@@ -445,13 +445,14 @@ def _face_plane_figure(path, scene_name, sonar, optical, rig, m, cand, pooled):
                     fontsize=8)
     ax[0].legend(fontsize=6, loc="lower left", ncol=3)
     ax[0].set_axis_off()
-    names = ["run's middle", "below the crease", "on the face plane", "above the foot", "chosen (most probable)",
-             "any of the four"]
-    vals = [pooled["arc"], pooled["crease"], pooled["plane"], pooled["foot"], pooled["chosen"], pooled["any"]]
-    ax[1].barh(np.arange(6), vals, color=["#4363d8", "#f58231", "#911eb4", "#9a6324", "#000000", "#aaaaaa"])
+    names = ["run's middle", "below the crease", "on the face plane", "above the foot", "on the seabed",
+             "chosen (most probable)", "any of the five"]
+    vals = [pooled["arc"], pooled["crease"], pooled["plane"], pooled["foot"], pooled["seabed"], pooled["chosen"],
+            pooled["any"]]
+    ax[1].barh(np.arange(7), vals, color=["#4363d8", "#f58231", "#911eb4", "#9a6324", "#469990", "#000000", "#aaaaaa"])
     for i, (v_, n_) in enumerate(zip(vals, pooled["n"])):
         ax[1].text(min(v_ + 0.01, 0.85), i, f"{v_:.2f} of {n_}", va="center", fontsize=8)
-    ax[1].set_yticks(np.arange(6), names, fontsize=8)
+    ax[1].set_yticks(np.arange(7), names, fontsize=8)
     ax[1].set_xlim(0, 1)
     ax[1].invert_yaxis()
     ax[1].set_xlabel("fraction right (where the candidate exists)")
@@ -593,13 +594,15 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     if cat and cat["source"].size:
         ok_chosen = np.concatenate([e["ok"] for e in evals])
         pooled = dict(n=[int(cat["has_arc"].sum()), int(cat["has_crease"].sum()), int(cat["has_plane"].sum()),
-                         int(cat["has_foot"].sum()), int(ok_chosen.size), int(ok_chosen.size)], n_scenes=len(all_scenes))
-        for name in ("arc", "crease", "plane", "foot"):
+                         int(cat["has_foot"].sum()), int(cat["has_seabed"].sum()), int(ok_chosen.size),
+                         int(ok_chosen.size)], n_scenes=len(all_scenes))
+        for name in ("arc", "crease", "plane", "foot", "seabed"):
             h = cat[f"has_{name}"]
             pooled[name] = float(cat[f"ok_{name}"][h].mean()) if h.any() else 0.0
         pooled["chosen"] = float(ok_chosen.mean())
-        pooled["any"] = float(np.mean(cat["ok_arc"] | cat["ok_crease"] | cat["ok_plane"] | cat["ok_foot"]))
-        face_plane_numbers = dict(pooled, source_counts=np.bincount(cat["source"], minlength=4).tolist())
+        pooled["any"] = float(np.mean(cat["ok_arc"] | cat["ok_crease"] | cat["ok_plane"] | cat["ok_foot"]
+                                      | cat["ok_seabed"]))
+        face_plane_numbers = dict(pooled, source_counts=np.bincount(cat["source"], minlength=5).tolist())
         if profile is not None:
             s_p, o_p, rig_p, m_p = profile
             f_fp = _face_plane_figure(out_dir / "matching_face_plane.png", profile_name, s_p, o_p, rig_p, m_p,
@@ -880,7 +883,7 @@ FACE_TRAINING = ((range(5000, 5048), "thesis"), (range(5000, 5024), "jerlov-1C")
 
 
 def calibrate_face_score(scenes=FACE_TRAINING, *, ridge: float = 1.0) -> dict:
-    """Refit ``matching.match.FACE_SCORE_MODEL``, ``FACE_PLANE_SCORE_MODEL``, ``CREASE_SCORE_MODEL``, ``PLANE_SCORE_MODEL``, ``FOOT_SCORE_MODEL``.
+    """Refit ``matching.match.FACE_SCORE_MODEL``, ``FACE_PLANE_SCORE_MODEL``, ``CREASE_SCORE_MODEL``, ``PLANE_SCORE_MODEL``, ``FOOT_SCORE_MODEL``, ``SEABED_SCORE_MODEL``.
 
     Runs the matcher on the random scenes ``scenes`` (seeds, water and optionally the generator,
     ``"random"`` or ``"varied"``; default sonar noise; :data:`FACE_TRAINING`) and labels, by the depth-map truth, the arc search's pixel of every
@@ -888,21 +891,22 @@ def calibrate_face_score(scenes=FACE_TRAINING, *, ridge: float = 1.0) -> dict:
     ones; fits a logistic regression of each on :func:`matching.match.face_score_features` (all
     matches), :func:`matching.match.face_plane_score_features` (the matches where the plane is
     offered), :func:`matching.match.crease_score_features` and
-    :func:`matching.match.plane_score_features` (the features do not depend on which candidate the
-    current models choose). Refit after ``ARC_SCORE_MODEL``. Use seeds disjoint from the evaluation's.
+    :func:`matching.match.plane_score_features`, :func:`matching.match.foot_score_features` and
+    :func:`matching.match.seabed_score_features` (each where its candidate exists; the features do not
+    depend on which candidate the current models choose). Refit after ``ARC_SCORE_MODEL``. Use seeds disjoint from the evaluation's.
 
     Returns
     -------
     dict
-        ``face``, ``face_plane``, ``crease``, ``plane`` and ``foot``: each ``weights`` (intercept first),
+        ``face``, ``face_plane``, ``crease``, ``plane``, ``foot`` and ``seabed``: each ``weights`` (intercept first),
         ``mean``, ``std``, ``n``, ``positive_rate``.
     """
     from ..matching import match, truth
     from ..matching.match import (crease_score_features, face_plane_score_features, face_score_features,
-                                  foot_score_features, plane_score_features)
+                                  foot_score_features, plane_score_features, seabed_score_features)
 
     featurise = dict(face=face_score_features, face_plane=face_plane_score_features, crease=crease_score_features,
-                     plane=plane_score_features, foot=foot_score_features)
+                     plane=plane_score_features, foot=foot_score_features, seabed=seabed_score_features)
     X = {k: [] for k in featurise}
     y = {k: [] for k in featurise}
     for sd, water, gen in ((sd, e[1], e[2] if len(e) > 2 else "random") for e in scenes for sd in e[0]):
@@ -916,7 +920,8 @@ def calibrate_face_score(scenes=FACE_TRAINING, *, ridge: float = 1.0) -> dict:
                                ("face_plane", "arc", np.asarray(f["plane_offered"], bool)),
                                ("crease", "crease", np.asarray(f["crease_found"], bool)),
                                ("plane", "plane", np.asarray(f["plane_found"], bool)),
-                               ("foot", "foot", np.asarray(f["foot_found"], bool))):
+                               ("foot", "foot", np.asarray(f["foot_found"], bool)),
+                               ("seabed", "seabed", np.asarray(f["seabed_found"], bool))):
             if c.any():
                 ok = truth.correct(rig, o.depth, np.column_stack([f[f"{prefix}_u"], f[f"{prefix}_v"]])[c],
                                    m.ranges[c], m.azimuths[c], bin_width=bw, beam_width=aw)
@@ -1075,7 +1080,7 @@ def failure_classes(pairs, *, n_samples: int = 800, options=None) -> dict:
                 cls[k] = FAILURE_CLASSES.index("no_match")
                 continue
             jj = j[k]
-            cands = [np.array([f[f"{nm}_u"][jj], f[f"{nm}_v"][jj]]) for nm in ("arc", "crease", "plane", "foot")
+            cands = [np.array([f[f"{nm}_u"][jj], f[f"{nm}_v"][jj]]) for nm in ("arc", "crease", "plane", "foot", "seabed")
                      if f"{nm}_u" in f]
             cands = [c for c in cands if np.all(np.isfinite(c))]
             ok_c = truth.correct(rig, optical.depth, np.array(cands), np.full(len(cands), r[k]),

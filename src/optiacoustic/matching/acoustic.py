@@ -25,7 +25,7 @@ from scipy import ndimage as ndi
 
 from ..geometry.projection import cos_sin_roots
 
-__all__ = ["SeabedPlane", "fit_seabed", "seabed_elevation", "elevation_maps", "elevation_bounds", "occluded", "seabed_view"]
+__all__ = ["SeabedPlane", "fit_seabed", "seabed_elevation", "seabed_points", "elevation_maps", "elevation_bounds", "occluded", "seabed_view"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -149,6 +149,50 @@ def seabed_elevation(plane: SeabedPlane, ranges, azimuths) -> np.ndarray:
         roots = cos_sin_roots(a, n[2], plane.offset / r)
     good = np.abs(roots) < np.pi / 2
     return np.where(good[0], roots[0], np.where(good[1], roots[1], np.nan))
+
+
+def seabed_points(rig, plane: SeabedPlane, ranges, azimuths, fov_elevation: float):
+    """Where each feature's arc meets the seabed plane, in the camera image (the *seabed point*).
+
+    An echo with no shadow behind it comes from the seabed itself (or from something barely above
+    it), so its point is the arc ``r (cos phi sin theta, cos phi cos theta, sin phi)`` at the
+    seabed's elevation :func:`seabed_elevation`. Closed form, vectorised over features.
+
+    Parameters
+    ----------
+    rig : Rig
+        With the sonar attached.
+    plane : SeabedPlane
+        The seabed in the sonar frame (:func:`fit_seabed`).
+    ranges, azimuths : array_like, shape (N,)
+        Sonar features (m, rad).
+    fov_elevation : float
+        The sonar's elevation aperture (rad): a point outside it is not found.
+
+    Returns
+    -------
+    elevations : ndarray, shape (N,)
+        Sonar-frame elevation (rad); NaN where not found.
+    pixels : ndarray, shape (N, 2)
+        Camera pixels ``(u, v)``; NaN where not found.
+    found : ndarray of bool, shape (N,)
+        The arc meets the seabed inside the aperture, in front of the camera and inside its image.
+    """
+    from ..frames import sonar_from_spherical
+
+    r = np.asarray(ranges, float).reshape(-1)
+    th = np.asarray(azimuths, float).reshape(-1)
+    if r.size != th.size:
+        raise ValueError(f"seabed_points: ranges and azimuths must have one length, got {r.size} and {th.size}")
+    N = r.size
+    if N == 0 or not plane:
+        return np.full(N, np.nan), np.full((N, 2), np.nan), np.zeros(N, bool)
+    phi = seabed_elevation(plane, r, th)
+    ok = np.isfinite(phi) & (np.abs(np.nan_to_num(phi, nan=np.inf)) <= fov_elevation / 2)
+    Pc = rig.camera_from_sonar(sonar_from_spherical(r, th, np.nan_to_num(phi)))
+    px = rig.camera.project(Pc)
+    found = ok & (Pc[:, 2] > 0) & rig.camera.in_image(px)
+    return np.where(found, phi, np.nan), np.where(found[:, None], px, np.nan), found
 
 
 def _seabed_level(sm):

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ArcChoice", "gradient_image", "search_arcs", "stretched"]
+__all__ = ["ArcChoice", "gradient_image", "pixel_values", "search_arcs", "stretched"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -88,6 +88,17 @@ def gradient_image(camera_image, sigma: float = 1.0) -> np.ndarray:
     gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3) / 8.0
     gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3) / 8.0
     return np.hypot(gx, gy)
+
+
+def pixel_values(image: np.ndarray, uv) -> np.ndarray:
+    """``image`` at the nearest pixel of each ``uv`` ``(..., 2)`` (px; clamped into the image, NaN read
+    as 0): the lookup every stage of the matcher makes at its candidates' pixels. Returns
+    ``image[v, u]`` with ``uv``'s leading shape (and ``image``'s trailing channels)."""
+    uv = np.asarray(uv, float)
+    H, W = image.shape[:2]
+    ui = np.clip(np.rint(np.nan_to_num(uv[..., 0])).astype(int), 0, W - 1)
+    vi = np.clip(np.rint(np.nan_to_num(uv[..., 1])).astype(int), 0, H - 1)
+    return image[vi, ui]
 
 
 def stretched(camera_image) -> np.ndarray:

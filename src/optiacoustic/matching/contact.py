@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["ContactChoice", "CreaseChoice", "FootChoice", "crease_points", "crease_positions", "echo_end_ranges",
-           "echo_start_ranges", "foot_points", "search_contacts"]
+           "echo_start_ranges", "foot_edges", "foot_points", "search_contacts"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -136,15 +136,10 @@ def search_contacts(rig, seabed, ranges, azimuths, low, high, gradient, *, thres
     lo = np.asarray(low, float).reshape(-1)[:, None] - margin
     hi = np.asarray(high, float).reshape(-1)[:, None] + margin
     ok &= (phis[None, :] >= lo) & (phis[None, :] <= hi)
-    H, W = gradient.shape
+    from .arc_search import pixel_values
+
     g_max = cv2.dilate(gradient.astype(np.float32), np.ones((5, 5), np.uint8))
-
-    def at(img, uv):
-        ui = np.clip(np.rint(np.nan_to_num(uv[..., 0])).astype(int), 0, W - 1)
-        vi = np.clip(np.rint(np.nan_to_num(uv[..., 1])).astype(int), 0, H - 1)
-        return img[vi, ui]
-
-    edge = at(g_max, q)  # (N, n)
+    edge = pixel_values(g_max, q)  # (N, n)
     d = np.nan_to_num(p - q)
     L = np.linalg.norm(d, axis=-1)
     ok &= (L >= min_segment_px) & (edge >= edge_threshold)
@@ -155,7 +150,7 @@ def search_contacts(rig, seabed, ranges, azimuths, low, high, gradient, *, thres
         b = 1.0 - 2.0 / np.maximum(L, 1e-9)
     s = a[..., None] + (b - a)[..., None] * t  # (N, n, m)
     seg = q[..., None, :] + s[..., None] * d[..., None, :]
-    flat = np.all(at(gradient, seg) < threshold, axis=-1)
+    flat = np.all(pixel_values(gradient, seg) < threshold, axis=-1)
     cand = ok & flat
     # Separate runs of candidate samples: each is one elevation hypothesis.
     starts = cand & ~np.concatenate([np.zeros((N, 1), bool), cand[:, :-1]], axis=1)
@@ -412,3 +407,69 @@ def foot_points(rig, seabed, ranges, azimuths, end_ranges) -> FootChoice:
     found = ok & (disc >= 0) & (t >= 0) & (Pc[:, 2] > 0) & rig.camera.in_image(px) & (np.abs(phi) <= half)
     return FootChoice(np.where(found[:, None], px, np.nan), np.where(found, phi, np.nan), np.where(found, t, np.nan),
                       found)
+
+
+def foot_edges(rig, seabed, ranges, azimuths, elevations, gradient, *, n_segment: int = 16,
+               reach: float = 0.85) -> tuple[np.ndarray, np.ndarray]:
+    """The image's evidence that each candidate point stands on a vertical face: its foot on an edge, the way down edge-free.
+
+    Each candidate ``X = (r, theta, phi)`` (sonar frame) dropped along the seabed's normal onto the
+    seabed plane the sonar measured (:mod:`.acoustic`) gives ``F = X - h n``. If ``X`` lies on a
+    vertical face standing on the seabed, ``F`` is on the face's contact line, so ``F``'s pixel ``q``
+    sits on an image edge (the object's boundary with the seabed) and the segment from ``X``'s pixel
+    ``p`` down to it runs over the face without crossing one. This is :func:`search_contacts`'s test,
+    evaluated at given elevations (every candidate of a match) instead of searched for, and returned
+    as two numbers rather than a yes/no: the foot moves 0.5-1 px per range bin at this rig's grazing
+    view, too little for a hard test, enough to weigh.
+
+    Parameters
+    ----------
+    rig : Rig
+        With the sonar attached.
+    seabed : SeabedPlane
+        The seabed in the sonar frame (:func:`.acoustic.fit_seabed`); falsy: every value NaN.
+    ranges, azimuths, elevations : array_like, shape (N,)
+        The candidates' points (m, rad, rad; sonar frame); NaN elevation: no candidate (NaN out).
+    gradient : ndarray, shape (H, W)
+        :func:`.arc_search.gradient_image` of the camera image (gray levels per px).
+    n_segment : int
+        Samples along the segment.
+    reach : float
+        Fraction of the way from ``p`` to ``q`` the segment is sampled over (the last part is the
+        foot's own edge, blurred).
+
+    Returns
+    -------
+    foot_edge : ndarray, shape (N,)
+        Largest gradient within 2 px (a 5 x 5 window) of ``q`` (gray levels per px).
+    face_edge : ndarray, shape (N,)
+        Largest gradient along the segment from ``p`` to ``p + reach (q - p)``.
+    """
+    import cv2
+
+    from ..frames import sonar_from_spherical
+    from .arc_search import pixel_values
+
+    r = np.asarray(ranges, float).reshape(-1)
+    th = np.asarray(azimuths, float).reshape(-1)
+    phi = np.asarray(elevations, float).reshape(-1)
+    if not (r.size == th.size == phi.size):
+        raise ValueError(f"foot_edges: ranges, azimuths and elevations must have one length, got {r.size}, "
+                         f"{th.size}, {phi.size}")
+    grad = np.asarray(gradient, np.float32)
+    if grad.ndim != 2:
+        raise ValueError(f"foot_edges: gradient must be (H, W), got shape {grad.shape}")
+    nan = np.full(r.size, np.nan)
+    if r.size == 0 or not seabed:
+        return nan, nan.copy()
+    X = sonar_from_spherical(r, th, np.nan_to_num(phi))
+    n_up = np.asarray(seabed.normal, float)
+    F = X - seabed.height(X)[:, None] * n_up
+    p = rig.camera.project(rig.camera_from_sonar(X))
+    q = rig.camera.project(rig.camera_from_sonar(F))
+    g_max = cv2.dilate(grad, np.ones((5, 5), np.uint8))
+    t = np.linspace(0.0, reach, n_segment)
+    seg = p[:, None, :] + t[None, :, None] * (q - p)[:, None, :]
+    has = np.isfinite(phi)
+    return (np.where(has, pixel_values(g_max, q).astype(float), np.nan),
+            np.where(has, pixel_values(grad, seg).astype(float).max(axis=1), np.nan))

@@ -121,6 +121,10 @@ class MatchOptions:
         Fit each face's plane to the creases of every beam its features span (:func:`.face_plane.beam_creases`:
         the echo start of each beam, with the top edge where that beam's arc leaves the face's image region),
         not only to the features' own creases.
+    seabed_point : bool
+        Offer each feature with no acoustic shadow behind its echo the point where its arc meets the
+        sonar's own seabed plane (:func:`.acoustic.seabed_points`) as a fifth candidate (round i15k;
+        off: the four candidates of round i15j).
     face_plane_min_contrast : float
         The plane is fitted only in images whose contrast (0.5-99.5 percentile range of the mean
         channel over their sum) is at least this: in turbid water the crease between a box's front
@@ -145,6 +149,7 @@ class MatchOptions:
     face_plane: bool = True
     face_plane_min_contrast: float = 0.65
     face_plane_beams: bool = True
+    seabed_point: bool = True
     cfar: CfarOptions = field(default_factory=CfarOptions)
     keypoints: KeypointOptions = field(default_factory=KeypointOptions)
 
@@ -312,7 +317,8 @@ def _assign(cost, rows, cols, n_rows, null_cost):
 #: and textured, each with the random vehicle motion of its seed
 #: (``experiments.matching.vehicle_motion``), disjoint from the evaluation's scenes (1023 arc
 #: matches, 52% correct), on the one-view scores before round i15h: refitted on round i15h's
-#: they ranked held-out scenes no better (docs/matching.md, round i15i), so these stay.
+#: they ranked held-out scenes no better (docs/matching.md, round i15i), so these stay; refitted on
+#: round i15k's, again no better (round i15m). Not applied to the seabed point (it keeps its one-view score).
 TWO_VIEW_SCORE_MODEL = dict(
     weights=(-0.091, 1.233, -0.472, 0.401, 0.381, 0.127, 0.154, 0.262, -0.062, -0.463),
     mean=(0.2531, 1.0692, 0.5198, 1.465, 0.0391, 0.5523, 1.6185, 0.724, 1.4446),
@@ -460,6 +466,11 @@ def _two_view(out: Matches, sf, intervals, image_1, second, motion, rig, noise, 
     p_arc = np.full(N, -1.0)
     if len(out):
         p_arc[out.sonar_index] = _logistic(two_view_score_features(arc), TWO_VIEW_SCORE_MODEL)
+        # The seabed point (face_source 4) keeps its one-view score: it is placed by the sonar's own
+        # seabed plane, not by the camera's edge-free run, and TWO_VIEW_SCORE_MODEL was fitted before it
+        # existed (it pulled calibrated seabed points from 0.7-0.8 to 0.45; docs/matching.md, round i15m).
+        seabed_pt = np.asarray(arc.get("face_source", np.full(len(out), -1))) == CANDIDATES.index("seabed")
+        p_arc[out.sonar_index[seabed_pt]] = out.score[seabed_pt]
     p_cand = []
     for cand, featurise, model in ((sweep, sweep_score_features, SWEEP_SCORE_MODEL),
                                    (corr, correlation_score_features, CORRELATION_SCORE_MODEL)):
@@ -756,14 +767,17 @@ def arc_score_features(feats: dict) -> np.ndarray:
 #: the standardised :func:`face_score_features` (logit of :data:`ARC_SCORE_MODEL`'s score; for the
 #: seabed-contact search of :mod:`.contact` and for the point below the crease: whether it found
 #: one, log of 1 + its elevation's distance from the arc search's in units of 0.25 deg, and whether
-#: they agree within 0.5 deg). Fitted by ``experiments.matching.calibrate_face_score()`` on random
+#: they agree within 0.5 deg; and (round i15j) :func:`_foot_edges` of the arc search's pixel: its
+#: point's foot on an image edge and the way down to it edge-free, :func:`.contact.foot_edges`).
+#: Fitted by ``experiments.matching.calibrate_face_score()`` on random
 #: scenes seeded 5000-5047 in thesis water and 5000-5023 in Jerlov 1C water
 #: and :func:`experiments.matching.varied_scene` seeded 8000-8047 in thesis water
-#: (``experiments.matching.FACE_TRAINING``; 3163 matches, 50% correct).
+#: (``experiments.matching.FACE_TRAINING``; 3114 matches, 49% correct; sonar noise of the per-cell
+#: counter stream, issue 14).
 FACE_SCORE_MODEL = dict(
-    weights=(-0.102, 1.174, 0.538, -0.539, -0.006, 0.42, -0.398, -0.096),
-    mean=(-0.1695, 0.2836, 0.4693, 0.0604, 0.7019, 0.8811, 0.3038),
-    std=(1.1287, 0.4507, 0.8342, 0.2382, 0.4574, 0.7999, 0.4599),
+    weights=(-0.148, 0.977, 0.612, -0.6, -0.068, 0.463, -0.381, -0.004, 0.051, 0.131),
+    mean=(-0.1667, 0.2864, 0.4652, 0.0719, 0.6981, 0.9032, 0.2791, 1.6098, 1.1575),
+    std=(1.0858, 0.4521, 0.8341, 0.2584, 0.4591, 0.8146, 0.4485, 1.1654, 0.9405),
 )
 
 #: :data:`FACE_SCORE_MODEL` where the face-plane candidate is offered (``MatchOptions.face_plane``
@@ -773,12 +787,12 @@ FACE_SCORE_MODEL = dict(
 #: units of 0.25 deg, agreement within 0.5 deg; and (round i15h) whether the feature's echo fits on
 #: its face, :func:`_face_fit`: a wrong surface when not). Fitted by
 #: ``experiments.matching.calibrate_face_score()`` on the matches of those scenes where the plane is
-#: offered (thesis water; 2615 matches, 49% correct), with the planes fitted to every beam's crease
+#: offered (thesis water; 2566 matches, 48% correct), with the planes fitted to every beam's crease
 #: (``MatchOptions.face_plane_beams``).
 FACE_PLANE_SCORE_MODEL = dict(
-    weights=(-0.141, 1.087, 0.568, -0.5, -0.009, 0.189, -0.36, -0.136, 0.718, -0.622, -0.032, -0.004, -0.33, 0.207),
-    mean=(-0.1657, 0.343, 0.5677, 0.073, 0.6845, 0.8164, 0.3239, 0.6822, 0.9442, 0.2394, 0.9663, 0.4284, 0.6681),
-    std=(1.0508, 0.4747, 0.8865, 0.2602, 0.4647, 0.7671, 0.468, 0.4656, 0.8745, 0.4267, 0.1803, 0.7802, 0.4709),
+    weights=(-0.177, 0.847, 0.565, -0.486, -0.024, 0.131, -0.134, 0.011, 0.112, 0.274, 0.675, -0.756, -0.075, 0.077, -0.24, 0.282),
+    mean=(-0.1688, 0.3476, 0.5646, 0.0873, 0.6797, 0.8314, 0.2962, 1.8262, 1.2827, 0.673, 0.9457, 0.2408, 0.9665, 0.402, 0.661),
+    std=(1.0314, 0.4762, 0.8878, 0.2823, 0.4666, 0.7799, 0.4566, 1.1742, 0.9894, 0.4691, 0.8805, 0.4276, 0.18, 0.7957, 0.4734),
 )
 
 #: Logistic model of P(correct) of the point below the crease (:func:`.contact.crease_points`):
@@ -790,13 +804,14 @@ FACE_PLANE_SCORE_MODEL = dict(
 #: gradient just above the run (the crease's edge), log of the image's contrast (turbid water
 #: washes out the crease between a box's front and top faces, and the run then ends at the top
 #: face's far edge); and (round i15h) the plane point found and log of 1 + its elevation distance
-#: from the crease point, and whether the feature's echo fits on its face, :func:`_face_fit`). Fitted by
-#: ``experiments.matching.calibrate_face_score()`` on the same scenes (2220 crease points, 61%
+#: from the crease point, and whether the feature's echo fits on its face, :func:`_face_fit`; and
+#: (round i15j) the crease point's :func:`_foot_edges`). Fitted by
+#: ``experiments.matching.calibrate_face_score()`` on the same scenes (2174 crease points, 60%
 #: correct).
 CREASE_SCORE_MODEL = dict(
-    weights=(0.522, 0.625, -0.237, -0.214, 0.385, -0.158, -0.171, 0.382, 0.245, -0.148, 0.824, -0.471, -0.236, 0.092, 0.059),
-    mean=(0.2095, 1.2553, 0.4928, 0.3851, 0.5783, 0.9574, 4.1882, 1.5581, -0.265, 0.7014, 0.6461, 0.7874, 0.556, 0.6928),
-    std=(0.6089, 0.6647, 0.4999, 0.4866, 0.2249, 0.3099, 0.5883, 1.3793, 0.1888, 0.4577, 0.7214, 0.4092, 0.4478, 0.4613),
+    weights=(0.486, 0.557, -0.322, -0.156, 0.023, -0.329, -0.286, 0.686, 0.147, -0.442, 0.718, -0.327, 0.126, 0.079, -0.146, 0.51, 0.214),
+    mean=(0.2087, 1.2938, 0.4816, 0.3873, 0.5845, 0.9657, 4.211, 1.5517, -0.2674, 0.6941, 0.6474, 0.782, 0.546, 0.6863, 1.6243, 1.1482),
+    std=(0.5951, 0.6673, 0.4997, 0.4871, 0.2242, 0.3285, 0.5829, 1.3965, 0.1899, 0.4608, 0.7154, 0.4129, 0.449, 0.464, 1.1893, 0.8942),
 )
 
 
@@ -811,10 +826,17 @@ def _logit(p):
     return np.log(p / (1 - p))
 
 
+def _foot_edges(feats, name):
+    """The candidate's foot evidence (:func:`.contact.foot_edges`, round i15j): log of 1 + the gradient at its
+    foot's pixel and log of 1 + the largest gradient on the way down to it (0 where there is no candidate)."""
+    return [np.log1p(np.nan_to_num(np.asarray(feats[f"{name}_foot_edge"], float))),
+            np.log1p(np.nan_to_num(np.asarray(feats[f"{name}_face_edge"], float)))]
+
+
 def face_score_features(feats: dict) -> np.ndarray:
-    """The face score model's inputs ``(N, 7)`` from a :attr:`Matches.features` mapping."""
+    """The face score model's inputs ``(N, 9)`` from a :attr:`Matches.features` mapping."""
     return np.column_stack([_logit(feats["arc_score"]), *_agreement(feats["contact_found"], feats["contact_dphi_deg"]),
-                            *_agreement(feats["crease_found"], feats["crease_dphi_deg"])])
+                            *_agreement(feats["crease_found"], feats["crease_dphi_deg"]), *_foot_edges(feats, "arc")])
 
 
 def _face_fit(feats):
@@ -827,14 +849,14 @@ def _face_fit(feats):
 
 
 def face_plane_score_features(feats: dict) -> np.ndarray:
-    """:data:`FACE_PLANE_SCORE_MODEL`'s inputs ``(N, 13)``: :func:`face_score_features`, the plane point's
+    """:data:`FACE_PLANE_SCORE_MODEL`'s inputs ``(N, 15)``: :func:`face_score_features`, the plane point's
     agreement and whether the feature's echo fits on its face (:func:`_face_fit`)."""
     return np.column_stack([face_score_features(feats), *_agreement(feats["plane_found"], feats["plane_dphi_deg"]),
                             *_face_fit(feats)])
 
 
 def crease_score_features(feats: dict) -> np.ndarray:
-    """The crease score model's inputs ``(N, 14)`` (NaN-free; meaningful where ``crease_found``)."""
+    """The crease score model's inputs ``(N, 16)`` (NaN-free; meaningful where ``crease_found``)."""
     d = np.nan_to_num(np.asarray(feats["crease_dphi_deg"], float))
     dp = np.asarray(feats["plane_crease_dphi_deg"], float)
     fp = np.isfinite(dp)
@@ -843,7 +865,8 @@ def crease_score_features(feats: dict) -> np.ndarray:
                             np.log1p(feats["echo_depth_bins"]), np.log(np.maximum(feats["run_px"], 1.0)),
                             np.log1p(np.nan_to_num(feats["top_edge"])),
                             np.log(np.maximum(feats["image_contrast"], 1e-6)),
-                            fp.astype(float), np.where(fp, np.log1p(np.nan_to_num(dp) / 0.25), 0.0), *_face_fit(feats)])
+                            fp.astype(float), np.where(fp, np.log1p(np.nan_to_num(dp) / 0.25), 0.0), *_face_fit(feats),
+                            *_foot_edges(feats, "crease")])
 
 
 #: Logistic model of P(correct) of the point on the face's fitted plane (:mod:`.face_plane`):
@@ -854,20 +877,20 @@ def crease_score_features(feats: dict) -> np.ndarray:
 #: fraction; log of 1 + the feature's own crease's distance from the plane in cm; log of 1 + the
 #: inliers' extent along the edge in units of 5 cm; where the point sits in the
 #: run; its height as a fraction of the face's; log of 1 + how many bins the feature lies behind its
-#: echo's start; log of 1 + the gradient just above the run; log of the image's contrast). Fitted by
-#: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model (1784
+#: echo's start; log of 1 + the gradient just above the run; log of the image's contrast; and
+#: (round i15j) the plane point's :func:`_foot_edges`). Fitted by
+#: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model (1727
 #: plane points, all in thesis water where the plane is offered, 67% correct; the planes fitted to
-#: every beam's crease, ``MatchOptions.face_plane_beams``; with the features' creases alone 64% of
-#: 1787).
+#: every beam's crease, ``MatchOptions.face_plane_beams``).
 PLANE_SCORE_MODEL = dict(
-    weights=(0.857, 0.685, -0.12, 0.422, -0.198, -0.08, 0.091, 0.402, 0.39, -0.034, 0.199, 0.164, 0.161, 0.219, 0.209, -0.264),
-    mean=(0.1374, 1.384, 0.8728, 0.8041, 0.4731, 0.9058, 2.6209, 0.805, 0.5495, 2.0542, 0.5472, 0.586, 0.9891, 1.9265, -0.178),
-    std=(0.7435, 0.7157, 0.3332, 0.7216, 0.4993, 0.2921, 0.731, 0.1774, 0.5543, 0.632, 0.4662, 0.2713, 0.3564, 1.2883, 0.0547),
+    weights=(0.909, 0.622, -0.224, 0.32, 0.028, -0.119, 0.393, 0.416, 0.379, 0.125, 0.083, -0.213, 0.161, 0.036, -0.099, -0.187, 0.78, -0.04),
+    mean=(0.1397, 1.4051, 0.8738, 0.815, 0.4615, 0.9074, 2.5958, 0.8046, 0.5494, 2.0016, 0.5483, 0.5858, 0.9935, 1.9106, -0.1776, 1.9257, 1.3687),
+    std=(0.6969, 0.7117, 0.3321, 0.7125, 0.4985, 0.2899, 0.7324, 0.1854, 0.5344, 0.6506, 0.4659, 0.2723, 0.3745, 1.3252, 0.0544, 1.1923, 0.981),
 )
 
 
 def plane_score_features(feats: dict) -> np.ndarray:
-    """The plane score model's inputs ``(N, 15)`` (NaN-free; meaningful where ``plane_found``)."""
+    """The plane score model's inputs ``(N, 17)`` (NaN-free; meaningful where ``plane_found``)."""
     d = np.nan_to_num(np.asarray(feats["plane_dphi_deg"], float))
     cf = np.asarray(feats["crease_found"], bool)
     dc = np.where(cf, np.nan_to_num(np.asarray(feats["plane_crease_dphi_deg"], float)), 0.0)
@@ -881,21 +904,22 @@ def plane_score_features(feats: dict) -> np.ndarray:
                             np.where(np.isfinite(own), np.log1p(np.nan_to_num(own) / 0.01), 0.0),
                             np.log1p(np.nan_to_num(np.asarray(feats["plane_spread"], float)) / 0.05), pos, hgt,
                             np.log1p(feats["echo_depth_bins"]), np.log1p(np.nan_to_num(feats["top_edge"])),
-                            np.log(np.maximum(feats["image_contrast"], 1e-6))])
+                            np.log(np.maximum(feats["image_contrast"], 1e-6)), *_foot_edges(feats, "plane")])
 
 
 #: Logistic model of P(correct) of the point above the face's foot (:func:`.contact.foot_points`):
 #: intercept and weights of the standardised :func:`foot_score_features`. Fitted by
-#: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model.
+#: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model (2302
+#: foot points, 51% correct).
 FOOT_SCORE_MODEL = dict(
-    weights=(0.099, -0.113, -0.083, 0.253, -0.516, 1.199, -0.8, 0.222, -0.01, 0.303, 0.019, -0.14, 0.038, -0.003, 0.004, -0.202, 0.234, 0.059, 0.025, -0.574),
-    mean=(0.1713, 1.7612, 0.8899, 1.6282, 0.6983, 1.2475, 0.6564, 0.4622, 1.5678, 0.9884, 0.3803, 0.7568, 2.8523, -0.2592, 0.8229, 0.3568, 0.8015, 0.5068, 0.6872),
-    std=(0.7078, 0.8023, 0.313, 0.9765, 0.459, 1.0754, 0.4749, 0.4986, 0.3245, 0.322, 0.1775, 0.7024, 0.6194, 0.1825, 0.3818, 0.4791, 0.3988, 0.481, 0.4637),
+    weights=(0.026, -0.06, -0.094, 0.225, -0.627, 1.324, -0.698, 0.278, -0.009, 0.107, -0.059, -0.02, -0.065, -0.09, 0.122, -0.356, 0.161, -0.046, -0.028, -0.696, 0.294, 0.073),
+    mean=(0.1633, 1.7885, 0.8879, 1.6372, 0.6872, 1.2177, 0.6816, 0.4609, 1.5471, 1.0002, 0.3695, 0.7241, 2.8483, -0.2595, 0.8219, 0.3692, 0.7989, 0.4908, 0.6777, 1.6989, 1.4063),
+    std=(0.7094, 0.7813, 0.3155, 0.9772, 0.4636, 1.072, 0.4659, 0.4985, 0.3322, 0.3403, 0.1848, 0.7001, 0.6363, 0.1827, 0.3826, 0.4826, 0.4008, 0.5012, 0.4674, 1.2071, 1.0226),
 )
 
 
 def foot_score_features(feats: dict) -> np.ndarray:
-    """The foot score model's inputs ``(N, 19)`` (NaN-free; meaningful where ``foot_found``).
+    """The foot score model's inputs ``(N, 21)`` (NaN-free; meaningful where ``foot_found``).
 
     Logit of the arc search's own score; log of 1 + the foot point's elevation distance (units of
     0.25 deg) from the arc search's pixel, and, with whether each exists, from the crease point and
@@ -903,7 +927,8 @@ def foot_score_features(feats: dict) -> np.ndarray:
     bins between the feature and its echo's end, and between its echo's start and the feature;
     the point's height above the seabed (m); log of 1 + the image gradient at its pixel; log SNR;
     log of the image's contrast; the plane offered; the foot search found a face; and whether the
-    feature's echo fits on its face's plane (:func:`_face_fit`).
+    feature's echo fits on its face's plane (:func:`_face_fit`); and (round i15j) the point's foot on
+    an image edge and the way down to it edge-free (:func:`_foot_edges`).
     """
     def dist(key):
         d = np.asarray(feats[key], float)
@@ -919,11 +944,41 @@ def foot_score_features(feats: dict) -> np.ndarray:
                             np.log(np.maximum(feats["snr"], 1e-6)),
                             np.log(np.maximum(feats["image_contrast"], 1e-6)),
                             np.asarray(feats["plane_offered"], float), np.asarray(feats["contact_found"], float),
-                            *_face_fit(feats)])
+                            *_face_fit(feats), *_foot_edges(feats, "foot")])
 
 
-#: The four candidate pixels of a one-view match, in ``features["face_source"]`` order.
-CANDIDATES = ("arc", "crease", "plane", "foot")
+#: intercept and weights of the standardised :func:`seabed_score_features`. Fitted by
+#: ``experiments.matching.calibrate_face_score()`` on ``FACE_TRAINING`` (round i15k; 603 seabed points, 39%
+#: correct).
+SEABED_SCORE_MODEL = dict(
+    weights=(-0.949, -0.086, 0.357, -0.177, -0.349, -0.738, -0.459, 0.338, 0.198, -0.219, -1.452, 0.003),
+    mean=(-1.3907, 0.2915, 0.466, 0.6451, 1.3912, 2.2608, 1.1689, 2.6637, -0.2594, 3.154, 1.9932),
+    std=(1.3328, 0.2312, 0.4988, 0.4785, 0.9577, 1.2536, 1.1227, 0.5682, 0.1849, 4.1968, 0.303),
+)
+
+
+def seabed_score_features(feats: dict) -> np.ndarray:
+    """The seabed point's score model's inputs ``(N, 11)`` (NaN-free; meaningful where ``seabed_found``).
+
+    Logit of the arc search's own score; log of 1 + the seabed point's elevation distance from the
+    arc search's pixel (units of 0.25 deg); onset or peak; the point inside the arc search's run;
+    log of 1 + the bins from the echo's start to the feature and from the feature to its end; log of
+    1 + the image gradient at its pixel; log SNR; log of the image's contrast; the seabed's
+    elevation there (deg: how steeply the arc crosses the seabed, i.e. how narrow the right sliver
+    is) and log of the feature's range (m).
+    """
+    d = np.nan_to_num(np.asarray(feats["seabed_dphi_deg"], float))
+    return np.column_stack([_logit(feats["arc_score"]), np.log1p(d / 0.25), feats["kind"],
+                            np.asarray(feats["seabed_in_run"], float), np.log1p(feats["echo_depth_bins"]),
+                            np.log1p(feats["echo_end_bins"]), np.log1p(np.asarray(feats["seabed_gradient"], float)),
+                            np.log(np.maximum(feats["snr"], 1e-6)),
+                            np.log(np.maximum(feats["image_contrast"], 1e-6)),
+                            np.rad2deg(np.nan_to_num(np.asarray(feats["seabed_elevation"], float))),
+                            np.log(np.maximum(np.asarray(feats["range_m"], float), 1e-3))])
+
+
+#: The five candidate pixels of a one-view match, in ``features["face_source"]`` order.
+CANDIDATES = ("arc", "crease", "plane", "foot", "seabed")
 
 def _logistic(X, model):
     w = np.asarray(model["weights"], float)
@@ -972,14 +1027,16 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     """Every sonar feature takes a pixel of the longest edge-free run of its arc (:mod:`.arc_search`).
 
     The run's middle (or 70% up for onsets), the point below the face's crease
-    (:func:`.contact.crease_points`) or the point where the arc meets the plane fitted to all the
-    face's creases (:func:`.face_plane.face_planes`), whichever has the highest calibrated probability.
+    (:func:`.contact.crease_points`), the point where the arc meets the plane fitted to all the
+    face's creases (:func:`.face_plane.face_planes`), the point above the face's foot
+    (:func:`.contact.foot_points`) or, for an echo with no shadow behind it, the point where the arc
+    meets the seabed (:func:`.acoustic.seabed_points`), whichever has the highest calibrated probability.
     """
     from ..geometry.projection import camera_from_sonar
-    from .arc_search import gradient_image, search_arcs, stretched
+    from .arc_search import gradient_image, pixel_values, search_arcs, stretched
     from .camera_features import to_gray8
-    from .contact import (crease_points, crease_positions, echo_end_ranges, echo_start_ranges, foot_points,
-                          search_contacts)
+    from .contact import (crease_points, crease_positions, echo_end_ranges, echo_start_ranges, foot_edges,
+                          foot_points, search_contacts)
     from .face_plane import face_labels, face_planes
 
     if np.ptp(to_gray8(cam_img)) == 0:
@@ -1079,10 +1136,33 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     for name, el in (("foot_dphi_deg", ch.elevations[rows]), ("foot_crease_dphi_deg", cr.elevations),
                      ("foot_plane_dphi_deg", fp.elevations)):
         feats[name] = np.rad2deg(np.abs(ft.elevations - el))
-    H_g, W_g = grad.shape
-    fpx = np.nan_to_num(ft.pixels)
-    feats["foot_gradient"] = np.where(ft.found, grad[np.clip(np.rint(fpx[:, 1]).astype(int), 0, H_g - 1),
-                                                     np.clip(np.rint(fpx[:, 0]).astype(int), 0, W_g - 1)], 0.0)
+    feats["foot_gradient"] = np.where(ft.found, pixel_values(grad, ft.pixels), 0.0)
+    # Every candidate's point dropped onto the seabed: its foot on an image edge and the way down to
+    # it edge-free say it stands on a vertical face (:func:`.contact.foot_edges`; round i15j). The four
+    # candidates' points in one call (one dilation of the gradient image).
+    names = ("arc", "crease", "plane", "foot")
+    els = np.concatenate([ch.elevations[rows], np.where(cr.found, cr.elevations, np.nan),
+                          np.where(fp.found, fp.elevations, np.nan), ft.elevations])
+    n_f = rows.size
+    f_edge, c_edge = foot_edges(rig, seabed, np.tile(sf.ranges[rows], 4), np.tile(sf.azimuths[rows], 4), els, grad)
+    for k, name in enumerate(names):
+        feats[f"{name}_foot_edge"], feats[f"{name}_face_edge"] = f_edge[k * n_f:(k + 1) * n_f], c_edge[k * n_f:(k + 1) * n_f]
+    # The seabed point (round i15k): an echo with no shadow behind it is on the seabed, so its point is
+    # where its arc meets the sonar's own seabed plane (:func:`.acoustic.seabed_points`).
+    from .acoustic import seabed_points
+
+    sb_el, sb_px, sb_found = seabed_points(rig, seabed, sf.ranges[rows], sf.azimuths[rows], rig.fov_elevation)
+    sb_found &= ~np.asarray(shadowed[rows], bool) & bool(opt.seabed_point)
+    sb_el = np.where(sb_found, sb_el, np.nan)
+    sb_px = np.where(sb_found[:, None], sb_px, np.nan)
+    feats["seabed_found"] = sb_found
+    feats["seabed_u"], feats["seabed_v"] = sb_px[:, 0], sb_px[:, 1]
+    feats["seabed_elevation"] = sb_el
+    feats["seabed_dphi_deg"] = np.rad2deg(np.abs(sb_el - ch.elevations[rows]))
+    feats["seabed_in_run"] = sb_found & (np.nan_to_num(sb_el) >= ch.run_low[rows] - 1e-9) & \
+        (np.nan_to_num(sb_el) <= ch.run_high[rows] + 1e-9)
+    feats["seabed_gradient"] = np.where(sb_found, pixel_values(grad, sb_px), 0.0)
+    feats["range_m"] = sf.ranges[rows]
     # Where the plane is offered, the arc search's pixel is scored knowing whether the plane
     # point agrees with it; elsewhere exactly as before the face-plane model.
     p_arc = np.where(offered, _logistic(face_plane_score_features(feats), FACE_PLANE_SCORE_MODEL),
@@ -1090,18 +1170,20 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     p_crease = np.where(cr.found, _logistic(crease_score_features(feats), CREASE_SCORE_MODEL), 0.0)
     p_plane = np.where(fp.found, _logistic(plane_score_features(feats), PLANE_SCORE_MODEL), 0.0)
     p_foot = np.where(ft.found, _logistic(foot_score_features(feats), FOOT_SCORE_MODEL), 0.0)
+    p_seabed = np.where(sb_found, _logistic(seabed_score_features(feats), SEABED_SCORE_MODEL), 0.0)
     # 0: the arc search's pixel, 1: the point below the crease, 2: the point on the face's plane,
-    # 3: the point above the face's foot.
-    probs = np.column_stack([p_arc, p_crease, p_plane, p_foot])
-    elevs = np.column_stack([ch.elevations[rows], cr.elevations, fp.elevations, ft.elevations])
+    # 3: the point above the face's foot, 4: the seabed point.
+    probs = np.column_stack([p_arc, p_crease, p_plane, p_foot, p_seabed])
+    elevs = np.column_stack([ch.elevations[rows], cr.elevations, fp.elevations, ft.elevations, sb_el])
     for k, name in enumerate(CANDIDATES):
         feats[f"p_{name}"], feats[f"{name}_elevation"] = probs[:, k], elevs[:, k]
     source = np.argmax(probs, axis=1)
     feats["face_source"] = source
     feats["elevation"] = np.choose(source, [ch.elevations[rows], np.nan_to_num(cr.elevations),
-                                            np.nan_to_num(fp.elevations), np.nan_to_num(ft.elevations)])
+                                            np.nan_to_num(fp.elevations), np.nan_to_num(ft.elevations),
+                                            np.nan_to_num(sb_el)])
     px = np.choose(source[:, None], [px_arc, np.nan_to_num(cr.pixels), np.nan_to_num(fp.pixels),
-                                     np.nan_to_num(ft.pixels)])
+                                     np.nan_to_num(ft.pixels), np.nan_to_num(sb_px)])
     score = probs[np.arange(rows.size), source]
     s_px = noise.sigma_pixel or 0.5
     s_r = np.full(rows.size, noise.sigma_range) if noise.sigma_range else sf.sigma_range[rows]

@@ -1453,6 +1453,50 @@ def _is_symmetric(w):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath={"contract"})
+def _speckle_row(i, B, J, zf, mf, base, h_r, h_r2, h_b, h_b2, sym_r, sym_b, tz, tm, fz, fm, fa, mr, t, o):
+    """:func:`speckle_image`'s output row ``i`` (of ``B`` rows, ``J`` beams) into ``o``: the field rows
+    ``zf`` (flat float32, ``2 J`` a row) and mean rows ``mf`` (flat, ``J`` a row) hold image rows from
+    ``base`` on (row ``i + m - Dr`` of the range taps is at ``i + m - Dr - base``); ``mr`` the mean's row
+    ``i``, ``t`` its TVG; ``tz``, ``tm``, ``fz``, ``fm``, ``fa`` scratch as :func:`speckle_image` makes
+    them (the zero margins of ``tz`` and ``tm`` left zero)."""
+    Kr = h_r.size
+    Dr = Kr // 2
+    Db = h_b.size // 2
+    k0 = max(0, Dr - i)  # the range taps whose rows exist (zero rows beyond the image)
+    k1 = min(Kr, B + Dr - i)
+    w = h_r[k0:k1]
+    w2 = h_r2[k0:k1]
+    tzi = tz[2 * Db: 2 * Db + 2 * J]
+    tmi = tm[Db: Db + J]
+    first = i + k0 - Dr - base
+    if sym_r and k0 == 0 and k1 == Kr:  # the whole range kernel: its symmetric taps folded
+        _taps_folded(tzi, zf[first * 2 * J:], w, 2 * J, 2 * J)
+        _taps_folded(tmi, mf[first * J:], w2, J, J)
+    else:  # rows near the image's ends (a truncated kernel) or an asymmetric kernel
+        tzi[:] = 0.0
+        tmi[:] = 0.0
+        _taps(tzi, zf[first * 2 * J:], w, 2 * J, 2 * J)
+        _taps(tmi, mf[first * J:], w2, J, J)
+    if sym_b:
+        _taps_folded(fz, tz, h_b, 2, 2 * J)
+        _taps_folded(fm, tm, h_b2, 1, J)
+    else:
+        fz[:] = 0.0
+        fm[:] = 0.0
+        _taps(fz, tz, h_b, 2, 2 * J)
+        _taps(fm, tm, h_b2, 1, J)
+    for j in range(J):  # |f|^2 first: with the division in the same loop, it did not vectorise
+        a = fz[2 * j]
+        b = fz[2 * j + 1]
+        fa[j] = a * a + b * b
+    for j in range(J):
+        e = fm[j]
+        pos = e > 0
+        v = fa[j] * (mr[j] / (e if pos else np.float32(1.0))) * t
+        o[j] = v if pos else np.float32(0.0)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", fastmath={"contract"})
 def speckle_image(z, mean, h_r, h_b, tvg, r0, r1, out):
     """``ScattererNoise``'s image in one pass, rows ``r0..r1``: the field ``z`` ``(B, J, 2)`` float32
     filtered by ``h_r`` along rows (range) and ``h_b`` along beams, ``f`` (``speckle.filter_complex``),
@@ -1463,12 +1507,9 @@ def speckle_image(z, mean, h_r, h_b, tvg, r0, r1, out):
     Per output row the range taps first (a weighted sum of ``len(h_r)`` input rows),
     then the beam taps along the zero-padded row (:func:`_taps`), all in float32 with fused
     multiply-adds (cv2's sums in another order): neither ``f`` nor ``expected`` is stored, and
-    the rows are independent, so that threads can take row ranges."""
+    the rows are independent, so that threads can take row ranges (:func:`_speckle_row`)."""
     B, J = mean.shape
-    Kr = h_r.size
-    Kb = h_b.size
-    Dr = Kr // 2
-    Db = Kb // 2
+    Db = h_b.size // 2
     h_b2 = h_b * h_b
     h_r2 = h_r * h_r  # (not per row: an allocation each)
     sym_r = _is_symmetric(h_r)
@@ -1481,38 +1522,108 @@ def speckle_image(z, mean, h_r, h_b, tvg, r0, r1, out):
     zf = z.reshape(B * 2 * J)
     mf = mean.reshape(B * J)
     for i in range(r0, r1):
-        k0 = max(0, Dr - i)  # the range taps whose rows exist (zero rows beyond the image)
-        k1 = min(Kr, B + Dr - i)
-        w = h_r[k0:k1]
-        w2 = h_r2[k0:k1]
-        tzi = tz[2 * Db: 2 * Db + 2 * J]
-        tmi = tm[Db: Db + J]
-        first = i + k0 - Dr
-        if sym_r and k0 == 0 and k1 == Kr:  # the whole range kernel: its symmetric taps folded
-            _taps_folded(tzi, zf[first * 2 * J:], w, 2 * J, 2 * J)
-            _taps_folded(tmi, mf[first * J:], w2, J, J)
-        else:  # rows near the image's ends (a truncated kernel) or an asymmetric kernel
-            tzi[:] = 0.0
-            tmi[:] = 0.0
-            _taps(tzi, zf[first * 2 * J:], w, 2 * J, 2 * J)
-            _taps(tmi, mf[first * J:], w2, J, J)
-        if sym_b:
-            _taps_folded(fz, tz, h_b, 2, 2 * J)
-            _taps_folded(fm, tm, h_b2, 1, J)
+        _speckle_row(i, B, J, zf, mf, 0, h_r, h_r2, h_b, h_b2, sym_r, sym_b, tz, tm, fz, fm, fa, mean[i], tvg[i],
+                     out[i])
+
+
+#: Output rows per block of :func:`scatterer_speckle` (its field rows, with the range taps' margins,
+#: stay in the core's cache between being formed and filtered).
+_SPECKLE_BLOCK = 32
+
+
+@njit(cache=True, nogil=True, error_model="numpy")  # (no contraction: the field's rows as scatterer_field's)
+def scatterer_speckle(intensity, gain, back, area, density, mu_max, k0, k1, have_words, u_words, r2, unit,
+                      h_r, h_b, tvg, r0, r1, out):
+    """:func:`scatterer_field` (or :func:`scatterer_field_words` when ``have_words``: the words
+    :func:`field_words` drew) and :func:`speckle_image` in one pass, output rows ``r0..r1``: per block of
+    :data:`_SPECKLE_BLOCK` output rows the field and mean rows it reads (the block's rows and ``len(h_r)
+    // 2`` on either side, inside the image) are formed into local scratch, then filtered into ``out``
+    (issue 14, i14q: neither the field ``(B, J, 2)`` nor the mean ``(B, J)`` is stored, and one pass
+    instead of two). The next block keeps the rows the blocks share. Rows within ``len(h_r) // 2`` of
+    ``r0`` or ``r1`` are formed by both neighbouring row ranges (the same numbers). The same numbers as
+    the two kernels, operation for operation. Returns the number of cells of large mean (``mu >=
+    mu_max``, whose counts the caller draws): where it is not 0, the rows of ``out`` near them are
+    wrong and the caller must take the two-pass path instead."""
+    B, J = intensity.shape
+    Kr = h_r.size
+    Dr = Kr // 2
+    Db = h_b.size // 2
+    h_b2 = h_b * h_b
+    h_r2 = h_r * h_r
+    sym_r = _is_symmetric(h_r)
+    sym_b = _is_symmetric(h_b)
+    tz = np.zeros(2 * (J + 2 * Db), np.float32)
+    tm = np.zeros(J + 2 * Db, np.float32)
+    fz = np.empty(2 * J, np.float32)
+    fm = np.empty(J, np.float32)
+    fa = np.empty(J, np.float32)
+    nb = _SPECKLE_BLOCK + 2 * Dr
+    zb = np.empty((nb, J, 2), np.float32)  # field rows buf0 .. buf1 at zb[row - buf0]
+    mb = np.empty((nb, J), np.float32)
+    zf = zb.reshape(nb * 2 * J)
+    mf = mb.reshape(nb * J)
+    # the field's row scratch (as scatterer_field's)
+    m_row = np.empty(J)
+    p0 = np.empty(J)
+    scale = np.empty(J)
+    n_row = np.empty(J, np.int32)
+    u_row = np.empty(J)
+    x = np.empty(J)
+    e = np.empty(J)
+    mant = np.empty(J)
+    r2_row = np.empty(J, np.float32)
+    power = np.empty(J, np.float32)
+    fix = np.empty(J, np.int64)
+    big = np.empty(J, np.bool_)
+    w0 = np.empty(J, np.uint32)
+    w1 = np.empty(J, np.uint32)
+    w2 = np.empty(J, np.uint32)
+    half = np.float32(0.5)
+    n_big = 0
+    buf0 = 0
+    buf1 = 0  # rows buf0 .. buf1 are in the scratch
+    for i0 in range(r0, r1, _SPECKLE_BLOCK):
+        i1 = min(i0 + _SPECKLE_BLOCK, r1)
+        need0 = max(i0 - Dr, 0)
+        need1 = min(i1 + Dr, B)
+        if buf1 > need0:  # keep the rows this block shares with the last: to the top of the scratch
+            off = need0 - buf0  # > 0: row by row upwards, so overlapping ranges (a kernel longer than a block) copy right
+            for t in range(buf1 - need0):
+                zb[t] = zb[off + t]
+                mb[t] = mb[off + t]
+            start = buf1
         else:
-            fz[:] = 0.0
-            fm[:] = 0.0
-            _taps(fz, tz, h_b, 2, 2 * J)
-            _taps(fm, tm, h_b2, 1, J)
-        t = tvg[i]
-        mr = mean[i]
-        o = out[i]
-        for j in range(J):  # |f|^2 first: with the division in the same loop, it did not vectorise
-            a = fz[2 * j]
-            b = fz[2 * j + 1]
-            fa[j] = a * a + b * b
-        for j in range(J):
-            e = fm[j]
-            pos = e > 0
-            v = fa[j] * (mr[j] / (e if pos else np.float32(1.0))) * t
-            o[j] = v if pos else np.float32(0.0)
+            start = need0
+        buf0 = need0
+        for i in range(start, need1):
+            zi = zb[i - buf0].reshape(2 * J)
+            mi = mb[i - buf0]
+            bk = back[i]
+            a_row = area[i]
+            for j in range(J):
+                m_row[j] = density * a_row[j]
+            _exp_neg_row(m_row, 40.0, p0, scale)
+            if have_words:
+                _uniform_bits_row(u_words[i], u_row)
+            else:
+                _cell_words_row(k0, k1, i * J, w0, w1, w2)
+                _uniform_bits_row(w0, u_row)
+            _poisson_small_row(m_row, p0, scale, u_row, mu_max, n_row, fix)
+            _field_power_row(m_row, n_row, intensity[i], gain, bk, mu_max, power, big, mi)
+            for j in range(J):
+                n_big += big[j]
+            if have_words:
+                r2i = r2[i]
+                ui = unit[i].reshape(2 * J)
+                for j in range(J):
+                    sc = np.float32(np.sqrt(np.float64(power[j] * half * r2i[j])))
+                    zi[2 * j] = ui[2 * j] * sc
+                    zi[2 * j + 1] = ui[2 * j + 1] * sc
+            else:
+                _radius2_row(w1, x, e, mant, r2_row)
+                _normals_row(w2, r2_row, power, zi)
+        buf1 = need1
+        for i in range(i0, i1):
+            _speckle_row(i, B, J, zf, mf, buf0, h_r, h_r2, h_b, h_b2, sym_r, sym_b, tz, tm, fz, fm, fa,
+                         mb[i - buf0], tvg[i], out[i])
+    return n_big

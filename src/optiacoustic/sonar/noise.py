@@ -508,15 +508,13 @@ class ScattererNoise:
         so a uniform region has mean ``g I + B`` and the moments of :mod:`.speckle`.
         """
         from ._kernels import chunked_run, kernels, use_numba
-        from .propagation import absorption_db_per_m
         from .speckle import filter_complex
 
         I = np.asarray(intensity, np.float32)
         key, rng, *field = draws if draws is not None else self.draw(I.shape, (), np.random.default_rng(rng))
         h_r, h_b = self.kernels(spec)
         g = self.gain
-        alpha = absorption_db_per_m(spec.frequency, options.water) if options.propagation == "spreading" else 0.0
-        back = g.background_raw(spec.ranges, alpha).astype(np.float32)[:, None]
+        back = _background_column(g, spec, options.water if options.propagation == "spreading" else None)
         from ._kernels import workspace as _workspace
 
         # the compiled path reuses per-thread scratch for the echo and the mean (fresh pages fault on
@@ -524,6 +522,27 @@ class ScattererNoise:
         fast = use_numba()
         gain = np.float32(10.0 ** (g.gain_db / 10.0))
         mean = None
+        if fast and cell_area is not None and self._one_pass() and _FUSED:
+            # issue 14 (i14q): the field and the speckle image in one pass over row blocks (no field or mean
+            # image stored); the rare frame with cells of large mean takes the two passes below instead
+            area = np.ascontiguousarray(cell_area, np.float32)
+            out = np.empty(I.shape, np.float32)
+            have = bool(field)
+            words, r2, unit = field[0] if have else (_NO_WORDS, _NO_R2, _NO_UNIT)
+            tvg = np.ascontiguousarray(_tvg_column(g, spec)[:, 0])
+            hr32 = np.ascontiguousarray(h_r, np.float32)
+            hb32 = np.ascontiguousarray(h_b, np.float32)
+            kn = kernels()
+            k0, k1 = np.uint32(key[0]), np.uint32(key[1])
+            n_big = []  # per chunk (list.append is atomic under the GIL)
+
+            def part(r0, r1):
+                n_big.append(kn.scatterer_speckle(I, gain, back[:, 0], area, float(self.density), _POISSON_INVERSION_MAX,
+                                                 k0, k1, have, words, r2, unit, hr32, hb32, tvg, r0, r1, out))
+
+            chunked_run(part, I.shape[0], threads)
+            if not any(n_big):
+                return out
         if fast and cell_area is not None and self._one_pass():
             # counts, power, complex normals and the mean image in one pass
             z = _workspace("scatterer_z", I.shape + (2,), np.float32)  # reused: no page faults per frame
@@ -616,6 +635,14 @@ class ScattererNoise:
         return out
 
 
+#: Whether :meth:`ScattererNoise.apply` takes the one-pass ``scatterer_speckle`` (issue 14, i14q).
+_FUSED = True
+# stand-ins for the words when the kernel draws its own (one thread: nothing was drawn beside the scan)
+_NO_WORDS = np.zeros((1, 1), np.uint32)
+_NO_R2 = np.zeros((1, 1), np.float32)
+_NO_UNIT = np.zeros((1, 1, 2), np.float32)
+
+
 def release_draws(draws) -> None:
     """Hand back the buffers of ``ScattererNoise.draw(..., _reuse=True, _field=True)`` to the pool (a
     draw without them holds none); the caller must not read ``draws`` afterwards."""
@@ -623,6 +650,18 @@ def release_draws(draws) -> None:
         from ._kernels import give_back
 
         give_back(*draws[2])
+
+
+@functools.lru_cache(maxsize=32)
+def _background_column(gain, spec, water) -> np.ndarray:
+    """``gain.background_raw`` at the spec's bin centres, ``(n_bins, 1)`` float32, with the absorption of
+    ``water`` (``None``: none, as without spreading); cached per gain, spec and water (issue 14, i14q:
+    ~0.1 ms a frame). Shared: callers only read it (left writable so that the kernels taking it keep
+    their one compiled signature)."""
+    from .propagation import absorption_db_per_m
+
+    alpha = absorption_db_per_m(spec.frequency, water) if water is not None else 0.0
+    return gain.background_raw(spec.ranges, alpha).astype(np.float32)[:, None]
 
 
 def _tvg_column(gain, spec) -> np.ndarray:
