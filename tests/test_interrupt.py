@@ -84,3 +84,84 @@ def test_sigint_exits_130_with_one_line_and_complete_files(tmp_path, frames_befo
     if out.exists():
         finals = _check_complete(out, allow_tmp=False)
         assert len(finals) >= 3 * frames_before  # npz, polar png, fan png per frame
+
+
+def _run_code(code: str, timeout=30):
+    env = dict(os.environ, PYTHONPATH=str(SRC))
+    return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=timeout)
+
+
+_LOST_IN_FINALIZER = """
+import os, signal, time
+class Finalized:
+    def __del__(self):
+        os.kill(os.getpid(), signal.SIGINT)  # Python raises KeyboardInterrupt here, inside __del__: "ignored"
+        time.sleep(0.01)
+"""
+
+
+def test_ctrl_c_swallowed_by_a_finalizer_is_delivered_again():
+    """SIGINT that lands in a ``__del__`` (as in llvmlite while numba compiles) is not lost."""
+    code = "from optiacoustic.cli import _interrupt\n_interrupt.install()\n" + _LOST_IN_FINALIZER + """
+f = Finalized(); del f
+t0 = time.monotonic()
+try:
+    while time.monotonic() - t0 < 10:
+        time.sleep(0.01)
+    print("lost")
+except KeyboardInterrupt:
+    print(f"delivered after {time.monotonic() - t0:.3f}")
+"""
+    res = _run_code(code)
+    assert res.stdout.startswith("delivered after"), (res.stdout, res.stderr)
+    assert float(res.stdout.split()[-1]) < 2.0
+    assert "Traceback" not in res.stderr and "ignored" not in res.stderr, res.stderr
+
+
+def test_without_the_hook_python_loses_it():
+    """The control: plain Python prints 'Exception ignored' and goes on (what CI saw)."""
+    code = _LOST_IN_FINALIZER + """
+f = Finalized(); del f
+time.sleep(0.5)
+print("lost")
+"""
+    res = _run_code(code)
+    assert res.stdout.strip() == "lost" and "Exception ignored" in res.stderr, (res.stdout, res.stderr)
+
+
+def test_an_error_that_follows_a_lost_ctrl_c_ends_as_the_interrupt():
+    """numba, interrupted mid-compile, then fails with its own RuntimeError: still one line and 130."""
+    code = _LOST_IN_FINALIZER + """
+import sys
+from optiacoustic import cli
+app = cli.app
+
+@app.command("boom")
+def boom():
+    f = Finalized(); del f
+    raise RuntimeError("no compiled object yet for <Library 'edge_pairs'>")
+
+sys.argv = ["oas", "boom"]
+cli.main()
+"""
+    res = _run_code(code)
+    assert res.returncode == 130, (res.returncode, res.stderr)
+    lines = [ln for ln in res.stderr.splitlines() if ln.strip()]
+    assert lines == ["interrupted"], res.stderr
+
+
+def test_an_error_without_ctrl_c_is_not_taken_for_one():
+    code = """
+import sys
+from optiacoustic import cli
+app = cli.app
+
+@app.command("boom")
+def boom():
+    raise RuntimeError("a real bug")
+
+sys.argv = ["oas", "boom"]
+cli.main()
+"""
+    res = _run_code(code)
+    assert res.returncode == 1 and "RuntimeError: a real bug" in res.stderr, (res.returncode, res.stderr)

@@ -140,6 +140,9 @@ def reports_errors(func):
         except typer.Exit:
             raise
         except KeyboardInterrupt:
+            from ._interrupt import delivered
+
+            delivered()
             console.print("interrupted: files already written are complete; partial ones were removed",
                           highlight=False)
             raise typer.Exit(130) from None
