@@ -576,7 +576,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     ax.set_xlim(0, 1)
     ax.set_ylim(0, 1.02)
     ax.set_title(f"{len(all_scenes)} scenes, thesis water, default sonar noise")
-    ax.legend(fontsize=8, loc="upper right")
+    ax.legend(fontsize=8, loc="lower right")
     fig.tight_layout()
     f_pr = savefig(fig, out_dir / "matching_pr.png", dpi=110)
     plt.close(fig)
