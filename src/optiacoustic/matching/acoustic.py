@@ -4,9 +4,12 @@ A sonar measures range and azimuth, not elevation. Two things in its image do co
 elevation, and both survive the change of modality because they are geometry:
 
 * **The seabed.** Where the seabed enters the fan (the echo onset of each beam) it meets
-  the lower edge of the elevation aperture. The onsets of all beams, placed at elevation
-  ``-fov_elevation / 2``, are points of the seabed plane: a robust plane fit gives the
-  seabed in the sonar frame, hence the seabed's elevation at every ``(r, theta)``.
+  the lower edge of the elevation aperture; where it leaves it (the seabed echo's far end,
+  :func:`far_edges`), the upper edge. The onsets of all beams, placed at elevation
+  ``-fov_elevation / 2``, and the far edges, at ``+fov_elevation / 2``, are points of the
+  seabed plane: a robust plane fit gives the seabed in the sonar frame, hence the seabed's
+  elevation at every ``(r, theta)``. (The onsets alone lie on one cone and leave the plane's
+  tilt towards the sonar loose: round i15n, docs/matching.md.)
 * **Shadows.** Behind an object that stands on the seabed the beam is dark until the ray
   that grazes the object's top reaches the seabed. That ray's elevation is the seabed's
   elevation at the end of the shadow, so an echo at range ``r`` just in front of the
@@ -25,7 +28,7 @@ from scipy import ndimage as ndi
 
 from ..geometry.projection import cos_sin_roots
 
-__all__ = ["SeabedPlane", "fit_seabed", "seabed_elevation", "seabed_points", "elevation_maps", "elevation_bounds", "occluded", "seabed_view"]
+__all__ = ["SeabedPlane", "fit_seabed", "far_edges", "seabed_elevation", "seabed_points", "elevation_maps", "elevation_bounds", "occluded", "seabed_view"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -69,9 +72,132 @@ def _smoothed(image):
     return ndi.uniform_filter(np.asarray(image, np.float64), (9, 3), mode="nearest")
 
 
+def _near_edges(sm, ranges, onset_fraction):
+    """Per beam, the range (m) where the seabed enters the fan at the aperture's lower edge, and whether found."""
+    r = np.asarray(ranges, float)
+    # The beam's typical seabed echo: its upper quartile (the lit seabed fills a good part of
+    # the beam; the median may fall on the dark ranges before and after it).
+    level = np.percentile(sm, 75, axis=0)
+    above = sm > onset_fraction * level[None, :]
+    onset = np.argmax(above, axis=0)
+    # An onset at the first bins means the seabed was already in the aperture there: no edge.
+    ok = above.any(0) & (onset > 3) & (onset < r.size - 3) & np.isfinite(level)
+    # The first bin above the threshold is the one the edge enters: its centre lies on
+    # average ONSET_OFFSET_BINS before the edge (measured on training scenes 5000-5002
+    # against the true seabed: 0.55 bins, interquartile 0.3-0.85).
+    dr = float(np.median(np.diff(r))) if r.size > 1 else 0.0
+    return r[onset] + ONSET_OFFSET_BINS * dr, ok
+
+
+def far_edges(image, ranges, *, window_bins: int = 20, n_beams: int = 5, min_step_db: float = 6.0,
+              tail_bins: int = 30, refine: bool = True):
+    """Per beam, the range (m) where the seabed leaves the fan at the aperture's upper edge (round i15n).
+
+    Beyond the range where the upper edge of the elevation aperture meets the seabed, no seabed
+    echo returns: the beam drops to its noise for good. That last down-step of the log echo
+    (speckle is multiplicative, so additive in the log) is found as the largest difference between
+    the mean log echo over ``window_bins`` before and after a bin boundary, among boundaries after
+    which the beam stays within a factor e of its last ``tail_bins``' level (the noise), and placed
+    to a fraction of a bin by a parabola through that difference. Echoes are averaged over
+    ``n_beams`` neighbouring beams first (the far edge is weak: a few times the noise).
+
+    Returns
+    -------
+    ranges : ndarray, shape (n_beams,)
+        The far edge's range (m); meaningless where not found.
+    found : ndarray of bool, shape (n_beams,)
+        A step of at least ``min_step_db`` was found (not where the seabed runs past the range window
+        or the noise is too high; objects' shadows that run to the end give false edges, which
+        :func:`fit_seabed` gates out).
+    """
+    r = np.asarray(ranges, float)
+    sm = ndi.uniform_filter(np.asarray(image, np.float64), (1, n_beams), mode="nearest")
+    n, J = sm.shape
+    M = int(window_bins)
+    if n < 2 * M + 3:
+        return np.full(J, np.nan), np.zeros(J, bool)
+    dr = float(np.median(np.diff(r)))
+    log_e = np.log(np.maximum(sm, 1e-30))
+    floor = np.log(np.maximum(np.median(sm[-tail_bins:], axis=0), 1e-30))
+    c = np.vstack([np.zeros(J), np.cumsum(log_e, axis=0)])
+    k = np.arange(M, n - M + 1)  # boundary between bins k - 1 and k
+    before = (c[k] - c[k - M]) / M
+    after = (c[k + M] - c[k]) / M
+    stays_dark = np.maximum.accumulate(after[::-1], axis=0)[::-1] < floor[None, :] + 1.0
+    step = before - after
+    cand = (step > min_step_db / 10.0 * np.log(10.0)) & stays_dark
+    i = np.argmax(np.where(cand, step, -np.inf), axis=0)
+    i0 = np.clip(i, 1, k.size - 2)
+    jj = np.arange(J)
+    y0, y1, y2 = step[i0 - 1, jj], step[i0, jj], step[i0 + 1, jj]
+    den = y0 - 2.0 * y1 + y2
+    safe = np.where(den < 0, den, -1.0)
+    d = np.clip(np.where(den < 0, 0.5 * (y0 - y2) / safe, 0.0), -1.0, 1.0)
+    edge = r[0] + (k[i0] + d - 0.5) * dr
+    found = cand.any(0) & (i > 0) & (i < k.size - 1)
+    if refine:
+        edge = _refine_far_edge(sm, r, edge)
+    return edge, found
+
+
+def _refine_far_edge(sm, r, edge, *, pre: int = 4, post: int = 4, level_bins: int = 12):
+    """The far edge to a fraction of a bin in the linear echo: the lit share of the bins around it.
+
+    In the log the blurred step's middle sits where the echo reaches the noise, about half a bin
+    after the edge (measured against the true seabed, round i15n). In the linear echo a step from the
+    seabed's level ``a`` to the noise ``b``, blurred by any filter that keeps its area, puts
+    ``sum((E - b) / (a - b))`` bins of seabed in a window around it: the edge, unbiased under
+    multiplicative speckle (linear in the echo).
+    """
+    n, J = sm.shape
+    dr = float(np.median(np.diff(r)))
+    jj = np.arange(J)
+    kb = np.clip(np.round((edge - r[0]) / dr + 0.5).astype(int), pre + level_bins, n - post - level_bins)
+    a = sm[kb[None, :] - pre - level_bins + np.arange(level_bins)[:, None], jj].mean(0)
+    b = sm[kb[None, :] + post + np.arange(level_bins)[:, None], jj].mean(0)
+    w = sm[kb[None, :] - pre + np.arange(pre + post)[:, None], jj]
+    lit = ((w - b[None, :]) / np.maximum(a - b, 1e-30)[None, :]).sum(0)
+    return r[0] + (kb - pre - 0.5) * dr + lit * dr
+
+
+def _directions(azimuths, elevations):
+    th, ph = np.broadcast_arrays(np.asarray(azimuths, float), np.asarray(elevations, float))
+    return np.stack([np.cos(ph) * np.sin(th), np.cos(ph) * np.cos(th), np.sin(ph)], -1)
+
+
+def _plane_ranges(p, D):
+    """Range at which rays ``D`` meet the plane ``z = p0 x + p1 y + p2`` (sonar frame)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return p[2] / (D[:, 2] - p[0] * D[:, 0] - p[1] * D[:, 1])
+
+
+def _fit_both_edges(p, image, r, th, ro, to, half, min_beams, far_gate_m):
+    """Refit the plane ``z = p0 x + p1 y + p2`` to the onsets ``(ro, to)`` and the far edges together.
+
+    Residuals in range along each ray (near and far edges alike) with a Cauchy loss: the onsets
+    of objects and the far edges that are the end of an object's shadow weigh little. The onsets'
+    plane is refitted so first (the z-fit's soft loss lets objects' onsets drag it along the loose
+    tilt: 8.5 deg off on varied scene 8022, round i15n), then the far edges within ``far_gate_m`` of
+    where it puts them join.
+    """
+    from scipy.optimize import least_squares
+
+    D_near = _directions(to, -half)
+    p = least_squares(lambda q: ro - _plane_ranges(q, D_near), p, loss="cauchy", f_scale=0.05).x
+    r_far, found = far_edges(image, r)
+    D_far = _directions(th, half)
+    expected = _plane_ranges(p, D_far)
+    use = found & np.isfinite(expected) & (expected > 0) & (np.abs(r_far - expected) < far_gate_m)
+    if use.sum() < min_beams:
+        return p
+    D = np.concatenate([D_near, D_far[use]])
+    r_obs = np.concatenate([ro, r_far[use]])
+    return least_squares(lambda q: r_obs - _plane_ranges(q, D), p, loss="cauchy", f_scale=0.05).x
+
+
 def fit_seabed(image, ranges, azimuths, fov_elevation: float, *, min_beams: int = 20,
-               onset_fraction: float = 0.3) -> SeabedPlane:
-    """Fit the seabed plane to the echo onsets of the beams (robust, ``scipy.optimize.least_squares``).
+               onset_fraction: float = 0.3, far_edge: bool = True, far_gate_m: float = 1.5) -> SeabedPlane:
+    """Fit the seabed plane to where the seabed enters and leaves the beams (robust, ``scipy.optimize.least_squares``).
 
     Parameters
     ----------
@@ -85,6 +211,16 @@ def fit_seabed(image, ranges, azimuths, fov_elevation: float, *, min_beams: int 
         Fewer onsets than this: no plane.
     onset_fraction : float
         The onset is the first bin above this fraction of the beam's median echo.
+    far_edge : bool
+        Also use where the seabed leaves the fan at the aperture's upper edge (:func:`far_edges`;
+        round i15n). The onsets alone lie on one cone (elevation ``-fov_elevation / 2``), which
+        leaves the plane's tilt towards the sonar poorly fixed: an onset error of 0.1 bin growing
+        from the middle beams to the outer ones tilts it by 0.1 deg. The far edges, on the other
+        cone, fix it. The onsets' plane is refitted then in range with a Cauchy loss
+        (``far_edge=False`` keeps round i15k's plane).
+    far_gate_m : float
+        Far edges more than this (m) from where the onsets' plane puts them are not used
+        (shadows that run past the lit seabed).
 
     Returns
     -------
@@ -99,35 +235,25 @@ def fit_seabed(image, ranges, azimuths, fov_elevation: float, *, min_beams: int 
     sm = ndi.uniform_filter(np.asarray(image, np.float64), (1, 3), mode="nearest")
     r = np.asarray(ranges, float)
     th = np.asarray(azimuths, float)
-    # The beam's typical seabed echo: its upper quartile (the lit seabed fills a good part of
-    # the beam; the median may fall on the dark ranges before and after it).
-    level = np.percentile(sm, 75, axis=0)
-    above = sm > onset_fraction * level[None, :]
-    has = above.any(0)
-    onset = np.argmax(above, axis=0)
-    # An onset at the first bins means the seabed was already in the aperture there: no edge.
-    ok = has & (onset > 3) & (onset < r.size - 3) & np.isfinite(level)
+    r_near, ok = _near_edges(sm, r, onset_fraction)
     if ok.sum() < min_beams:
         return SeabedPlane(**_NO_PLANE, n_beams=int(ok.sum()),
                            message=f"seabed: only {int(ok.sum())} beams show an echo onset (need {min_beams})")
-    phi = -fov_elevation / 2
-    # The first bin above the threshold is the one the edge enters: its centre lies on
-    # average ONSET_OFFSET_BINS before the edge (measured on training scenes 5000-5002
-    # against the true seabed: 0.55 bins, interquartile 0.3-0.85).
-    dr = float(np.median(np.diff(r))) if r.size > 1 else 0.0
-    ro, to = r[onset[ok]] + ONSET_OFFSET_BINS * dr, th[ok]
-    P = np.stack([ro * np.cos(phi) * np.sin(to), ro * np.cos(phi) * np.cos(to), np.full(ro.shape, ro * np.sin(phi))], -1)
-    P = np.atleast_2d(P)
+    half = fov_elevation / 2
+    ro, to = r_near[ok], th[ok]
+    P = np.atleast_2d(ro[:, None] * _directions(to, -half))
 
     # z = a x + b y + c, robust to onsets that are objects rather than seabed.
     def res(p):
         return P[:, 2] - (p[0] * P[:, 0] + p[1] * P[:, 1] + p[2])
 
-    fit = least_squares(res, np.array([0.0, 0.0, float(np.median(P[:, 2]))]), loss="soft_l1", f_scale=0.05)
-    a, b, c = fit.x
+    p = least_squares(res, np.array([0.0, 0.0, float(np.median(P[:, 2]))]), loss="soft_l1", f_scale=0.05).x
+    if far_edge:
+        p = _fit_both_edges(p, image, r, th, ro, to, half, min_beams, far_gate_m)
+    a, b, c = p
     n = np.array([-a, -b, 1.0])
     norm = np.linalg.norm(n)
-    resid = res(fit.x) / norm
+    resid = res(p) / norm
     rms = float(np.sqrt(np.median(resid ** 2)))
     if not np.isfinite(rms) or rms > 0.15:
         return SeabedPlane(**_NO_PLANE, n_beams=int(ok.sum()), message=f"seabed: onsets do not lie on a plane "

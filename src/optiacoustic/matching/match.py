@@ -772,12 +772,12 @@ def arc_score_features(feats: dict) -> np.ndarray:
 #: Fitted by ``experiments.matching.calibrate_face_score()`` on random
 #: scenes seeded 5000-5047 in thesis water and 5000-5023 in Jerlov 1C water
 #: and :func:`experiments.matching.varied_scene` seeded 8000-8047 in thesis water
-#: (``experiments.matching.FACE_TRAINING``; 3114 matches, 49% correct; sonar noise of the per-cell
-#: counter stream, issue 14).
+#: (``experiments.matching.FACE_TRAINING``; 3112 matches, 51% correct; sonar noise of the per-cell
+#: counter stream, issue 14; refitted in round i15n, the seabed plane fitted to both aperture edges).
 FACE_SCORE_MODEL = dict(
-    weights=(-0.148, 0.977, 0.612, -0.6, -0.068, 0.463, -0.381, -0.004, 0.051, 0.131),
-    mean=(-0.1667, 0.2864, 0.4652, 0.0719, 0.6981, 0.9032, 0.2791, 1.6098, 1.1575),
-    std=(1.0858, 0.4521, 0.8341, 0.2584, 0.4591, 0.8146, 0.4485, 1.1654, 0.9405),
+    weights=(0.007, 0.915, 0.944, -0.917, 0.201, 0.188, -0.258, 0.067, -0.25, 0.07),
+    mean=(-0.1464, 0.2915, 0.4501, 0.0842, 0.6963, 0.8981, 0.2799, 1.6371, 1.1643),
+    std=(1.0891, 0.4544, 0.8101, 0.2777, 0.4598, 0.8158, 0.4489, 1.1638, 0.9283),
 )
 
 #: :data:`FACE_SCORE_MODEL` where the face-plane candidate is offered (``MatchOptions.face_plane``
@@ -787,12 +787,12 @@ FACE_SCORE_MODEL = dict(
 #: units of 0.25 deg, agreement within 0.5 deg; and (round i15h) whether the feature's echo fits on
 #: its face, :func:`_face_fit`: a wrong surface when not). Fitted by
 #: ``experiments.matching.calibrate_face_score()`` on the matches of those scenes where the plane is
-#: offered (thesis water; 2566 matches, 48% correct), with the planes fitted to every beam's crease
+#: offered (thesis water; 2564 matches, 50% correct; refitted in round i15n), with the planes fitted to every beam's crease
 #: (``MatchOptions.face_plane_beams``).
 FACE_PLANE_SCORE_MODEL = dict(
-    weights=(-0.177, 0.847, 0.565, -0.486, -0.024, 0.131, -0.134, 0.011, 0.112, 0.274, 0.675, -0.756, -0.075, 0.077, -0.24, 0.282),
-    mean=(-0.1688, 0.3476, 0.5646, 0.0873, 0.6797, 0.8314, 0.2962, 1.8262, 1.2827, 0.673, 0.9457, 0.2408, 0.9665, 0.402, 0.661),
-    std=(1.0314, 0.4762, 0.8878, 0.2823, 0.4666, 0.7799, 0.4566, 1.1742, 0.9894, 0.4691, 0.8805, 0.4276, 0.18, 0.7957, 0.4734),
+    weights=(-0.01, 0.801, 0.8, -0.801, 0.24, -0.206, 0.049, 0.128, -0.184, 0.11, 0.59, -0.698, -0.128, 0.076, -0.072, 0.301),
+    mean=(-0.14, 0.3537, 0.5463, 0.1022, 0.6775, 0.8258, 0.298, 1.8599, 1.2908, 0.6771, 0.946, 0.2426, 0.9676, 0.4287, 0.6626),
+    std=(1.0254, 0.4781, 0.8625, 0.3029, 0.4674, 0.7813, 0.4574, 1.1655, 0.9745, 0.4676, 0.8789, 0.4286, 0.177, 0.7975, 0.4728),
 )
 
 #: Logistic model of P(correct) of the point below the crease (:func:`.contact.crease_points`):
@@ -806,12 +806,12 @@ FACE_PLANE_SCORE_MODEL = dict(
 #: face's far edge); and (round i15h) the plane point found and log of 1 + its elevation distance
 #: from the crease point, and whether the feature's echo fits on its face, :func:`_face_fit`; and
 #: (round i15j) the crease point's :func:`_foot_edges`). Fitted by
-#: ``experiments.matching.calibrate_face_score()`` on the same scenes (2174 crease points, 60%
-#: correct).
+#: ``experiments.matching.calibrate_face_score()`` on the same scenes (2167 crease points, 62%
+#: correct; refitted in round i15n).
 CREASE_SCORE_MODEL = dict(
-    weights=(0.486, 0.557, -0.322, -0.156, 0.023, -0.329, -0.286, 0.686, 0.147, -0.442, 0.718, -0.327, 0.126, 0.079, -0.146, 0.51, 0.214),
-    mean=(0.2087, 1.2938, 0.4816, 0.3873, 0.5845, 0.9657, 4.211, 1.5517, -0.2674, 0.6941, 0.6474, 0.782, 0.546, 0.6863, 1.6243, 1.1482),
-    std=(0.5951, 0.6673, 0.4997, 0.4871, 0.2242, 0.3285, 0.5829, 1.3965, 0.1899, 0.4608, 0.7154, 0.4129, 0.449, 0.464, 1.1893, 0.8942),
+    weights=(0.539, 0.583, -0.327, -0.179, 0.061, -0.42, -0.386, 0.68, 0.222, -0.513, 0.714, -0.279, 0.237, 0.155, -0.247, 0.33, 0.129),
+    mean=(0.2363, 1.2897, 0.4822, 0.3909, 0.5861, 0.965, 4.2161, 1.5257, -0.2678, 0.6982, 0.6518, 0.7817, 0.554, 0.6894, 1.6644, 1.1846),
+    std=(0.5846, 0.6713, 0.4997, 0.4879, 0.2212, 0.3288, 0.5854, 1.3969, 0.19, 0.459, 0.7165, 0.4131, 0.4386, 0.4627, 1.2048, 0.8991),
 )
 
 
@@ -879,13 +879,13 @@ def crease_score_features(feats: dict) -> np.ndarray:
 #: run; its height as a fraction of the face's; log of 1 + how many bins the feature lies behind its
 #: echo's start; log of 1 + the gradient just above the run; log of the image's contrast; and
 #: (round i15j) the plane point's :func:`_foot_edges`). Fitted by
-#: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model (1727
-#: plane points, all in thesis water where the plane is offered, 67% correct; the planes fitted to
+#: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model (1736
+#: plane points, all in thesis water where the plane is offered, 68% correct, refitted in round i15n; the planes fitted to
 #: every beam's crease, ``MatchOptions.face_plane_beams``).
 PLANE_SCORE_MODEL = dict(
-    weights=(0.909, 0.622, -0.224, 0.32, 0.028, -0.119, 0.393, 0.416, 0.379, 0.125, 0.083, -0.213, 0.161, 0.036, -0.099, -0.187, 0.78, -0.04),
-    mean=(0.1397, 1.4051, 0.8738, 0.815, 0.4615, 0.9074, 2.5958, 0.8046, 0.5494, 2.0016, 0.5483, 0.5858, 0.9935, 1.9106, -0.1776, 1.9257, 1.3687),
-    std=(0.6969, 0.7117, 0.3321, 0.7125, 0.4985, 0.2899, 0.7324, 0.1854, 0.5344, 0.6506, 0.4659, 0.2723, 0.3745, 1.3252, 0.0544, 1.1923, 0.981),
+    weights=(0.932, 0.641, -0.241, 0.241, 0.029, -0.138, 0.32, 0.46, 0.352, 0.119, 0.003, -0.084, 0.166, 0.094, -0.006, -0.197, 0.608, -0.076),
+    mean=(0.1784, 1.3972, 0.8715, 0.8136, 0.4643, 0.9124, 2.5914, 0.8095, 0.5447, 2.0025, 0.536, 0.5861, 0.9874, 1.8946, -0.177, 1.9669, 1.411),
+    std=(0.6719, 0.7144, 0.3346, 0.7136, 0.4987, 0.2827, 0.732, 0.1815, 0.5235, 0.6393, 0.4477, 0.2751, 0.3476, 1.3217, 0.0553, 1.2072, 0.9673),
 )
 
 
@@ -909,12 +909,12 @@ def plane_score_features(feats: dict) -> np.ndarray:
 
 #: Logistic model of P(correct) of the point above the face's foot (:func:`.contact.foot_points`):
 #: intercept and weights of the standardised :func:`foot_score_features`. Fitted by
-#: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model (2302
-#: foot points, 51% correct).
+#: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model (2298
+#: foot points, 52% correct; refitted in round i15n).
 FOOT_SCORE_MODEL = dict(
-    weights=(0.026, -0.06, -0.094, 0.225, -0.627, 1.324, -0.698, 0.278, -0.009, 0.107, -0.059, -0.02, -0.065, -0.09, 0.122, -0.356, 0.161, -0.046, -0.028, -0.696, 0.294, 0.073),
-    mean=(0.1633, 1.7885, 0.8879, 1.6372, 0.6872, 1.2177, 0.6816, 0.4609, 1.5471, 1.0002, 0.3695, 0.7241, 2.8483, -0.2595, 0.8219, 0.3692, 0.7989, 0.4908, 0.6777, 1.6989, 1.4063),
-    std=(0.7094, 0.7813, 0.3155, 0.9772, 0.4636, 1.072, 0.4659, 0.4985, 0.3322, 0.3403, 0.1848, 0.7001, 0.6363, 0.1827, 0.3826, 0.4826, 0.4008, 0.5012, 0.4674, 1.2071, 1.0226),
+    weights=(0.09, -0.049, -0.113, 0.282, -0.703, 1.483, -0.774, 0.225, 0.012, 0.089, -0.069, -0.038, -0.059, -0.107, 0.152, -0.266, 0.175, -0.18, -0.016, -0.76, 0.294, 0.004),
+    mean=(0.1947, 1.7835, 0.8847, 1.6311, 0.6954, 1.2283, 0.6823, 0.4604, 1.5482, 1.0006, 0.3709, 0.7218, 2.8494, -0.2597, 0.8216, 0.3764, 0.7981, 0.5043, 0.6841, 1.7442, 1.4018),
+    std=(0.6986, 0.7897, 0.3194, 0.9827, 0.4602, 1.0706, 0.4656, 0.4984, 0.3323, 0.34, 0.187, 0.6914, 0.6369, 0.1828, 0.3829, 0.4845, 0.4014, 0.4862, 0.4649, 1.21, 1.0184),
 )
 
 
@@ -948,12 +948,12 @@ def foot_score_features(feats: dict) -> np.ndarray:
 
 
 #: intercept and weights of the standardised :func:`seabed_score_features`. Fitted by
-#: ``experiments.matching.calibrate_face_score()`` on ``FACE_TRAINING`` (round i15k; 603 seabed points, 39%
-#: correct).
+#: ``experiments.matching.calibrate_face_score()`` on ``FACE_TRAINING`` (round i15k; refitted in round i15n
+#: with the seabed plane fitted to both aperture edges: 602 seabed points, 68% correct, 39% before).
 SEABED_SCORE_MODEL = dict(
-    weights=(-0.949, -0.086, 0.357, -0.177, -0.349, -0.738, -0.459, 0.338, 0.198, -0.219, -1.452, 0.003),
-    mean=(-1.3907, 0.2915, 0.466, 0.6451, 1.3912, 2.2608, 1.1689, 2.6637, -0.2594, 3.154, 1.9932),
-    std=(1.3328, 0.2312, 0.4988, 0.4785, 0.9577, 1.2536, 1.1227, 0.5682, 0.1849, 4.1968, 0.303),
+    weights=(1.391, 1.181, 0.534, 0.339, 0.115, 0.421, 0.02, 0.151, -0.448, -0.076, -1.59, 0.148),
+    mean=(-1.3857, 0.2923, 0.4701, 0.6196, 1.3773, 2.2499, 1.1913, 2.6662, -0.2598, 3.2512, 1.9956),
+    std=(1.3088, 0.2138, 0.4991, 0.4855, 0.9534, 1.2499, 1.0632, 0.5671, 0.1847, 4.2097, 0.3032),
 )
 
 

@@ -1,0 +1,101 @@
+"""The seabed plane the sonar fits (``acoustic.fit_seabed``, ``acoustic.far_edges``) against the true seabed.
+
+Truth: the simulated scene's seabed is the world plane z = 0, and the sonar's pose is known, so the
+seabed in the sonar frame is ``normal = R^T e_z``, ``offset = -t_z``; where the aperture's edges meet
+it follows in closed form. Seeded scenes never used to fit or tune anything (round i15n).
+"""
+
+import numpy as np
+import pytest
+
+from optiacoustic.experiments.matching import random_scene, simulate_pair, varied_scene
+from optiacoustic.matching.acoustic import SeabedPlane, far_edges, fit_seabed, seabed_elevation
+
+
+def _true_plane(sonar) -> SeabedPlane:
+    R, t = sonar.pose.R, sonar.pose.t
+    return SeabedPlane(R.T @ np.array([0.0, 0.0, 1.0]), float(-t[2]), 0.0, 0)
+
+
+def _edge_ranges(plane, azimuths, elevation):
+    d = np.stack([np.cos(elevation) * np.sin(azimuths), np.cos(elevation) * np.cos(azimuths),
+                  np.full(azimuths.shape, np.sin(elevation))], -1)
+    with np.errstate(divide="ignore"):
+        return plane.offset / (d @ plane.normal)
+
+
+def _elevation_error_deg(sonar, plane, beyond_m):
+    """Fitted minus true seabed elevation (deg) on every beam, ``beyond_m`` past the true near edge."""
+    true = _true_plane(sonar)
+    th = sonar.azimuths
+    r = _edge_ranges(true, th, -sonar.spec.fov_elevation / 2) + beyond_m
+    return np.rad2deg(seabed_elevation(plane, r, th) - seabed_elevation(true, r, th))
+
+
+@pytest.fixture(scope="module")
+def frames():
+    out = []
+    for sd in (311, 312, 313):
+        out.append(simulate_pair(random_scene(sd), "thesis", "default", sd)[0])
+    for sd in (8311, 8312, 8313):
+        out.append(simulate_pair(varied_scene(sd), "thesis", "default", sd)[0])
+    return out
+
+
+def test_far_edges_lie_where_the_aperture_leaves_the_true_seabed(frames):
+    """Where found and not an object's shadow, the far edge is the upper aperture edge's range on the true seabed."""
+    pooled = []
+    for s in frames:
+        true = _true_plane(s)
+        r_true = _edge_ranges(true, s.azimuths, s.spec.fov_elevation / 2)
+        r_far, found = far_edges(s.image, s.ranges)
+        inside = found & np.isfinite(r_true) & (r_true > 0) & (r_true < s.ranges[-1] - 1.0)
+        assert inside.sum() > 50, s.pose
+        bins = (r_far[inside] - r_true[inside]) / np.median(np.diff(s.ranges))
+        # Most found edges are the seabed's (the rest: shadows running to the end, left to the fit's gate),
+        # and those lie on both sides of the truth, within half a bin in the median (the seabed's echo
+        # falls towards the edge, so the level it is measured against sits a little high).
+        near = np.abs(bins) < 3
+        assert near.mean() > 0.6
+        assert abs(np.median(bins[near])) < 0.5
+        pooled.append(bins[near])
+    assert abs(np.median(np.concatenate(pooled))) < 0.3
+
+
+def test_plane_from_both_aperture_edges_matches_the_true_seabed(frames):
+    """Normal within 0.1 deg, offset within 1 cm, elevation 2.5 m past the near edge within 0.04 deg (both signs)."""
+    for s in frames:
+        true = _true_plane(s)
+        plane = fit_seabed(s.image, s.ranges, s.azimuths, s.spec.fov_elevation)
+        assert plane
+        angle = np.rad2deg(np.arccos(np.clip(plane.normal @ true.normal, -1, 1)))
+        assert angle < 0.1
+        assert abs(plane.offset - true.offset) < 0.01
+        err = _elevation_error_deg(s, plane, 2.5)
+        assert np.nanmax(np.abs(err)) < 0.04
+
+
+def test_far_edges_fix_the_tilt_the_onsets_alone_leave_loose(frames):
+    """The onsets alone (one cone) tilt the plane: its elevation error 2.5 m past the edge is larger than with both edges."""
+    one, two = [], []
+    for s in frames:
+        one.append(np.nanmedian(np.abs(_elevation_error_deg(
+            s, fit_seabed(s.image, s.ranges, s.azimuths, s.spec.fov_elevation, far_edge=False), 2.5))))
+        two.append(np.nanmedian(np.abs(_elevation_error_deg(
+            s, fit_seabed(s.image, s.ranges, s.azimuths, s.spec.fov_elevation), 2.5))))
+    assert np.median(two) < 0.5 * np.median(one)
+
+
+def test_far_edges_of_a_beam_with_no_seabed_end():
+    """Beams lit to the end of the window (the seabed runs past it) and empty ones have no far edge;
+    a clean step is placed within a tenth of a bin (beams averaged over five neighbours: groups of nine)."""
+    r = 0.5 + 0.025 * np.arange(400)
+    img = np.full((400, 27), 1e-6)
+    img[:, 0:9] = 1.0                      # lit to the end: no edge
+    edge = r[0] + 0.025 * (250 - 0.5)      # the boundary between bins 249 and 250
+    img[:250, 18:27] = 1.0
+    e, found = far_edges(img, r)
+    assert not found[2:7].any()            # lit to the end
+    assert not found[11:16].any()          # nothing
+    assert found[20:25].all()
+    np.testing.assert_allclose(e[20:25], edge, atol=0.1 * 0.025)
