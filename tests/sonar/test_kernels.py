@@ -477,6 +477,37 @@ def test_chunked_run_covers_each_index_once():
     assert seen == [(0, 100)]
 
 
+def test_work_sharing_does_not_wait_for_a_worker_that_never_starts():
+    """A stage whose pool job has not started when the caller has taken every chunk cancels it (i14r):
+    with every worker of the pool held, ``chunked_run`` still covers each index once and ``split_run``
+    runs the other part itself, and both return (they waited for the worker before)."""
+    import threading
+
+    from optiacoustic.sonar import _kernels as K
+
+    pool = K._pool(1)
+    gate = threading.Event()
+    blockers = [pool.submit(gate.wait) for _ in range(pool._max_workers)]  # noqa: SLF001 - our own pool
+    seen, parts = [], []
+
+    def run():
+        K.chunked_run(lambda a, b: seen.append((a, b)), 1000, 2)
+        K.split_run(lambda a, b: parts.append((a, b)), 1000, 2)
+
+    t = threading.Thread(target=run)
+    try:
+        t.start()
+        t.join(timeout=20)
+        assert not t.is_alive(), "a stage waited for a worker that had no chance to run"
+        assert sorted(i for a, b in seen for i in range(a, b)) == list(range(1000))
+        assert sorted(parts) == [(0, 500), (500, 1000)]
+    finally:
+        gate.set()
+        for b in blockers:
+            b.result()
+        t.join()
+
+
 def test_aperture_rows_independent_of_threads(thesis, monkeypatch):
     """The kernel's beams in chunks on two threads give the rows, live flags and seabed areas of
     one pass on one thread, bit for bit (each beam's row is its own; the cos memo holds only
