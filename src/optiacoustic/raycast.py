@@ -192,7 +192,7 @@ class RayCaster:
         # surface, two to four primary rays each) gain; its ~4 000 edge sub-rays run on one thread while
         # the noise is drawn on the other (measured faster than splitting them too)
         n_chunks = 1 if n < 4096 or self.threads == 1 or not split else 2 * self.threads
-        bounds = np.linspace(0, n, n_chunks + 1).astype(int)
+        bounds = [n * k // n_chunks for k in range(n_chunks + 1)]  # (np.linspace: ~15 us a call)
 
         def job(k):
             a, b = bounds[k], bounds[k + 1]
@@ -333,7 +333,7 @@ class RayCaster:
         ``max_distance32`` is overwritten (as by :meth:`intersect_raw`)."""
         n = len(origins32)
         n_chunks = 1 if n < 4096 or self.threads == 1 else 2 * self.threads
-        bounds = np.linspace(0, n, n_chunks + 1).astype(int)
+        bounds = [n * k // n_chunks for k in range(n_chunks + 1)]  # (np.linspace: ~15 us a call)
 
         def job(k):
             a, b = int(bounds[k]), int(bounds[k + 1])

@@ -477,6 +477,37 @@ def test_chunked_run_covers_each_index_once():
     assert seen == [(0, 100)]
 
 
+def test_work_sharing_does_not_wait_for_a_worker_that_never_starts():
+    """A stage whose pool job has not started when the caller has taken every chunk cancels it (i14r):
+    with every worker of the pool held, ``chunked_run`` still covers each index once and ``split_run``
+    runs the other part itself, and both return (they waited for the worker before)."""
+    import threading
+
+    from optiacoustic.sonar import _kernels as K
+
+    pool = K._pool(1)
+    gate = threading.Event()
+    blockers = [pool.submit(gate.wait) for _ in range(pool._max_workers)]  # noqa: SLF001 - our own pool
+    seen, parts = [], []
+
+    def run():
+        K.chunked_run(lambda a, b: seen.append((a, b)), 1000, 2)
+        K.split_run(lambda a, b: parts.append((a, b)), 1000, 2)
+
+    t = threading.Thread(target=run)
+    try:
+        t.start()
+        t.join(timeout=20)
+        assert not t.is_alive(), "a stage waited for a worker that had no chance to run"
+        assert sorted(i for a, b in seen for i in range(a, b)) == list(range(1000))
+        assert sorted(parts) == [(0, 500), (500, 1000)]
+    finally:
+        gate.set()
+        for b in blockers:
+            b.result()
+        t.join()
+
+
 def test_aperture_rows_independent_of_threads(thesis, monkeypatch):
     """The kernel's beams in chunks on two threads give the rows, live flags and seabed areas of
     one pass on one thread, bit for bit (each beam's row is its own; the cos memo holds only
@@ -657,3 +688,33 @@ def test_vectorised_exp_is_libm_exp_to_a_few_ulp():
     low = np.array([-708.5, -750.0, -1e5])
     exp_row(low, low.size, out, scratch)
     assert np.all(out[:3] == 0.0)
+
+
+@pytest.mark.parametrize("K, J", [(1, 1), (7, 5), (48, 96), (3, 300)])
+def test_grid_directions_origins_and_extents_are_the_numpy_expressions_bit_for_bit(K, J):
+    """The serial pre-cast kernels (i14r): ``ray_grid32`` (one flat loop per elevation row) is
+    ``cos(phi_k) a_j + sin(phi_k) R_z`` in float64 rounded to float32, as numpy forms it, to the bit;
+    ``fill_rows3`` sets every row of an ``(N, 3)`` array to the origin (N above and below its 256-row
+    pattern); ``fill2`` fills the two extents' arrays over ``i0..i1`` only."""
+    from optiacoustic.sonar import _numba_kernels as kn
+
+    rng = np.random.default_rng(11)
+    ph = rng.uniform(-0.3, 0.3, K)
+    cp, sp = np.cos(ph), np.sin(ph)
+    a = rng.standard_normal((J, 3))
+    rz = rng.standard_normal(3)
+    out = np.empty((K * J, 3), np.float32)
+    kn.ray_grid32(cp, sp, a, rz, out)
+    want = (cp[:, None, None] * a[None, :, :] + sp[:, None, None] * rz[None, None, :]).astype(np.float32)
+    np.testing.assert_array_equal(out, want.reshape(-1, 3))
+    origin = np.array([1.5, -2.25, 3.0e-3], np.float32)
+    for n in (1, 255, 256, 257, 1000):
+        o = np.full((n, 3), np.nan, np.float32)
+        kn.fill_rows3(o, origin)
+        np.testing.assert_array_equal(o, np.broadcast_to(origin, (n, 3)))
+    x, y = np.zeros(50), np.zeros(50)
+    kn.fill2(x, y, 0.125, 7, 31)
+    want = np.zeros(50)
+    want[7:31] = 0.125
+    np.testing.assert_array_equal(x, want)
+    np.testing.assert_array_equal(y, want)

@@ -222,23 +222,43 @@ def aperture_echo_rows(rng, nd, ndd, a, b, half_step, refl_of_body, elevation_k,
             e = c_e[ic]
             e_p0[ic], e_p1[ic], e_v[0, ic], e_v[1, ic], e_v[2, ic], e_v[3, ic] = _box_edges(
                 c_lo[ic], c_hi[ic], e if e > 0 else 0.0, range_min, scale, n_cells)
-        for ic in range(nc):  # as bucket_by_beam: the lit sub-cells only
+        # as bucket_by_beam: the lit sub-cells only, into slot 0 (the whole echo), then into their
+        # class's slot (when it has one) in a second loop: each slot's cells take their deposits in
+        # the sub-cells' order, as before. The cells reached (lo_c, hi_c) in loops of their own (a
+        # running min and max in memory made a chain of dependent loads and stores)
+        d0 = dep[0]
+        n_cls = 0
+        lo0 = lo_c[0]
+        hi0 = hi_c[0]
+        for ic in range(nc):
+            if c_e[ic] > 0:
+                lo0 = min(lo0, e_p0[ic])
+                hi0 = max(hi0, e_p1[ic] + 1)
+                n_cls += c_s[ic] > 0
+        lo_c[0] = lo0
+        hi_c[0] = hi0
+        for ic in range(nc):
             if not c_e[ic] > 0:
                 continue
             p0 = e_p0[ic]
             p1 = e_p1[ic]
-            s = c_s[ic]
-            ss = 0
-            while True:  # slot 0 (the whole echo), then the class's slot when it has one
+            d0[p0] += e_v[0, ic]
+            d0[p0 + 1] += e_v[1, ic]
+            d0[p1] += e_v[2, ic]
+            d0[p1 + 1] += e_v[3, ic]
+        if n_cls > 0:
+            for ic in range(nc):
+                ss = c_s[ic]
+                if not (c_e[ic] > 0 and ss > 0):
+                    continue
+                p0 = e_p0[ic]
+                p1 = e_p1[ic]
                 dep[ss, p0] += e_v[0, ic]
                 dep[ss, p0 + 1] += e_v[1, ic]
                 dep[ss, p1] += e_v[2, ic]
                 dep[ss, p1 + 1] += e_v[3, ic]
                 lo_c[ss] = min(lo_c[ss], p0)
                 hi_c[ss] = max(hi_c[ss], p1 + 1)
-                if ss != 0 or s <= 0:
-                    break
-                ss = s
         if want_area:
             for ic in range(nc):  # the seabed area of each sub-cell (0 off the seabed)
                 r_mid = c_r[ic]

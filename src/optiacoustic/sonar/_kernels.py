@@ -16,7 +16,8 @@ import numpy as np
 from .. import _kernel_switch as _switch
 from .._scratch import Workspace
 
-__all__ = ["use_numba", "kernels", "truth_kernels", "split_run", "chunked_run", "workspace", "pooled", "give_back"]
+__all__ = ["use_numba", "kernels", "truth_kernels", "split_run", "chunked_run", "wait_or_cancel", "workspace", "pooled",
+           "give_back"]
 
 
 def use_numba() -> bool:
@@ -63,8 +64,21 @@ def split_run(fn, n: int, threads: int) -> None:
     pool = _pool(threads - 1)
     futs = [pool.submit(fn, bounds[k], bounds[k + 1]) for k in range(1, threads)]
     fn(bounds[0], bounds[1])
-    for f in futs:
-        f.result()
+    for k, f in enumerate(futs, start=1):
+        if f.cancel():  # its worker has not started yet (no free core): the part is done here instead
+            fn(bounds[k], bounds[k + 1])
+        else:
+            f.result()
+
+
+def wait_or_cancel(jobs) -> None:
+    """Wait for the pool jobs of a work-sharing loop whose caller has just run out of work (every chunk
+    taken): a job that has not started (its worker had no core, e.g. the noise's draws held the other
+    one) is cancelled instead, since it would find nothing left to do (i14r: the caller waited up to
+    0.5 ms for such a worker to be scheduled, only to return)."""
+    for job in jobs:
+        if not job.cancel():
+            job.result()
 
 
 #: Chunks per thread of :func:`chunked_run`.
@@ -89,8 +103,7 @@ def chunked_run(fn, n: int, threads: int) -> None:
 
     jobs = [_pool(threads - 1).submit(work) for _ in range(threads - 1)]
     work()
-    for job in jobs:
-        job.result()
+    wait_or_cancel(jobs)
 
 
 #: per-thread scratch of this simulator's frames (see :mod:`optiacoustic._scratch`)

@@ -68,13 +68,53 @@ def table_weight(x, x0, dx, y):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def ray_grid32(cp, sp, a, rz, out):
-    """World unit directions of the (K, J) ray grid, ``cos(phi_k) a_j + sin(phi_k) R_z``, into ``out`` (K*J, 3) float32."""
+    """World unit directions of the (K, J) ray grid, ``cos(phi_k) a_j + sin(phi_k) R_z``, into ``out`` (K*J, 3)
+    float32 (C-contiguous). Row by row over the row's ``3 J`` values as one flat loop, with ``a`` and ``R_z``
+    laid out as the row (i14r: the inner loop of 3 components did not vectorise, 0.135 -> 0.04 ms for
+    65 536 rays, on the serial path before the cast); the same products and sum per value."""
     K, J = cp.size, a.shape[0]
+    n = 3 * J
+    af = np.empty(n)
+    rzt = np.empty(n)
+    for j in range(J):
+        for c in range(3):
+            af[3 * j + c] = a[j, c]
+            rzt[3 * j + c] = rz[c]
+    of = out.reshape(-1)
     for k in range(K):
-        for j in range(J):
-            i = k * J + j
-            for c in range(3):
-                out[i, c] = cp[k] * a[j, c] + sp[k] * rz[c]
+        ck = cp[k]
+        sk = sp[k]
+        o = of[k * n:(k + 1) * n]
+        for t in range(n):
+            o[t] = ck * af[t] + sk * rzt[t]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def fill_rows3(out, row):
+    """Every row of ``out`` ``(N, 3)`` (C-contiguous) set to ``row`` ``(3,)`` (``formation._fill_rows``: the
+    rays' common origin), as one flat loop over a row pattern (i14r: numpy's three strided column fills
+    took 0.1-0.2 ms for 65 536 rows, on the serial path before the cast)."""
+    n = out.shape[0]
+    of = out.reshape(-1)
+    m = min(n, 256)
+    pat = np.empty(3 * m, out.dtype)
+    for t in range(m):
+        for c in range(3):
+            pat[3 * t + c] = row[c]
+    w = 3 * m
+    for i0 in range(0, 3 * n, w):
+        blk = of[i0:min(i0 + w, 3 * n)]
+        for t in range(blk.size):
+            blk[t] = pat[t]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def fill2(a, b, value, i0, i1):
+    """``a[i0:i1] = b[i0:i1] = value`` (the cells' extents before edge refinement, filled chunk by chunk on
+    the threads that cast the grid)."""
+    for i in range(i0, i1):
+        a[i] = value
+        b[i] = value
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -903,19 +903,18 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     """
     fast = use_numba()
     K, J = spec.elevation_samples, spec.n_beams
+    # angular extent of each ray's elevation cell below (a) and above (b) the ray
+    step = spec.elevation_step
     if fast:
-        body, r, nd, ndd, cos_inc, slope = _scan_hits_numba(caster, spec, pose)
+        # scratch of this frame (the rays keep elevation - a and elevation + b): per-thread, reused; filled
+        # with the half step chunk by chunk as the grid is read
+        a, b = _workspace("scan_a", (K * J,), np.float64), _workspace("scan_b", (K * J,), np.float64)
+        body, r, nd, ndd, cos_inc, slope = _scan_hits_numba(caster, spec, pose, ab=(a, b, 0.5 * step))
     else:
         body, r, nd, ndd, cos_inc, slope = _scan_hits_numpy(caster, spec, pose)
     beside = bool(after_cast()) if after_cast is not None else False
-    hit = body >= 0
-    # angular extent of each ray's elevation cell below (a) and above (b) the ray
-    step = spec.elevation_step
-    if fast:  # scratch of this frame (the rays keep elevation - a and elevation + b): per-thread, reused
-        a, b = _workspace("scan_a", (K * J,), np.float64), _workspace("scan_b", (K * J,), np.float64)
-        a.fill(0.5 * step)
-        b.fill(0.5 * step)
-    else:
+    if not fast:
+        hit = body >= 0
         a = np.full(K * J, 0.5 * step)
         b = np.full(K * J, 0.5 * step)
     _refine_edges(caster, spec, pose, body, r, slope, a, b, split=not (beside and caster.threads <= 2))
@@ -927,14 +926,16 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
     gain = None
     if options.propagation == "spreading":
         if fast:  # one kernel pass (no float64 power and where-copies over the grid)
-            from .propagation import absorption_db_per_m
+            from .propagation import absorption_scalar
 
             gain = _workspace("scan_gain", (K * J,), np.float64)  # read by footprints only
-            k_abs = -0.2 * np.log(10.0) * float(absorption_db_per_m(spec.frequency, options.water))
+            k_abs = -0.2 * np.log(10.0) * absorption_scalar(spec.frequency, options.water)
         else:
             gain = np.where(hit, two_way_gain(np.where(hit, r, 1.0), spec.frequency, options.water), 0.0)
+    elev = _elevation_grid(spec)  # read-only and shared by the frames of a spec, as beam_index
     if fast:
         energy, lo, hi = np.empty(K * J), np.empty(K * J), np.empty(K * J)
+        elev_lo, elev_hi = np.empty(K * J), np.empty(K * J)
         w_k = np.zeros(0) if weights is None else np.asarray(weights, float)
         kn = kernels()
 
@@ -944,9 +945,13 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
                 kn.spreading_gain(body[s], r[s], k_abs, gain[s])
             kn.footprints(body[s], r[s], cos_inc[s], slope[s], a[s], b[s], refl, w_k[k0:k1],
                           np.zeros(0) if gain is None else gain[s], J, 1e-4 * spec.bin_width, energy[s], lo[s], hi[s])
+            # the cells' elevation spans, rows by rows on the same threads (the same sums as elev - a, elev + b)
+            np.subtract(elev[s], a[s], out=elev_lo[s])
+            np.add(elev[s], b[s], out=elev_hi[s])
 
         chunked_run(rows, K, caster.threads if footprint_threads is None else footprint_threads)
     else:
+        elev_lo, elev_hi = elev - a, elev + b
         energy = refl[body] * cos_inc * (a + b)
         if weights is not None:
             energy *= weights[elev_grid]
@@ -961,7 +966,6 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
             pad = np.maximum(0.0, 1e-4 * spec.bin_width - (hi - lo)) * 0.5
         lo, hi = np.where(hit, lo - pad, np.nan), np.where(hit, hi + pad, np.nan)
         energy = np.where(hit, energy, 0.0)
-    elev = _elevation_grid(spec)  # read-only and shared by the frames of a spec, as beam_index
     shape = (K, J)
     rays = SonarRays(
         range=r.reshape(shape),
@@ -972,8 +976,8 @@ def _scan(scene: Scene, caster: RayCaster, spec: SonarSpec, pose: Pose, options:
         footprint_hi=hi.reshape(shape),
         beam_index=beam_grid.reshape(shape),
         elevation=elev.reshape(shape),
-        elevation_lo=(elev - a).reshape(shape),
-        elevation_hi=(elev + b).reshape(shape),
+        elevation_lo=elev_lo.reshape(shape),
+        elevation_hi=elev_hi.reshape(shape),
         elevation_step=step,
     )
     if pattern is None:
@@ -1004,15 +1008,21 @@ def _scan_hits_numpy(caster: RayCaster, spec: SonarSpec, pose: Pose):
 
 def _fill_rows(out: np.ndarray, row) -> np.ndarray:
     """Every row of ``out`` ``(N, 3)`` set to ``row`` (cast to ``out``'s dtype), column by column: the
-    broadcast ``out[...] = row`` runs an inner loop of length 3 per row, 6x slower (0.45 ms for 65 536 rows)."""
+    broadcast ``out[...] = row`` runs an inner loop of length 3 per row, 6x slower (0.45 ms for 65 536 rows);
+    with the compiled kernels, one flat pass (``_numba_kernels.fill_rows3``)."""
     row = np.asarray(row, out.dtype)
+    if use_numba() and out.ndim == 2 and out.shape[1] == 3 and out.flags.c_contiguous:
+        kernels().fill_rows3(out, row)
+        return out
     for c in range(out.shape[1]):
         out[:, c] = row[c]
     return out
 
 
-def _scan_hits_numba(caster: RayCaster, spec: SonarSpec, pose: Pose):
-    """:func:`_scan_hits_numpy` with the grid built and Embree's float32 output read by kernels."""
+def _scan_hits_numba(caster: RayCaster, spec: SonarSpec, pose: Pose, ab=None):
+    """:func:`_scan_hits_numpy` with the grid built and Embree's float32 output read by kernels.
+    ``ab`` ``(a, b, value)``: two ``(K * J,)`` arrays filled with ``value`` chunk by chunk as the grid is
+    read (on the casting threads, instead of two fills on the calling thread after the cast)."""
     kn = kernels()
     R = pose.R
     th, ph = spec.azimuths, spec.elevations
@@ -1034,6 +1044,8 @@ def _scan_hits_numba(caster: RayCaster, spec: SonarSpec, pose: Pose):
     def each(i0, i1, tfar, geom, prim, u, v):  # each chunk read on the thread that cast it, as soon as it is cast
         kn.scan_rays(tfar, geom, prim, u, v, ng, cn, off, True, cp, sp, a_dir, rz, i0, i1,
                      body, r, nd, ndd, cos_inc, slope, i0)
+        if ab is not None:
+            kn.fill2(ab[0], ab[1], ab[2], i0, i1)
 
     caster.intersect_each(o32, d32, dist32, each)
     return body, r, nd, ndd, cos_inc, slope
@@ -1159,11 +1171,11 @@ class _ApertureCells:
 
 def _aperture_cells(spec: SonarSpec, rays: SonarRays, nd, ndd, a, b, refl, pattern, options) -> _ApertureCells:
     """The arguments of :func:`_subdivide_numba`, kept for the fused kernel instead of sub-cells."""
-    from .propagation import absorption_db_per_m
+    from .propagation import absorption_scalar
 
     x, y = _two_way_table(pattern, spec.fov_elevation)
     spreading = options.propagation == "spreading"
-    alpha = float(absorption_db_per_m(spec.frequency, options.water)) if spreading else 0.0
+    alpha = absorption_scalar(spec.frequency, options.water) if spreading else 0.0
     c = np.ascontiguousarray
     return _ApertureCells(rays, c(nd, float), c(ndd, float), c(a, float), c(b, float), c(refl, float),
                           (float(x[0]), float(x[1] - x[0]), y), alpha, spreading)
@@ -1194,20 +1206,22 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
             for s, c0, c1 in pieces:  # next() on the iterator is atomic under the GIL
                 _mix_rows(spec, out[s][:, c0:c1], mixed[s][:, c0:c1], spans[s], s != 1)
 
-        from ._kernels import _pool
+        from ._kernels import _pool, wait_or_cancel
 
         jobs = [_pool(threads - 1).submit(work) for _ in range(threads - 1)]
         work()
-        for job in jobs:
-            job.result()
+        wait_or_cancel(jobs)
     elif threads > 1 and n_slots > 1:  # the class images on the other threads meanwhile (cv2 releases the GIL)
         from ._kernels import _pool
 
         jobs = [_pool(threads - 1).submit(_mix_rows, spec, out[s], mixed[s], spans[s], s != 1)
                 for s in range(1, n_slots)]
         _mix_rows(spec, out[0], mixed[0], spans[0])
-        for job in jobs:
-            job.result()
+        for s, job in zip(range(1, n_slots), jobs):
+            if job.cancel():  # not started (no free core): done here
+                _mix_rows(spec, out[s], mixed[s], spans[s], s != 1)
+            else:
+                job.result()
     else:
         for s in range(n_slots):
             _mix_rows(spec, out[s], mixed[s], spans[s], s != 1)
