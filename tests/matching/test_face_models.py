@@ -65,6 +65,19 @@ def test_shipped_constants_come_from_calibrate_face_score():
             np.testing.assert_allclose(fitted[key][field], shipped[field], atol=1.5e-3, err_msg=f"{key}.{field}")
 
 
+@pytest.mark.skipif(os.environ.get("OAS_CALIBRATION_TESTS") != "1",
+                    reason="refits the arc model on its 48 training scenes (a minute or two); "
+                           "set OAS_CALIBRATION_TESTS=1 to run")
+def test_shipped_arc_constants_come_from_calibrate_score():
+    """``ARC_SCORE_MODEL`` is what its fitter gives at its defaults (random 5000-5023, varied 8000-8023)."""
+    from optiacoustic.experiments.matching import calibrate_score
+
+    fitted = calibrate_score()
+    shipped = MM.ARC_SCORE_MODEL
+    for field in ("weights", "mean", "std"):
+        np.testing.assert_allclose(fitted[field], shipped[field], atol=1.5e-3, err_msg=f"arc.{field}")
+
+
 def test_calibrate_face_score_fits_the_shipped_form():
     """The calibration function on four training scenes gives models of the shipped models' form."""
     from optiacoustic.experiments.matching import calibrate_face_score

@@ -743,12 +743,14 @@ def _finish(out, cam_img, second, motion, rig, noise, opt, min_score, *, sf=None
 #: the bins from its echo's start and to its end: a feature deep inside a long unshadowed echo is an
 #: object whose shadow was missed, not the seabed, a low bar or a wall). Labels: the arc search's
 #: own pixel. Fitted by ``experiments.matching.calibrate_score()`` on random scenes seeded
-#: 5000-5023 and the wider :func:`experiments.matching.varied_scene` seeded 8000-8023 (1281
-#: matches, 47% right), disjoint from every scene the experiment and the tests evaluate on.
+#: 5000-5023 and the wider :func:`experiments.matching.varied_scene` seeded 8000-8023 (its
+#: defaults; 1241 matches, 51% right; refitted from the current tree in round i15p, and the six
+#: one-view models below refitted on top of it), disjoint from every scene the experiment and the
+#: tests evaluate on. ``tests/matching/test_face_models.py`` checks that the fitter reproduces it.
 ARC_SCORE_MODEL = dict(
-    weights=(-0.215, 0.327, -0.109, -0.052, 0.165, 0.036, -0.209, 0.63, -0.598, -0.353, -0.295, -0.552, -0.296),
-    mean=(2.7988, 5.1637, 14.5784, 83.6896, 3.3285, 2.0844, 0.528, 0.8142, 0.4692, 0.2342, 0.257, 0.3583),
-    std=(0.6045, 3.76, 19.4283, 55.8677, 1.2781, 3.6666, 0.2088, 0.3889, 0.499, 0.4195, 0.6972, 0.8789),
+    weights=(-0.004, 0.344, 0.21, -0.078, -0.285, -0.14, -0.381, 0.796, -0.289, -0.41, -0.241, -0.196, -0.247),
+    mean=(2.7924, 5.1826, 15.3267, 83.7906, 3.3429, 2.1523, 0.5454, 0.8026, 0.4682, 0.2233, 0.2471, 0.3784),
+    std=(0.6098, 3.855, 20.6796, 57.041, 1.3117, 3.7878, 0.2015, 0.3981, 0.499, 0.4054, 0.6357, 0.9105),
 )
 
 
@@ -773,11 +775,11 @@ def arc_score_features(feats: dict) -> np.ndarray:
 #: scenes seeded 5000-5047 in thesis water and 5000-5023 in Jerlov 1C water
 #: and :func:`experiments.matching.varied_scene` seeded 8000-8047 in thesis water
 #: (``experiments.matching.FACE_TRAINING``; 3112 matches, 51% correct; sonar noise of the per-cell
-#: counter stream, issue 14; refitted in round i15n, the seabed plane fitted to both aperture edges).
+#: counter stream, issue 14; refitted in round i15n and on the refitted arc model in i15p, the seabed plane fitted to both aperture edges).
 FACE_SCORE_MODEL = dict(
-    weights=(0.007, 0.915, 0.944, -0.917, 0.201, 0.188, -0.258, 0.067, -0.25, 0.07),
-    mean=(-0.1464, 0.2915, 0.4501, 0.0842, 0.6963, 0.8981, 0.2799, 1.6371, 1.1643),
-    std=(1.0891, 0.4544, 0.8101, 0.2777, 0.4598, 0.8158, 0.4489, 1.1638, 0.9283),
+    weights=(0.039, 0.743, 0.893, -0.875, 0.213, 0.232, -0.155, 0.09, -0.216, 0.081),
+    mean=(0.0001, 0.2915, 0.4501, 0.0842, 0.6963, 0.8981, 0.2799, 1.6371, 1.1643),
+    std=(1.0481, 0.4544, 0.8101, 0.2777, 0.4598, 0.8158, 0.4489, 1.1638, 0.9283),
 )
 
 #: :data:`FACE_SCORE_MODEL` where the face-plane candidate is offered (``MatchOptions.face_plane``
@@ -787,12 +789,12 @@ FACE_SCORE_MODEL = dict(
 #: units of 0.25 deg, agreement within 0.5 deg; and (round i15h) whether the feature's echo fits on
 #: its face, :func:`_face_fit`: a wrong surface when not). Fitted by
 #: ``experiments.matching.calibrate_face_score()`` on the matches of those scenes where the plane is
-#: offered (thesis water; 2564 matches, 50% correct; refitted in round i15n), with the planes fitted to every beam's crease
+#: offered (thesis water; 2564 matches, 50% correct; refitted in round i15n and i15p), with the planes fitted to every beam's crease
 #: (``MatchOptions.face_plane_beams``).
 FACE_PLANE_SCORE_MODEL = dict(
-    weights=(-0.01, 0.801, 0.8, -0.801, 0.24, -0.206, 0.049, 0.128, -0.184, 0.11, 0.59, -0.698, -0.128, 0.076, -0.072, 0.301),
-    mean=(-0.14, 0.3537, 0.5463, 0.1022, 0.6775, 0.8258, 0.298, 1.8599, 1.2908, 0.6771, 0.946, 0.2426, 0.9676, 0.4287, 0.6626),
-    std=(1.0254, 0.4781, 0.8625, 0.3029, 0.4674, 0.7813, 0.4574, 1.1655, 0.9745, 0.4676, 0.8789, 0.4286, 0.177, 0.7975, 0.4728),
+    weights=(0.014, 0.644, 0.778, -0.766, 0.249, -0.148, 0.108, 0.14, -0.161, 0.137, 0.569, -0.666, -0.123, 0.074, -0.076, 0.31),
+    mean=(-0.0019, 0.3537, 0.5463, 0.1022, 0.6775, 0.8258, 0.298, 1.8599, 1.2908, 0.6771, 0.946, 0.2426, 0.9676, 0.4287, 0.6626),
+    std=(1.0526, 0.4781, 0.8625, 0.3029, 0.4674, 0.7813, 0.4574, 1.1655, 0.9745, 0.4676, 0.8789, 0.4286, 0.177, 0.7975, 0.4728),
 )
 
 #: Logistic model of P(correct) of the point below the crease (:func:`.contact.crease_points`):
@@ -807,11 +809,11 @@ FACE_PLANE_SCORE_MODEL = dict(
 #: from the crease point, and whether the feature's echo fits on its face, :func:`_face_fit`; and
 #: (round i15j) the crease point's :func:`_foot_edges`). Fitted by
 #: ``experiments.matching.calibrate_face_score()`` on the same scenes (2167 crease points, 62%
-#: correct; refitted in round i15n).
+#: correct; refitted in round i15n and i15p).
 CREASE_SCORE_MODEL = dict(
-    weights=(0.539, 0.583, -0.327, -0.179, 0.061, -0.42, -0.386, 0.68, 0.222, -0.513, 0.714, -0.279, 0.237, 0.155, -0.247, 0.33, 0.129),
-    mean=(0.2363, 1.2897, 0.4822, 0.3909, 0.5861, 0.965, 4.2161, 1.5257, -0.2678, 0.6982, 0.6518, 0.7817, 0.554, 0.6894, 1.6644, 1.1846),
-    std=(0.5846, 0.6713, 0.4997, 0.4879, 0.2212, 0.3288, 0.5854, 1.3969, 0.19, 0.459, 0.7165, 0.4131, 0.4386, 0.4627, 1.2048, 0.8991),
+    weights=(0.536, 0.6, -0.32, -0.196, 0.058, -0.433, -0.405, 0.839, 0.266, -0.495, 0.745, -0.279, 0.24, 0.155, -0.288, 0.306, 0.139),
+    mean=(0.2954, 1.2897, 0.4822, 0.3909, 0.5861, 0.965, 4.2161, 1.5257, -0.2678, 0.6982, 0.6518, 0.7817, 0.554, 0.6894, 1.6644, 1.1846),
+    std=(0.7454, 0.6713, 0.4997, 0.4879, 0.2212, 0.3288, 0.5854, 1.3969, 0.19, 0.459, 0.7165, 0.4131, 0.4386, 0.4627, 1.2048, 0.8991),
 )
 
 
@@ -880,12 +882,12 @@ def crease_score_features(feats: dict) -> np.ndarray:
 #: echo's start; log of 1 + the gradient just above the run; log of the image's contrast; and
 #: (round i15j) the plane point's :func:`_foot_edges`). Fitted by
 #: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model (1736
-#: plane points, all in thesis water where the plane is offered, 68% correct, refitted in round i15n; the planes fitted to
+#: plane points, all in thesis water where the plane is offered, 68% correct, refitted in round i15n and i15p; the planes fitted to
 #: every beam's crease, ``MatchOptions.face_plane_beams``).
 PLANE_SCORE_MODEL = dict(
-    weights=(0.932, 0.641, -0.241, 0.241, 0.029, -0.138, 0.32, 0.46, 0.352, 0.119, 0.003, -0.084, 0.166, 0.094, -0.006, -0.197, 0.608, -0.076),
-    mean=(0.1784, 1.3972, 0.8715, 0.8136, 0.4643, 0.9124, 2.5914, 0.8095, 0.5447, 2.0025, 0.536, 0.5861, 0.9874, 1.8946, -0.177, 1.9669, 1.411),
-    std=(0.6719, 0.7144, 0.3346, 0.7136, 0.4987, 0.2827, 0.732, 0.1815, 0.5235, 0.6393, 0.4477, 0.2751, 0.3476, 1.3217, 0.0553, 1.2072, 0.9673),
+    weights=(0.941, 0.662, -0.185, 0.262, 0.072, -0.159, 0.349, 0.469, 0.357, 0.081, -0.036, -0.053, 0.186, 0.102, 0.045, -0.168, 0.609, -0.106),
+    mean=(0.2763, 1.3972, 0.8715, 0.8136, 0.4643, 0.9124, 2.5914, 0.8095, 0.5447, 2.0025, 0.536, 0.5861, 0.9874, 1.8946, -0.177, 1.9669, 1.411),
+    std=(0.8281, 0.7144, 0.3346, 0.7136, 0.4987, 0.2827, 0.732, 0.1815, 0.5235, 0.6393, 0.4477, 0.2751, 0.3476, 1.3217, 0.0553, 1.2072, 0.9673),
 )
 
 
@@ -910,11 +912,11 @@ def plane_score_features(feats: dict) -> np.ndarray:
 #: Logistic model of P(correct) of the point above the face's foot (:func:`.contact.foot_points`):
 #: intercept and weights of the standardised :func:`foot_score_features`. Fitted by
 #: ``experiments.matching.calibrate_face_score()`` on the same scenes as the crease model (2298
-#: foot points, 52% correct; refitted in round i15n).
+#: foot points, 52% correct; refitted in round i15n and i15p).
 FOOT_SCORE_MODEL = dict(
-    weights=(0.09, -0.049, -0.113, 0.282, -0.703, 1.483, -0.774, 0.225, 0.012, 0.089, -0.069, -0.038, -0.059, -0.107, 0.152, -0.266, 0.175, -0.18, -0.016, -0.76, 0.294, 0.004),
-    mean=(0.1947, 1.7835, 0.8847, 1.6311, 0.6954, 1.2283, 0.6823, 0.4604, 1.5482, 1.0006, 0.3709, 0.7218, 2.8494, -0.2597, 0.8216, 0.3764, 0.7981, 0.5043, 0.6841, 1.7442, 1.4018),
-    std=(0.6986, 0.7897, 0.3194, 0.9827, 0.4602, 1.0706, 0.4656, 0.4984, 0.3323, 0.34, 0.187, 0.6914, 0.6369, 0.1828, 0.3829, 0.4845, 0.4014, 0.4862, 0.4649, 1.21, 1.0184),
+    weights=(0.09, -0.006, -0.111, 0.28, -0.709, 1.498, -0.771, 0.222, 0.021, 0.092, -0.071, -0.045, -0.05, -0.13, 0.136, -0.25, 0.174, -0.168, -0.023, -0.788, 0.292, -0.001),
+    mean=(0.2729, 1.7835, 0.8847, 1.6311, 0.6954, 1.2283, 0.6823, 0.4604, 1.5482, 1.0006, 0.3709, 0.7218, 2.8494, -0.2597, 0.8216, 0.3764, 0.7981, 0.5043, 0.6841, 1.7442, 1.4018),
+    std=(0.8822, 0.7897, 0.3194, 0.9827, 0.4602, 1.0706, 0.4656, 0.4984, 0.3323, 0.34, 0.187, 0.6914, 0.6369, 0.1828, 0.3829, 0.4845, 0.4014, 0.4862, 0.4649, 1.21, 1.0184),
 )
 
 
@@ -948,12 +950,12 @@ def foot_score_features(feats: dict) -> np.ndarray:
 
 
 #: intercept and weights of the standardised :func:`seabed_score_features`. Fitted by
-#: ``experiments.matching.calibrate_face_score()`` on ``FACE_TRAINING`` (round i15k; refitted in round i15n
+#: ``experiments.matching.calibrate_face_score()`` on ``FACE_TRAINING`` (round i15k; refitted in rounds i15n and i15p
 #: with the seabed plane fitted to both aperture edges: 602 seabed points, 68% correct, 39% before).
 SEABED_SCORE_MODEL = dict(
-    weights=(1.391, 1.181, 0.534, 0.339, 0.115, 0.421, 0.02, 0.151, -0.448, -0.076, -1.59, 0.148),
-    mean=(-1.3857, 0.2923, 0.4701, 0.6196, 1.3773, 2.2499, 1.1913, 2.6662, -0.2598, 3.2512, 1.9956),
-    std=(1.3088, 0.2138, 0.4991, 0.4855, 0.9534, 1.2499, 1.0632, 0.5671, 0.1847, 4.2097, 0.3032),
+    weights=(1.396, 0.955, 0.561, 0.483, 0.046, 0.105, 0.031, 0.185, -0.536, -0.077, -1.597, 0.14),
+    mean=(-1.0037, 0.2923, 0.4701, 0.6196, 1.3773, 2.2499, 1.1913, 2.6662, -0.2598, 3.2512, 1.9956),
+    std=(0.823, 0.2138, 0.4991, 0.4855, 0.9534, 1.2499, 1.0632, 0.5671, 0.1847, 4.2097, 0.3032),
 )
 
 
