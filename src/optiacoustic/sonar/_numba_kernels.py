@@ -917,6 +917,15 @@ def exp_row(x, n, out, scale):
         out[j] = out[j] * scale[j] * np.float64(x[j] >= -708.0)
 
 
+@njit(cache=True, nogil=True)
+def _field_row_scratch(J):
+    """The per-row scratch of the scatterer field's rows (:func:`scatterer_field`, :func:`scatterer_speckle`):
+    ``m_row, p0, scale, n_row, u_row, x, e, mant, r2, power, fix, w0, w1, w2``, each ``(J,)``."""
+    return (np.empty(J), np.empty(J), np.empty(J), np.empty(J, np.int32), np.empty(J), np.empty(J), np.empty(J),
+            np.empty(J), np.empty(J, np.float32), np.empty(J, np.float32), np.empty(J, np.int64),
+            np.empty(J, np.uint32), np.empty(J, np.uint32), np.empty(J, np.uint32))
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def scatterer_field(intensity, gain, back, area, density, k0, k1, mu_max, r0, r1, z, big, mean):
     """``ScattererNoise``'s white complex field, rows ``r0..r1``: per cell the Poisson count ``n``
@@ -935,20 +944,7 @@ def scatterer_field(intensity, gain, back, area, density, k0, k1, mu_max, r0, r1
     and the normals (:func:`_normals_row`); a scalar loop finishes the rare counts above 3.
     """
     J = intensity.shape[1]
-    m_row = np.empty(J)
-    p0 = np.empty(J)
-    scale = np.empty(J)
-    n_row = np.empty(J, np.int32)
-    u_row = np.empty(J)
-    x = np.empty(J)
-    e = np.empty(J)
-    mant = np.empty(J)
-    r2 = np.empty(J, np.float32)
-    power = np.empty(J, np.float32)
-    fix = np.empty(J, np.int64)
-    w0 = np.empty(J, np.uint32)
-    w1 = np.empty(J, np.uint32)
-    w2 = np.empty(J, np.uint32)
+    m_row, p0, scale, n_row, u_row, x, e, mant, r2, power, fix, w0, w1, w2 = _field_row_scratch(J)
     for i in range(r0, r1):
         _cell_words_row(k0, k1, i * J, w0, w1, w2)
         bk = back[i]
@@ -1602,22 +1598,9 @@ def scatterer_speckle(intensity, gain, back, area, density, mu_max, k0, k1, have
     mb = np.empty((nb, J), np.float32)
     zf = zb.reshape(nb * 2 * J)
     mf = mb.reshape(nb * J)
-    # the field's row scratch (as scatterer_field's)
-    m_row = np.empty(J)
-    p0 = np.empty(J)
-    scale = np.empty(J)
-    n_row = np.empty(J, np.int32)
-    u_row = np.empty(J)
-    x = np.empty(J)
-    e = np.empty(J)
-    mant = np.empty(J)
-    r2_row = np.empty(J, np.float32)
-    power = np.empty(J, np.float32)
-    fix = np.empty(J, np.int64)
+    # the field's row scratch (scatterer_field's)
+    m_row, p0, scale, n_row, u_row, x, e, mant, r2_row, power, fix, w0, w1, w2 = _field_row_scratch(J)
     big = np.empty(J, np.bool_)
-    w0 = np.empty(J, np.uint32)
-    w1 = np.empty(J, np.uint32)
-    w2 = np.empty(J, np.uint32)
     half = np.float32(0.5)
     n_big = 0
     buf0 = 0
