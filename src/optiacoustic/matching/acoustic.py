@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage as ndi
 
+from ..frames import sonar_from_spherical
 from ..geometry.projection import cos_sin_roots
 
 __all__ = ["SeabedPlane", "fit_seabed", "far_edges", "seabed_elevation", "seabed_points", "elevation_maps", "elevation_bounds", "occluded", "seabed_view"]
@@ -160,11 +161,6 @@ def _refine_far_edge(sm, r, edge, *, pre: int = 4, post: int = 4, level_bins: in
     return r[0] + (kb - pre - 0.5) * dr + lit * dr
 
 
-def _directions(azimuths, elevations):
-    th, ph = np.broadcast_arrays(np.asarray(azimuths, float), np.asarray(elevations, float))
-    return np.stack([np.cos(ph) * np.sin(th), np.cos(ph) * np.cos(th), np.sin(ph)], -1)
-
-
 def _plane_ranges(p, D):
     """Range at which rays ``D`` meet the plane ``z = p0 x + p1 y + p2`` (sonar frame)."""
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -182,10 +178,10 @@ def _fit_both_edges(p, image, r, th, ro, to, half, min_beams, far_gate_m):
     """
     from scipy.optimize import least_squares
 
-    D_near = _directions(to, -half)
+    D_near = sonar_from_spherical(1.0, to, -half)
     p = least_squares(lambda q: ro - _plane_ranges(q, D_near), p, loss="cauchy", f_scale=0.05).x
     r_far, found = far_edges(image, r)
-    D_far = _directions(th, half)
+    D_far = sonar_from_spherical(1.0, th, half)
     expected = _plane_ranges(p, D_far)
     use = found & np.isfinite(expected) & (expected > 0) & (np.abs(r_far - expected) < far_gate_m)
     if use.sum() < min_beams:
@@ -241,7 +237,7 @@ def fit_seabed(image, ranges, azimuths, fov_elevation: float, *, min_beams: int 
                            message=f"seabed: only {int(ok.sum())} beams show an echo onset (need {min_beams})")
     half = fov_elevation / 2
     ro, to = r_near[ok], th[ok]
-    P = np.atleast_2d(ro[:, None] * _directions(to, -half))
+    P = np.atleast_2d(ro[:, None] * sonar_from_spherical(1.0, to, -half))
 
     # z = a x + b y + c, robust to onsets that are objects rather than seabed.
     def res(p):
@@ -304,8 +300,6 @@ def seabed_points(rig, plane: SeabedPlane, ranges, azimuths, fov_elevation: floa
     found : ndarray of bool, shape (N,)
         The arc meets the seabed inside the aperture, in front of the camera and inside its image.
     """
-    from ..frames import sonar_from_spherical
-
     r = np.asarray(ranges, float).reshape(-1)
     th = np.asarray(azimuths, float).reshape(-1)
     if r.size != th.size:
