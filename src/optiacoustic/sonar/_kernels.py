@@ -16,8 +16,8 @@ import numpy as np
 from .. import _kernel_switch as _switch
 from .._scratch import Workspace
 
-__all__ = ["use_numba", "kernels", "truth_kernels", "split_run", "chunked_run", "wait_or_cancel", "workspace", "pooled",
-           "give_back"]
+__all__ = ["use_numba", "kernels", "truth_kernels", "split_run", "chunked_run", "take_turns", "wait_or_cancel",
+           "wait_or_run_here", "workspace", "pooled", "give_back"]
 
 
 def use_numba() -> bool:
@@ -65,10 +65,17 @@ def split_run(fn, n: int, threads: int) -> None:
     futs = [pool.submit(fn, bounds[k], bounds[k + 1]) for k in range(1, threads)]
     fn(bounds[0], bounds[1])
     for k, f in enumerate(futs, start=1):
-        if f.cancel():  # its worker has not started yet (no free core): the part is done here instead
-            fn(bounds[k], bounds[k + 1])
-        else:
-            f.result()
+        wait_or_run_here(f, fn, bounds[k], bounds[k + 1])
+
+
+def wait_or_run_here(job, fn, *args) -> None:
+    """Wait for a pool ``job`` that runs ``fn(*args)``; if its worker has not started it yet (no free
+    core, e.g. the noise's draws hold the other one), cancel it and run ``fn(*args)`` on this thread,
+    never later than the worker would have (i14r)."""
+    if job.cancel():
+        fn(*args)
+    else:
+        job.result()
 
 
 def wait_or_cancel(jobs) -> None:
@@ -101,6 +108,14 @@ def chunked_run(fn, n: int, threads: int) -> None:
         for a in starts:
             fn(a, min(a + step, n))
 
+    take_turns(work, threads)
+
+
+def take_turns(work, threads: int) -> None:
+    """Run ``work()`` on this thread and on ``threads - 1`` pool workers at once; ``work`` takes items
+    from a shared iterator until none is left (``next()`` is atomic under the GIL), so a slowed thread
+    takes fewer. A worker that has not started when this thread runs out is cancelled
+    (:func:`wait_or_cancel`)."""
     jobs = [_pool(threads - 1).submit(work) for _ in range(threads - 1)]
     work()
     wait_or_cancel(jobs)

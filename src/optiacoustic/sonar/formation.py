@@ -1206,22 +1206,17 @@ def _form_aperture_numba(spec: SonarSpec, cells: _ApertureCells, options: SonarO
             for s, c0, c1 in pieces:  # next() on the iterator is atomic under the GIL
                 _mix_rows(spec, out[s][:, c0:c1], mixed[s][:, c0:c1], spans[s], s != 1)
 
-        from ._kernels import _pool, wait_or_cancel
+        from ._kernels import take_turns
 
-        jobs = [_pool(threads - 1).submit(work) for _ in range(threads - 1)]
-        work()
-        wait_or_cancel(jobs)
+        take_turns(work, threads)
     elif threads > 1 and n_slots > 1:  # the class images on the other threads meanwhile (cv2 releases the GIL)
-        from ._kernels import _pool
+        from ._kernels import _pool, wait_or_run_here
 
         jobs = [_pool(threads - 1).submit(_mix_rows, spec, out[s], mixed[s], spans[s], s != 1)
                 for s in range(1, n_slots)]
         _mix_rows(spec, out[0], mixed[0], spans[0])
         for s, job in zip(range(1, n_slots), jobs):
-            if job.cancel():  # not started (no free core): done here
-                _mix_rows(spec, out[s], mixed[s], spans[s], s != 1)
-            else:
-                job.result()
+            wait_or_run_here(job, _mix_rows, spec, out[s], mixed[s], spans[s], s != 1)
     else:
         for s in range(n_slots):
             _mix_rows(spec, out[s], mixed[s], spans[s], s != 1)
