@@ -295,17 +295,26 @@ def test_epipolar_residual_identity():
 
 @pytest.mark.parametrize("name", ["oculus/one_ping_8bit.raw", "aris/sample.aris"])
 def test_measured_frames_go_through_the_protocol(name):
-    """Real recordings (the shared samples) through the frame protocol: a result, never a crash."""
+    """Real recordings (the shared samples) through the frame protocol: a result, never a crash.
+
+    A real transducer's elevation beam is soft, so by default the matcher declines with a message
+    that says so (the seabed plane assumes hard edges); allowed, the frame goes through the detectors.
+    """
     from pathlib import Path
 
     from optiacoustic import PinholeCamera
     from optiacoustic.io import open_sonar
+    from optiacoustic.matching import MatchOptions
 
     frame = open_sonar(Path(__file__).resolve().parents[1] / "data" / name)[0]
+    assert frame.beam_model == "aperture"
     rig = Rig.toed_in(PinholeCamera.from_sensor(600, 400, (36, 24), 50), baseline=0.1)
     blank = np.zeros((400, 600, 3), np.float32)
     m = match(frame, blank, rig)
-    assert not m and "no camera features" in m.message
+    assert not m and "soft elevation beam" in m.message and "allow_soft_beam" in m.message
+    m = match(frame, blank, rig, options=MatchOptions(allow_soft_beam=True))
+    # the ARIS sample shows no seabed onset at all (no plane, so nothing to bound elevations with)
+    assert not m and ("no camera features" in m.message or "no seabed plane" in m.message)
     sf = m.sonar_features
     assert sf is not None and len(sf) > 0
     assert np.all((sf.ranges >= frame.ranges[0]) & (sf.ranges <= frame.ranges[-1]))

@@ -131,6 +131,13 @@ class MatchOptions:
         and top faces washes out and the plane follows the top face's far edge. The training
         scenes' images have 0.79-0.86 in thesis water and 0.53 in Jerlov 1C, where the plane cost
         correct matches (302 -> 298 on scenes 5000-5023); 0.65 lies between.
+    allow_soft_beam : bool
+        Match frames whose elevation beam is soft (``sonar.beam_model == "aperture"``: every measured
+        frame, and simulated frames of ``SonarOptions(beam_model="aperture")``) although the seabed
+        plane is fitted where the seabed crosses a hard-edged aperture. Off (the default), such a
+        frame gives a falsy result that says so: on held-out scenes its plane was degrees off and
+        5-19% of its matches were right, median scores 0.43-0.94 (docs/matching.md, "Soft elevation
+        beams").
     cfar, keypoints : detector options.
     """
 
@@ -150,6 +157,7 @@ class MatchOptions:
     face_plane_min_contrast: float = 0.65
     face_plane_beams: bool = True
     seabed_point: bool = True
+    allow_soft_beam: bool = False
     cfar: CfarOptions = field(default_factory=CfarOptions)
     keypoints: KeypointOptions = field(default_factory=KeypointOptions)
 
@@ -597,6 +605,12 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
                          f"got {cam_img.shape}")
     if not _camera_sees_fan(rig, r_bins, th_beams):
         return _empty("the camera sees nothing of the sonar's fan: no epipolar curve enters the image")
+    beam_model = getattr(sonar, "beam_model", "thesis")
+    if beam_model != "thesis" and opt.use_acoustic and not opt.allow_soft_beam:
+        return _empty(f"soft elevation beam (sonar.beam_model={beam_model!r}): the seabed plane that bounds each "
+                      f"echo's elevation is fitted where the seabed crosses a hard-edged aperture, and under a soft "
+                      f"beam it is degrees off (5-19% of matches right on held-out scenes, median scores 0.43-0.94; "
+                      f"docs/matching.md, 'Soft elevation beams'); MatchOptions(allow_soft_beam=True) matches anyway")
 
     # the CFAR maps of the detector's options, computed once here for every stage that reads them
     maps = cfar_map(np.asarray(img_s, np.float64), opt.cfar)
@@ -606,6 +620,12 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
         return _empty("no sonar features: CFAR found no echo standing out of its background")
     if opt.method == "arc":
         intervals = _elevation_intervals(sf, img_s, r_bins, th_beams, rig, opt)
+        if opt.use_acoustic and not intervals[3]:
+            # Without the seabed every echo's elevation spans the whole aperture and the arc search's
+            # choice is a guess: 1.5% of matches right on held-out scenes 6000-6011 and 9000-9005,
+            # below the nearest-conic baseline (docs/matching.md, "Soft elevation beams").
+            return _empty(f"no seabed plane, which the arc search needs to bound each echo's elevation: "
+                          f"{intervals[3].message}", sf)
         # the echo's start and end and the faces' beam creases read the default options' maps
         echo_maps = maps if opt.cfar == CfarOptions() else cfar_map(np.asarray(img_s, np.float64))
         out = _match_arcs(sf, cam_img, rig, noise, opt, intervals, sonar=(img_s, r_bins, th_beams, echo_maps))

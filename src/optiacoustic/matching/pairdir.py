@@ -36,13 +36,15 @@ class PairSonarSpec:
 
 @dataclass(frozen=True, eq=False)
 class PairSonarFrame:
-    """A sonar frame read from a pair folder: ``.image``, ``.ranges``, ``.azimuths``, ``.spec``, ``.time``."""
+    """A sonar frame read from a pair folder: ``.image``, ``.ranges``, ``.azimuths``, ``.spec``, ``.time``,
+    ``.beam_model`` (``pair.json``'s ``sonar.beam_model``; folders written before it was recorded: ``"thesis"``)."""
 
     image: np.ndarray
     ranges: np.ndarray
     azimuths: np.ndarray
     spec: PairSonarSpec
     time: float = 0.0
+    beam_model: str = "thesis"
 
 
 def _load_npz(path: Path, keys) -> dict:
@@ -97,6 +99,9 @@ def read_pair(folder, *, range_resolution: float | None = None, beamwidth_azimut
             name=str(son_m.get("preset", "")))
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{meta_path}: field 'sonar' malformed: {exc!r}") from None
-    sonar = PairSonarFrame(s["image"].astype(np.float32), ranges, az, spec)
+    beam_model = son_m.get("beam_model", "thesis")
+    if beam_model not in ("thesis", "aperture"):
+        raise ValueError(f"{meta_path}: field 'sonar.beam_model': expected 'thesis' or 'aperture', got {beam_model!r}")
+    sonar = PairSonarFrame(s["image"].astype(np.float32), ranges, az, spec, beam_model=beam_model)
     rig = Rig(np.asarray(rig_m["R"], float), np.asarray(rig_m["t"], float), camera, spec)
     return sonar, o["image"], rig, o.get("depth")

@@ -502,7 +502,7 @@ def simulate_sonar(
         functools.partial(_shadow_mask, scene, caster, sspec, pose, rays),
     )
     return SonarFrame(spec=spec, pose=pose, intensity=intensity, image=image, ground_truth=gt, rays=rays,
-                      body_names=tuple(scene.body_names()), seabed_share=shares)
+                      body_names=tuple(scene.body_names()), seabed_share=shares, beam_model=options.beam_model)
 
 
 def _form_image(spec: SonarSpec, rays: SonarRays, options: SonarOptions, select=None, beams=None) -> np.ndarray:

@@ -127,6 +127,10 @@ class MeasuredSonarFrame:
     index: int = 0
     meta: Mapping = field(default_factory=dict)
 
+    #: A real transducer's elevation beam has no hard edge: its two-way pattern fades in and out
+    #: (``spec.elevation_pattern()``), as in the simulator's ``beam_model="aperture"``.
+    beam_model = "aperture"
+
     def __post_init__(self):
         shape = (self.spec.n_bins, self.spec.n_beams)
         for name in ("raw", "image"):
@@ -220,7 +224,7 @@ def load_frame(path) -> "SonarFrame | MeasuredSonarFrame":
     return SonarFrame(spec=spec, pose=Pose(arrays["pose_R"], arrays["pose_t"]), intensity=arrays["intensity"],
                       image=arrays["image"], ground_truth=gt, rays=rays, body_names=tuple(header["body_names"]),
                       seabed_share={k: arrays[f"share_{k}"] for k in header["seabed_share"]},
-                      time=float(header["time"]))
+                      time=float(header["time"]), beam_model=str(header.get("beam_model", "thesis")))
 
 
 @dataclass(frozen=True, eq=False)
@@ -335,6 +339,12 @@ class SonarFrame:
     seabed_share : dict of str -> float32 ``(n_bins, n_beams)``
         For each bottom type present, the share of each cell's echo returned by seabed
         bodies of that type (what the reverberation model acts on); the rest is target.
+    time : float
+        Seconds (NaN when not set).
+    beam_model : {"thesis", "aperture"}
+        The elevation beam the image was formed with (``SonarOptions.beam_model``): ``"thesis"``
+        a hard cut at ``spec.fov_elevation / 2``, ``"aperture"`` the spec's soft two-way pattern.
+        What reads the image's geometry (the matcher's seabed plane) needs to know which.
     """
 
     spec: SonarSpec
@@ -346,6 +356,7 @@ class SonarFrame:
     body_names: tuple[str, ...]
     seabed_share: dict
     time: float = float("nan")
+    beam_model: str = "thesis"
 
     @property
     def ranges(self) -> np.ndarray:
@@ -377,7 +388,7 @@ class SonarFrame:
         share = {f"share_{k}": v for k, v in self.seabed_share.items()}
         header = dict(format=_FORMAT, version=_VERSION, kind="simulated", spec=spec_to_dict(self.spec),
                       time=self.time, body_names=list(self.body_names), elevation_step=self.rays.elevation_step,
-                      seabed_share=list(self.seabed_share))
+                      seabed_share=list(self.seabed_share), beam_model=self.beam_model)
         return save_npz(path, header=np.array(json.dumps(header)), intensity=self.intensity, image=self.image,
                         pose_R=self.pose.R, pose_t=self.pose.t, gt_body=gt.body, gt_elevation_min=gt.elevation_min,
                         gt_elevation_max=gt.elevation_max, gt_shadow=gt.shadow, gt_range_map=gt.range_map,
