@@ -10,7 +10,7 @@ from optiacoustic import experiments
 def test_matching_experiment(tmp_path):
     res = experiments.run("matching", tmp_path, quick=True)
     data = json.loads((tmp_path / "results.json").read_text())
-    assert data["name"] == "matching" and len(res.figures) == 7
+    assert data["name"] == "matching" and len(res.figures) == 8
     for path, caption in res.figures:
         assert path.is_file() and path.stat().st_size > 10_000 and caption
     n = res.numbers
@@ -36,6 +36,16 @@ def test_matching_experiment(tmp_path):
         for key in ("single_precision_all", "two_view_precision_all", "single_max_recall", "two_view_max_recall"):
             assert 0 <= d[key] <= 1
     assert {row["scenes"] for row in tv["baseline_sweep"]} == {"plain", "textured"}
+    # The sonar beam section: the realistic (soft-beam) frames are declined unless the seabed is given, and
+    # with it (navigation) they are matched far better than with the plane fitted to the image.
+    sb = {(r["sonar"], r["seabed"]): r for r in n["soft_beam"]}
+    assert sb[("realistic", "fitted (declined)")]["declined"] == 2
+    assert sb[("realistic", "fitted (declined)")]["n_matches"] == 0
+    nav, fit = sb[("realistic", "navigation")], sb[("realistic", "fitted (allow_soft_beam)")]
+    assert nav["declined"] == fit["declined"] == 0
+    assert nav["precision_all"] > 2 * fit["precision_all"]
+    # quick mode has no built-in scenes: the thesis row with the fitted plane is the headline's pairs
+    assert sb[("thesis", "fitted")]["precision_all"] == n["precision_all_assigned"]
 
 
 def test_varied_scene_is_seeded_and_stands_on_the_seabed():

@@ -157,6 +157,18 @@ def _sonar_noise(noise_floor_db):
     return NoiseModel(noise_floor_db=noise_floor_db)
 
 
+def realistic_sonar():
+    """The realistic sonar model of the benchmark (``bench_sonar``'s realistic frame): the spec's soft
+    two-way beam patterns, two-way spreading and absorption, scatterer speckle, a device's gain and noise.
+    Keyword arguments of :func:`optiacoustic.simulate_sonar`."""
+    from ..sonar import SonarOptions
+    from ..sonar.gain import DeviceGain
+    from ..sonar.noise import ScattererNoise
+
+    return dict(options=SonarOptions(beam_model="aperture", propagation="spreading"),
+                noise=ScattererNoise(density=500.0, gain=DeviceGain(noise_db=-60.0, volume_db=-50.0, spreading_db=30.0)))
+
+
 def simulate_pair(scene, water="thesis", noise_floor_db="default", seed=0):
     """One rig pair of ``scene`` from its view: (sonar frame, optical frame, rig)."""
     from ..optical import Water
@@ -226,15 +238,18 @@ def moved_view(scene, motion: dict, seed=0, water="thesis", noise_floor_db="defa
     return pair.sonar, pair.optical, (R_o, t_o)
 
 
-def evaluate_pair(sonar, optical, rig, *, options=None):
-    """Match one pair and score it against the depth-map truth; also the baseline on the same features."""
+def evaluate_pair(sonar, optical, rig, *, options=None, seabed=None):
+    """Match one pair and score it against the depth-map truth; also the baseline on the same features.
+
+    ``seabed``: a seabed plane given to the matcher (navigation) instead of the one it fits.
+    """
     from ..geometry import reconstruct as rc
     from ..matching import detect_camera_features, match, truth
     from ..matching.gating import mahalanobis_sq
 
     bin_w = float(np.median(np.diff(sonar.ranges)))
     beam_w = float(np.median(np.diff(sonar.azimuths)))
-    m = match(sonar, optical.image, rig, options=options, min_score=0.0)
+    m = match(sonar, optical.image, rig, options=options, min_score=0.0, seabed=seabed)
     out = dict(n_visible=0, score=np.zeros(0), ok=np.zeros(0, bool), base_ok=np.zeros(0, bool), err=np.zeros(0),
                ok3=np.zeros(0, bool), base_ok3=np.zeros(0, bool),
                err_true=np.zeros(0), matches=m, correct=np.zeros(0, bool))
@@ -532,10 +547,10 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     # 1. Thesis water and the default sonar noise: the headline precision-recall.
     import warnings
 
-    from ..matching import MatchOptions
+    from ..matching import MatchOptions, SeabedPlane
     from ..optical import BlindCameraWarning
 
-    evals, evals_corners, per_scene, evals_two, sub_pairs, cands = [], [], [], [], [], []
+    evals, evals_corners, per_scene, evals_two, sub_pairs, cands, random_pairs = [], [], [], [], [], [], []
     n_sub = 1 if quick else 8
     first = profile = None
     profile_name = ""
@@ -549,6 +564,9 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
         evals_two.append(tv)
         if k < n_sub:
             sub_pairs.append((s, o, rig))
+        if k >= len(builtins):  # for section 4; the random scenes' seabed is the world plane z = 0
+            e_nav = evaluate_pair(s, o, rig, seabed=SeabedPlane.from_pose(s.pose))
+            random_pairs.append((sc, s.pose, o, rig, e, e_nav, seed + k))
         m = e["matches"]
         per_scene.append([sc.name, e["n_visible"], len(e["ok"]), int(np.sum(e["ok"])), len(e["base_ok"]),
                           int(np.sum(e["base_ok"]))])
@@ -736,6 +754,17 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
                             o_t.image, tv_t["matches"], title=f"{name_t}, two views", correct=tv_t["ok"])
         figures.append((f_t0, f"Two-view matches on {name_t} (colour = two-view score, x = wrong by the depth map)."))
 
+    # 4. The sonar's elevation beam: the random scenes again, with the realistic sonar model's soft beam
+    #    (docs/matching.md, "Soft elevation beams"), the seabed plane fitted to the image or given by
+    #    the vehicle's navigation (here the true one, from the sonar's pose).
+    soft_beam, soft_example = _soft_beam_rows(random_pairs)
+    if soft_example is not None:
+        name_s, s_s, o_s, m_s, ok_s = soft_example
+        f_sb = draw_matches(out_dir / "matching_soft_beam.png", s_s.image, s_s.ranges, s_s.azimuths, o_s.image, m_s,
+                            title=f"{name_s}, realistic sonar (soft beam), seabed from navigation", correct=ok_s)
+        figures.append((f_sb, f"Matches on {name_s} with the realistic sonar model (soft elevation beam, speckle) and "
+                              "the seabed plane from the navigation (colour = score, x = wrong by the depth map)."))
+
     err = np.concatenate([e["err"] for e in evals]) if evals else np.zeros(0)
     err_true = np.concatenate([e["err_true"] for e in evals]) if evals else np.zeros(0)
     err = err[np.isfinite(err)]
@@ -762,6 +791,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
                              "baseline_precision", "baseline_recall"], r_)) for r_ in turb],
         sonar_noise=[dict(zip(["noise_floor", "n_visible", "precision_cut", "recall_cut", "precision_all",
                                "recall_all", "baseline_precision", "baseline_recall"], r_)) for r_ in noi],
+        soft_beam=soft_beam,
     )
     fmt = lambda v: f"{v:.2f}" if isinstance(v, (float, np.floating)) and np.isfinite(v) else str(v)  # noqa: E731
     tables = [
@@ -808,6 +838,11 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
           ["matcher, 3D error < 10 cm", fmt(loose["within_10cm"])]]),
         ("Reconstruction error (median, m)", ["automatic matches", "same number of true matches"],
          [[fmt(med_auto), fmt(med_true)]]),
+        (f"Sonar elevation beam ({len(random_pairs)} random scenes): the thesis model's hard-edged aperture against "
+         "the realistic model's soft beam, with the seabed plane fitted to the sonar image or given by the navigation",
+         ["sonar", "seabed plane", "pairs declined", "visible", "matches", "prec@rec 0.5", "prec all", "rec all"],
+         [[d["sonar"], d["seabed"], d["declined"], d["n_visible"], d["n_matches"], fmt(d["precision_at_recall_0_5"]),
+           fmt(d["precision_all"]), fmt(d["recall_all"])] for d in soft_beam]),
     ]
     summary = (f"{len(all_scenes)} scenes, {n_vis} sonar features visible in both sensors (some pixel of the "
                f"feature's arc sees its point): arc search, all assigned matches have "
@@ -825,8 +860,53 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
                f"{textured['single_precision_all']:.2f} vs {textured['two_view_precision_all']:.2f} at "
                f"{textured['single_max_recall']:.2f} vs {textured['two_view_max_recall']:.2f} (AUC "
                f"{textured['single_auc']:.2f} vs {textured['two_view_auc']:.2f}); precision >= 0.95 at recall >= 0.5 "
-               f"reached by neither.")
+               f"reached by neither." + _soft_beam_sentence(soft_beam))
     return ExperimentResult(NAME, figures, numbers, summary, tables)
+
+
+def _soft_beam_rows(random_pairs):
+    """Section 4 of :func:`run`: the random scenes' pairs with the thesis and the realistic sonar, the seabed
+    fitted or from the navigation (the true plane, from the sonar's pose). Rows for the report, and the
+    first realistic pair's navigation matches for its figure."""
+    from .. import simulate_sonar
+    from ..matching import MatchOptions, SeabedPlane
+
+    real = realistic_sonar()
+    variants = (("thesis", "fitted"), ("thesis", "navigation"), ("realistic", "fitted (declined)"),
+                ("realistic", "fitted (allow_soft_beam)"), ("realistic", "navigation"))
+    evs = {v: [] for v in variants}
+    example = None
+    for sc, pose, o, rig, e_fit, e_nav, sd in random_pairs:
+        s_real = simulate_sonar(sc, rig.sonar, pose, seed=sd, **real)
+        evs[variants[0]].append(e_fit)
+        evs[variants[1]].append(e_nav)
+        evs[variants[2]].append(evaluate_pair(s_real, o, rig))
+        evs[variants[3]].append(evaluate_pair(s_real, o, rig, options=MatchOptions(allow_soft_beam=True)))
+        e_real = evaluate_pair(s_real, o, rig, seabed=SeabedPlane.from_pose(pose))
+        evs[variants[4]].append(e_real)
+        if example is None and e_real["matches"]:
+            example = (sc.name, s_real, o, e_real["matches"], e_real["correct"])
+    rows = []
+    for (sonar, seabed), ev in evs.items():
+        rc, pc = _fine_curve(ev)
+        n_vis = sum(e["n_visible"] for e in ev)
+        ok = np.concatenate([e["ok"] for e in ev]) if ev else np.zeros(0, bool)
+        declined = sum(1 for e in ev if not e["matches"] and "soft elevation beam" in e["matches"].message)
+        rows.append(dict(sonar=sonar, seabed=seabed, declined=declined, n_visible=int(n_vis), n_matches=int(ok.size),
+                         precision_at_recall_0_5=_best_at(rc, pc, 0.5) if rc.size else float("nan"),
+                         precision_all=float(ok.mean()) if ok.size else float("nan"),
+                         recall_all=float(ok.sum() / n_vis) if n_vis else float("nan")))
+    return rows, example
+
+
+def _soft_beam_sentence(rows) -> str:
+    d = {(r["sonar"], r["seabed"]): r for r in rows}
+    nav, fit = d.get(("realistic", "navigation")), d.get(("realistic", "fitted (allow_soft_beam)"))
+    if not nav or not fit:
+        return ""
+    return (f" Realistic sonar (soft elevation beam): declined by default; with the seabed from the navigation "
+            f"precision {nav['precision_all']:.2f} at recall {nav['recall_all']:.2f} of all matches, with the fitted "
+            f"plane {fit['precision_all']:.2f} at {fit['recall_all']:.2f}.")
 
 
 def _training_scene(sd, generator: str = "random"):

@@ -29,7 +29,7 @@ from scipy import ndimage as ndi
 from ..frames import sonar_from_spherical
 from ..geometry.projection import cos_sin_roots
 
-__all__ = ["SeabedPlane", "fit_seabed", "far_edges", "seabed_elevation", "seabed_points", "elevation_maps", "elevation_bounds", "occluded", "seabed_view"]
+__all__ = ["SeabedPlane", "fit_seabed", "far_edges", "moved_plane", "seabed_elevation", "seabed_points", "elevation_maps", "elevation_bounds", "occluded", "seabed_view"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,6 +61,31 @@ class SeabedPlane:
     def height(self, points_sonar) -> np.ndarray:
         """Signed height (m) of sonar-frame points ``(..., 3)`` above the plane."""
         return np.asarray(points_sonar, float) @ self.normal - self.offset
+
+    @classmethod
+    def from_pose(cls, sonar_pose, seabed_z: float = 0.0) -> "SeabedPlane":
+        """The horizontal seabed ``z_world = seabed_z`` in the sonar frame, from the sonar's pose in the world.
+
+        What a vehicle's navigation gives: attitude (roll, pitch, heading; only roll and pitch matter)
+        and altitude above the seabed (``sonar_pose.t[2] - seabed_z``, the altimeter's or DVL's
+        range corrected for the sonar's mounting). With ``P_world = R P_sonar + t``, the plane
+        ``e_z . P_world = seabed_z`` is ``(R^T e_z) . P_sonar = seabed_z - t_z``.
+
+        Parameters
+        ----------
+        sonar_pose : Pose
+            The sonar's pose (``.R``, ``.t``: ``P_world = R P_sonar + t``, world z up).
+        seabed_z : float
+            The seabed's height in the world (m).
+        """
+        R = np.asarray(getattr(sonar_pose, "R", None), float)
+        t = np.asarray(getattr(sonar_pose, "t", None), float)
+        if R.shape != (3, 3) or t.shape != (3,) or not (np.all(np.isfinite(R)) and np.all(np.isfinite(t))):
+            raise ValueError(f"sonar_pose: expected a Pose (R (3, 3), t (3,), finite), got {type(sonar_pose).__name__}")
+        if not np.isfinite(seabed_z):
+            raise ValueError(f"seabed_z: expected a finite height (m), got {seabed_z!r}")
+        n = R.T @ np.array([0.0, 0.0, 1.0])
+        return cls(n / np.linalg.norm(n), float(seabed_z - t[2]), 0.0, 0, "")
 
 
 #: Where the seabed edge lies after the centre of the first bin above the onset threshold (bins).
@@ -255,6 +280,20 @@ def fit_seabed(image, ranges, azimuths, fov_elevation: float, *, min_beams: int 
         return SeabedPlane(**_NO_PLANE, n_beams=int(ok.sum()), message=f"seabed: onsets do not lie on a plane "
                            f"(median residual {rms:.2f} m)")
     return SeabedPlane(n / norm, float(c / norm), rms, int(ok.sum()))
+
+
+def moved_plane(rig, plane: SeabedPlane, R_o, t_o) -> SeabedPlane:
+    """The seabed plane of view 1 in the sonar frame of view 2, after the rig moved by ``(R_o, t_o)``.
+
+    ``P_camera2 = R_o P_camera1 + t_o`` and ``P_sonar = R P_camera + t`` (the rig) give
+    ``P_sonar2 = M P_sonar1 + u`` with ``M = R R_o R^T``, ``u = t + R t_o - M t``; the plane
+    ``n . P_sonar1 = d`` becomes ``(M n) . P_sonar2 = d + (M n) . u``.
+    """
+    R, t = np.asarray(rig.R, float), np.asarray(rig.t, float)
+    M = R @ np.asarray(R_o, float) @ R.T
+    u = t + R @ np.asarray(t_o, float) - M @ t
+    n2 = M @ plane.normal
+    return SeabedPlane(n2, float(plane.offset + n2 @ u), plane.rms, plane.n_beams, plane.message)
 
 
 def seabed_elevation(plane: SeabedPlane, ranges, azimuths) -> np.ndarray:

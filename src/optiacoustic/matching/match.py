@@ -37,7 +37,8 @@ from ..frames import spherical_from_sonar
 from ..geometry import epipolar as ep
 from ..geometry import reconstruct as rc
 from ..rig import Rig
-from .acoustic import SEABED_LIT, SEABED_SHADOWED, SeabedPlane, elevation_maps, fit_seabed, occluded, seabed_view
+from .acoustic import (SEABED_LIT, SEABED_SHADOWED, SeabedPlane, elevation_maps, fit_seabed, moved_plane, occluded,
+                       seabed_elevation, seabed_view)
 from .camera_features import CameraFeatures, KeypointOptions, detect_camera_features
 from .gating import mahalanobis_sq
 from .sonar_features import CfarOptions, SonarFeatures, cfar_map, detect_sonar_features
@@ -235,6 +236,12 @@ def _empty(message, sf=None, cf=None, seabed=None) -> Matches:
     return Matches(np.zeros((0, 2)), z, z, np.zeros((0, 3)), z, z, zi, zi, sf, cf, seabed, message)
 
 
+#: Soft-beam frames: echoes with no shadow behind them where the seabed lies more than this (rad) below
+#: the aperture's lower edge are the sidelobes' seabed returns, left out (0.5 and 2 deg gave the same
+#: matches on held-out scenes 6000-6011 and 9000-9005).
+SIDELOBE_MARGIN = float(np.deg2rad(0.5))
+
+
 def _check_sonar(sonar):
     for attr in ("image", "ranges", "azimuths", "spec"):
         if not hasattr(sonar, attr):
@@ -399,7 +406,7 @@ def correlation_score_features(feats: dict) -> np.ndarray:
 
 
 def two_view_candidates(out: Matches, sf, intervals, image_1, second, motion, rig, noise,
-                        opt) -> tuple[dict, dict, dict]:
+                        opt, *, seabed: SeabedPlane | None = None) -> tuple[dict, dict, dict]:
     """Both kinds of two-view candidates with their evidence (for :func:`_two_view` and the calibration).
 
     Returns
@@ -414,6 +421,9 @@ def two_view_candidates(out: Matches, sf, intervals, image_1, second, motion, ri
     correlation : dict
         The same for :func:`.optical_two_view.correlate_arcs` (``ncc``, ``margin``, ``texture``,
         ``px_per_m``).
+
+    ``seabed``: view 1's seabed plane when the caller gave it (not fitted); the second pair is then
+    matched with it moved by ``motion`` (:func:`.acoustic.moved_plane`).
     """
     from .optical_two_view import (correlate_arcs, epipolar_residuals, flow_field, forward_backward_error,
                                    photo_consistency, sweep_arcs)
@@ -428,7 +438,8 @@ def two_view_candidates(out: Matches, sf, intervals, image_1, second, motion, ri
     if image_2.shape != np.asarray(image_1).shape:
         raise ValueError(f"second camera_image: expected shape {np.asarray(image_1).shape} like the first, "
                          f"got {image_2.shape}")
-    m2 = match(second[0], image_2, rig, noise=noise, options=opt, min_score=0.0)
+    seabed_2 = None if seabed is None else moved_plane(rig, seabed, *motion_arrays(motion))
+    m2 = match(second[0], image_2, rig, noise=noise, options=opt, min_score=0.0, seabed=seabed_2)
     n = len(out)
     flow = flow_field(image_1, image_2)
     back = flow_field(image_2, image_1) if flow is not None else None
@@ -460,7 +471,7 @@ def two_view_candidates(out: Matches, sf, intervals, image_1, second, motion, ri
     return arc, sweep, corr
 
 
-def _two_view(out: Matches, sf, intervals, image_1, second, motion, rig, noise, opt) -> Matches:
+def _two_view(out: Matches, sf, intervals, image_1, second, motion, rig, noise, opt, seabed=None) -> Matches:
     """Matches from two views of the moved rig (known motion, thesis ch. 6).
 
     Every sonar feature has up to two candidate pixels: the arc search's (one view), re-scored
@@ -469,7 +480,7 @@ def _two_view(out: Matches, sf, intervals, image_1, second, motion, rig, noise, 
     and the sweep's (:func:`.optical_two_view.sweep_arcs`: the pixel of its arc that moves as
     the motion says, scored by :data:`SWEEP_SCORE_MODEL`). The more probable one is kept.
     """
-    arc, sweep, corr = two_view_candidates(out, sf, intervals, image_1, second, motion, rig, noise, opt)
+    arc, sweep, corr = two_view_candidates(out, sf, intervals, image_1, second, motion, rig, noise, opt, seabed=seabed)
     N = len(sf)
     p_arc = np.full(N, -1.0)
     if len(out):
@@ -544,7 +555,7 @@ def _two_view(out: Matches, sf, intervals, image_1, second, motion, rig, noise, 
 
 
 def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, options: MatchOptions | None = None,
-          min_score: float = 0.25, second=None, motion=None) -> Matches:
+          min_score: float = 0.25, second=None, motion=None, seabed: SeabedPlane | None = None) -> Matches:
     """Match sonar features to camera pixels of one synchronised pair.
 
     Parameters
@@ -575,6 +586,12 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
         ``features["single_view_score"]``; ``min_score`` applies to the two-view score.
     motion : MotionResult, Pose or (R_o, t_o), optional
         ``P_camera2 = R_o P_camera1 + t_o``; required with ``second``.
+    seabed : SeabedPlane, optional
+        The seabed in the sonar frame from outside the sonar image: the vehicle's navigation
+        (altitude and attitude, :meth:`.SeabedPlane.from_pose`). Used instead of the plane fitted
+        to the image, and then frames with a soft elevation beam are matched too (the fit is what
+        needs hard edges). With ``second`` it is moved by ``motion`` for the second pair. The
+        matcher needs it to about 0.05 deg and 1 cm (docs/matching.md, "Soft elevation beams").
 
     Returns
     -------
@@ -605,12 +622,18 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
                          f"got {cam_img.shape}")
     if not _camera_sees_fan(rig, r_bins, th_beams):
         return _empty("the camera sees nothing of the sonar's fan: no epipolar curve enters the image")
+    if seabed is not None and not (isinstance(seabed, SeabedPlane) and seabed
+                                   and abs(float(np.linalg.norm(seabed.normal)) - 1.0) < 1e-6
+                                   and np.isfinite(seabed.offset)):
+        raise ValueError(f"seabed: expected a SeabedPlane with a unit normal and a finite offset, got {seabed!r}")
     beam_model = getattr(sonar, "beam_model", "thesis")
-    if beam_model != "thesis" and opt.use_acoustic and not opt.allow_soft_beam:
+    if beam_model != "thesis" and opt.use_acoustic and not opt.allow_soft_beam and seabed is None:
         return _empty(f"soft elevation beam (sonar.beam_model={beam_model!r}): the seabed plane that bounds each "
                       f"echo's elevation is fitted where the seabed crosses a hard-edged aperture, and under a soft "
                       f"beam it is degrees off (5-19% of matches right on held-out scenes, median scores 0.43-0.94; "
-                      f"docs/matching.md, 'Soft elevation beams'); MatchOptions(allow_soft_beam=True) matches anyway")
+                      f"docs/matching.md, 'Soft elevation beams'); give the plane from the vehicle's navigation "
+                      f"(match(..., seabed=SeabedPlane.from_pose(...))), or MatchOptions(allow_soft_beam=True) to "
+                      f"match with the fitted plane anyway")
 
     # the CFAR maps of the detector's options, computed once here for every stage that reads them
     maps = cfar_map(np.asarray(img_s, np.float64), opt.cfar)
@@ -619,17 +642,33 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     if len(sf) == 0:
         return _empty("no sonar features: CFAR found no echo standing out of its background")
     if opt.method == "arc":
-        intervals = _elevation_intervals(sf, img_s, r_bins, th_beams, rig, opt)
+        intervals = _elevation_intervals(sf, img_s, r_bins, th_beams, rig, opt, seabed)
         if opt.use_acoustic and not intervals[3]:
             # Without the seabed every echo's elevation spans the whole aperture and the arc search's
             # choice is a guess: 1.5% of matches right on held-out scenes 6000-6011 and 9000-9005,
             # below the nearest-conic baseline (docs/matching.md, "Soft elevation beams").
             return _empty(f"no seabed plane, which the arc search needs to bound each echo's elevation: "
                           f"{intervals[3].message}", sf)
+        if beam_model != "thesis" and opt.use_acoustic:
+            # A soft beam's sidelobes return the seabed from below the aperture, before the main lobe
+            # reaches it: echoes with no shadow behind them at ranges where the seabed lies more than
+            # SIDELOBE_MARGIN below the aperture's lower edge. Their point is off the arc the matcher
+            # searches (the aperture), so no pixel of it is right: they are left out (on held-out soft-beam
+            # scenes 431 of 1356 matches, none right; docs/matching.md, "Soft elevation beams").
+            lo, hi, shadowed, plane = intervals
+            below = ~shadowed & (seabed_elevation(plane, sf.ranges, sf.azimuths)
+                                 < -rig.fov_elevation / 2 - SIDELOBE_MARGIN)
+            if below.all():
+                return _empty(f"no sonar features inside the elevation aperture: all {len(sf)} are seabed echoes "
+                              f"of the soft beam's sidelobes, below it", sf, None, plane)
+            if below.any():
+                sf = sf.subset(~below)
+                intervals = (lo[~below], hi[~below], shadowed[~below], plane)
         # the echo's start and end and the faces' beam creases read the default options' maps
         echo_maps = maps if opt.cfar == CfarOptions() else cfar_map(np.asarray(img_s, np.float64))
         out = _match_arcs(sf, cam_img, rig, noise, opt, intervals, sonar=(img_s, r_bins, th_beams, echo_maps))
-        return _finish(out, cam_img, second, motion, rig, noise, opt, min_score, sf=sf, intervals=intervals)
+        return _finish(out, cam_img, second, motion, rig, noise, opt, min_score, sf=sf, intervals=intervals,
+                       seabed=seabed)
     cf = detect_camera_features(cam_img, opt.keypoints)
     if len(cf) == 0:
         return _empty("no camera features: the image has no corners (blank or too turbid)", sf)
@@ -651,9 +690,9 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     ok = ref.valid & (np.abs(phi) <= half + 2 * opt.elevation_sigma)
     cost = np.where(ok, ref.cost, np.inf)
 
-    seabed = None
+    given, seabed = seabed, None
     if opt.use_acoustic:
-        seabed = fit_seabed(img_s, r_bins, th_beams, rig.fov_elevation)
+        seabed = given if given is not None else fit_seabed(img_s, r_bins, th_beams, rig.fov_elevation)
         if seabed:
             smooth, background = maps
             detected = smooth > opt.occupancy_factor * background
@@ -734,16 +773,17 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     out = Matches(cf.pixels[cols[ch]], sf.ranges[rows[ch]], sf.azimuths[rows[ch]], P[ch], score[order], cost[ch],
                   rows[ch], cols[ch], sf, cf, seabed,
                   f"{ch.size} matches of {len(sf)} sonar and {len(cf)} camera features", feats)
-    return _finish(out, cam_img, second, motion, rig, noise, opt, min_score, sf=sf)
+    return _finish(out, cam_img, second, motion, rig, noise, opt, min_score, sf=sf, seabed=given)
 
 
-def _finish(out, cam_img, second, motion, rig, noise, opt, min_score, *, sf=None, intervals=None) -> Matches:
+def _finish(out, cam_img, second, motion, rig, noise, opt, min_score, *, sf=None, intervals=None,
+            seabed=None) -> Matches:
     """Two-view check (when asked for) and the score threshold."""
     if second is not None and sf is not None and len(sf) and np.ptp(np.asarray(cam_img, float)) > 0:
         if intervals is None:
             half = rig.fov_elevation / 2
             intervals = (np.full(len(sf), -half), np.full(len(sf), half), np.zeros(len(sf), bool), out.seabed)
-        out = _two_view(out, sf, intervals, cam_img, second, motion, rig, noise, opt)
+        out = _two_view(out, sf, intervals, cam_img, second, motion, rig, noise, opt, seabed)
     if not out:
         return out
     n = len(out)
@@ -1008,15 +1048,18 @@ def _logistic(X, model):
     return 1.0 / (1.0 + np.exp(-z))
 
 
-def _elevation_intervals(sf, img_s, r_bins, th_beams, rig, opt):
-    """Each sonar feature's elevation interval from the seabed and shadows: (low, high, shadowed, seabed)."""
+def _elevation_intervals(sf, img_s, r_bins, th_beams, rig, opt, given=None):
+    """Each sonar feature's elevation interval from the seabed and shadows: (low, high, shadowed, seabed).
+
+    ``given``: the caller's seabed plane (navigation), used instead of fitting one to the image.
+    """
     half = rig.fov_elevation / 2
     lo = np.full(len(sf), -half)
     hi = np.full(len(sf), half)
     shadowed = np.zeros(len(sf), bool)
     seabed = None
     if opt.use_acoustic:
-        seabed = fit_seabed(img_s, r_bins, th_beams, rig.fov_elevation)
+        seabed = given if given is not None else fit_seabed(img_s, r_bins, th_beams, rig.fov_elevation)
         if seabed:
             cells = np.zeros(img_s.shape, bool)
             cells[sf.bins, sf.beams] = True
