@@ -53,3 +53,32 @@ def test_match_command_with_a_second_pair(tmp_path):
     (pairs[1] / "pair.json").write_text("{}")
     r = runner.invoke(app, ["match", str(pairs[0]), "--second", str(pairs[1]), "--out", str(out)])
     assert r.exit_code == 2 and "pair.json" in r.output
+
+
+def test_match_command_with_the_seabed_from_the_pair_pose(tmp_path):
+    """A pair marked as a soft-beam sonar's is declined with a message; --seabed-z takes the seabed from pair.json's
+    sonar pose and matches it; without a sonar pose, --seabed-z names the missing field."""
+    pair = tmp_path / "pair"
+    r = runner.invoke(app, ["render", "cuboids", "--rig", str(RIG), "--out", str(pair)])
+    assert r.exit_code == 0, r.output
+    out = tmp_path / "m"
+    r = runner.invoke(app, ["match", str(pair), "--out", str(out)])
+    fitted = json.loads((out / "matches.json").read_text())
+    meta = json.loads((pair / "pair.json").read_text())
+    assert meta["sonar"]["beam_model"] == "thesis"
+    meta["sonar"]["beam_model"] = "aperture"
+    (pair / "pair.json").write_text(json.dumps(meta))
+    r = runner.invoke(app, ["match", str(pair), "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    data = json.loads((out / "matches.json").read_text())
+    assert data["n_matches"] == 0 and "soft elevation beam" in data["message"] and "--seabed-z" not in r.output
+    r = runner.invoke(app, ["match", str(pair), "--out", str(out), "--seabed-z", "0"])
+    assert r.exit_code == 0, r.output
+    data = json.loads((out / "matches.json").read_text())
+    # (the images are the thesis model's: the true seabed does as well as the plane fitted to its hard edges)
+    n_fit, n_nav = sum(fitted["correct_by_depth_map"]), sum(data["correct_by_depth_map"])
+    assert data["n_matches"] > 0 and n_nav >= n_fit - max(2, 0.1 * fitted["n_matches"]), (n_nav, n_fit)
+    del meta["sonar_pose"]
+    (pair / "pair.json").write_text(json.dumps(meta))
+    r = runner.invoke(app, ["match", str(pair), "--out", str(out), "--seabed-z", "0"])
+    assert r.exit_code == 2 and "sonar_pose" in r.output

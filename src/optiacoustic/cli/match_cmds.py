@@ -19,11 +19,17 @@ def match_cmd(
     truth: bool = typer.Option(True, "--truth/--no-truth", help="Mark wrong matches when the pair has a depth map."),
     second: Path = typer.Option(None, "--second", metavar="PAIR2", help="A second pair folder of the same rig after "
                                 "it moved: two-view matching (the motion from the two folders' camera poses)."),
+    seabed_z: float = typer.Option(None, "--seabed-z", metavar="Z", help="The seabed is the world plane z = Z (m): "
+                                   "the matcher takes the seabed from pair.json's sonar_pose (navigation) instead of "
+                                   "fitting it to the sonar image. Needed for soft-beam sonars (beam_model "
+                                   "'aperture'), which are declined otherwise."),
 ):
     """Match sonar and camera features of a pair; writes matches.png (colour = score) and matches.json.
 
     With --second, the motion between the pairs is taken from the camera poses their pair.json
     files record (P_camera2 = R_o P_camera1 + t_o): known motion, as a navigation system gives it.
+    With --seabed-z, the seabed plane comes from the sonar pose pair.json records (the vehicle's
+    attitude and altitude) instead of the sonar image (docs/matching.md, "Soft elevation beams").
     """
     import numpy as np
 
@@ -40,6 +46,8 @@ def match_cmd(
     if second is not None:
         sonar2, image2, _, _ = read_pair(second, range_resolution=res, beamwidth_azimuth=bw)
         kw = dict(second=(sonar2, image2), motion=_motion(pair_dir, second))
+    if seabed_z is not None:
+        kw["seabed"] = _seabed(pair_dir, seabed_z)
     m = match(sonar, image, rig, min_score=min_score, **kw)
     correct = None
     if truth and depth is not None and m:
@@ -79,6 +87,24 @@ def _preset_resolution(pair_dir: Path):
         return float(spec.range_resolution), float(spec.beamwidth_azimuth)
     except Exception:  # noqa: BLE001 - no preset: read_pair falls back to the bin and beam spacing
         return None, None
+
+
+def _seabed(pair_dir: Path, seabed_z: float):
+    """The seabed plane ``z_world = seabed_z`` in the sonar frame, from pair.json's ``sonar_pose``."""
+    import json
+
+    import numpy as np
+
+    from ..frames import Pose
+    from ..matching import SeabedPlane
+
+    path = pair_dir / "pair.json"
+    try:
+        sp = json.loads(path.read_text())["sonar_pose"]
+        pose = Pose(np.asarray(sp["R"], float).reshape(3, 3), np.asarray(sp["t"], float).reshape(3))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"{path}: field 'sonar_pose' (R, t) needed for --seabed-z: {exc!r}") from None
+    return SeabedPlane.from_pose(pose, seabed_z=seabed_z)
 
 
 def _motion(pair_1: Path, pair_2: Path):
