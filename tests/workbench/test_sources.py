@@ -74,6 +74,12 @@ def test_real_pair_from_a_real_sonar_log_and_an_image_folder(tmp_path):
     assert pair.spec is frame.spec or pair.spec == frame.spec
     assert np.array_equal(pair.camera_rgb8, img)  # 8-bit sRGB shown as stored
     assert pair.rig.sonar == frame.spec and pair.kind == "real"
+    # a real sonar's beam is soft: the automatic matcher declines it with a message, not with wrong matches
+    from optiacoustic.workbench.compute import suggest
+
+    assert pair.beam_model == "aperture" and pair.sonar_frame().beam_model == "aperture"
+    rows, message = suggest(pair, pair.rig)
+    assert rows == [] and "soft elevation beam" in message
     session, client = _client(pair)
     with client:
         st = client.get("/api/state").json()

@@ -62,6 +62,10 @@ class Pair:
         The camera image as linear radiance when the source has it (for the automatic matcher).
     frame, n_frames : int
         Which frame of the source this is, of how many (logs and datasets have several).
+    beam_model : str
+        The sonar's elevation beam (``SonarFrame.beam_model``): ``"aperture"`` (soft) for a real
+        sonar, ``"thesis"`` for the simulator's default and the datasets it renders. The automatic
+        matcher declines soft-beam frames (docs/matching.md, "Soft elevation beams").
     """
 
     name: str
@@ -75,13 +79,14 @@ class Pair:
     camera_linear: np.ndarray | None = None
     frame: int = 0
     n_frames: int = 1
+    beam_model: str = "thesis"
 
     def sonar_frame(self):
         """The sonar measurements through the shared frame protocol (``image``, ``ranges``, ``azimuths``, ``spec``)."""
         from types import SimpleNamespace
 
         return SimpleNamespace(image=self.sonar_image, ranges=self.spec.ranges, azimuths=self.spec.azimuths,
-                               spec=self.spec, time=float("nan"))
+                               spec=self.spec, time=float("nan"), beam_model=self.beam_model)
 
     def __post_init__(self):
         img = np.asarray(self.sonar_image, np.float32)
@@ -238,7 +243,8 @@ def real_pair(sonar_log, camera_log, rig_file, *, index: int = 0, sonar_topic: s
             f"{int(ci[index])}, {how}")
     img = np.asarray(c.image, np.float32)
     return Pair(f"{Path(sonar_log).stem} + {Path(camera_log).stem}", "real", np.asarray(s.image, np.float32), s.spec,
-                _camera_srgb8(img), rig, desc, {}, img, index, len(si))
+                _camera_srgb8(img), rig, desc, {}, img, index, len(si),
+                beam_model=getattr(s, "beam_model", "aperture"))
 
 
 def dataset_pair(path, *, index: int = 0) -> Pair:
