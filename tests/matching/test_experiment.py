@@ -10,7 +10,7 @@ from optiacoustic import experiments
 def test_matching_experiment(tmp_path):
     res = experiments.run("matching", tmp_path, quick=True)
     data = json.loads((tmp_path / "results.json").read_text())
-    assert data["name"] == "matching" and len(res.figures) == 8
+    assert data["name"] == "matching" and len(res.figures) == 9
     for path, caption in res.figures:
         assert path.is_file() and path.stat().st_size > 10_000 and caption
     n = res.numbers
@@ -46,6 +46,11 @@ def test_matching_experiment(tmp_path):
     assert nav["precision_all"] > 2 * fit["precision_all"]
     # quick mode has no built-in scenes: the thesis row with the fitted plane is the headline's pairs
     assert sb[("thesis", "fitted")]["precision_all"] == n["precision_all_assigned"]
+    # Seabed relief: fractions, and 5 cm of relief costs precision (the matcher's seabed is one plane).
+    rl = n["seabed_relief"]
+    assert [d["rms_m"] for d in rl] == [0.0, 0.01, 0.05]
+    assert all(0 <= d["precision_all"] <= 1 and d["n_visible"] > 0 for d in rl)
+    assert rl[2]["precision_all"] < rl[0]["precision_all"]
 
 
 def test_varied_scene_is_seeded_and_stands_on_the_seabed():
@@ -70,3 +75,23 @@ def test_varied_scene_is_seeded_and_stands_on_the_seabed():
             V = np.asarray(mesh.vertices) @ body.pose.R.T + body.pose.t
             assert abs(V[:, 2].min()) < 1e-3, (seed, body.name, V[:, 2].min())
     assert kinds == {"box", "cylinder", "sphere", "bar", "wall", "lying"}
+
+
+def test_relief_scene_has_the_asked_relief(tmp_path):
+    """The heightfield's RMS height is the one asked for, its mean is the flat seabed's, and the bodies are
+    random_scene's; a negative or NaN relief is refused."""
+    import pytest
+    import trimesh
+
+    from optiacoustic.experiments.matching import random_scene, relief_scene
+
+    sc = relief_scene(6001, 0.02, tmp_path)
+    bed = trimesh.load(sc.bodies[0].shape.path, process=False)
+    z = np.asarray(bed.vertices)[:, 2]
+    assert abs(z.std() - 0.02) < 1e-9 and abs(z.mean()) < 0.005
+    plain = random_scene(6001)
+    assert [b.name for b in sc.bodies] == [b.name for b in plain.bodies]
+    assert all(a.pose == b.pose for a, b in zip(sc.bodies[1:], plain.bodies[1:]))
+    for bad in (-0.01, float("nan")):
+        with pytest.raises(ValueError, match="rms_m"):
+            relief_scene(6001, bad, tmp_path)

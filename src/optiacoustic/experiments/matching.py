@@ -92,6 +92,43 @@ def random_scene(seed: int, textured: bool = False):
     return Scene(bodies, name=name, view=View(eye=(0.0, -6.0, 2.0), target=(0.0, 0.0, 0.0)))
 
 
+#: Seabed relief of the matching experiment's relief sweep: RMS heights (m) of :func:`relief_scene`'s seabed.
+RELIEF_RMS_M = (0.0, 0.005, 0.01, 0.02, 0.05)
+
+
+def relief_scene(seed: int, rms_m: float, folder) -> "Scene":
+    """:func:`random_scene` on a seabed with relief: eight seeded plane waves (wavelengths 1-4 m, random
+    directions and phases) summed and scaled to ``rms_m`` RMS height, as a triangle mesh at 8 cm spacing
+    over 32 m x 32 m (a PLY written to ``folder``). The bodies stay where they were (their bases sink into
+    the crests by up to the relief's height, as on a real seabed). ``rms_m = 0``: the flat seabed as a mesh.
+    """
+    import dataclasses
+
+    import trimesh
+
+    from ..frames import Pose
+    from ..scene import Mesh, Scene
+
+    if not (np.isfinite(rms_m) and rms_m >= 0):
+        raise ValueError(f"rms_m: expected a height >= 0 (m), got {rms_m!r}")
+    rng = np.random.default_rng(seed + 7 * 10 ** 6)
+    n = 401
+    x = np.linspace(-16.0, 16.0, n)
+    X, Y = np.meshgrid(x, x + 6.0, indexing="ij")
+    Z = np.zeros_like(X)
+    for _ in range(8):
+        lam, ang, ph = rng.uniform(1.0, 4.0), rng.uniform(0.0, np.pi), rng.uniform(0.0, 2 * np.pi)
+        Z += np.sin(2 * np.pi / lam * (X * np.cos(ang) + Y * np.sin(ang)) + ph)
+    Z *= rms_m / Z.std()
+    i = (np.arange(n - 1)[:, None] * n + np.arange(n - 1)[None, :]).ravel()
+    faces = np.concatenate([np.stack([i, i + n, i + 1], 1), np.stack([i + 1, i + n, i + n + 1], 1)])
+    path = Path(folder) / f"relief_{seed}_{rms_m * 1000:.0f}mm.ply"
+    trimesh.Trimesh(np.stack([X.ravel(), Y.ravel(), Z.ravel()], 1), faces, process=False).export(path)
+    sc = random_scene(seed)
+    bed = dataclasses.replace(sc.bodies[0], shape=Mesh(file=str(path), smooth_angle_deg=60.0), pose=Pose.identity())
+    return Scene([bed] + list(sc.bodies[1:]), name=f"{sc.name}_relief_{rms_m * 100:g}cm", view=sc.view)
+
+
 def varied_scene(seed: int):
     """A random scene drawn more widely than :func:`random_scene` (seeded): the mix the matcher meets.
 
@@ -566,7 +603,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
             sub_pairs.append((s, o, rig))
         if k >= len(builtins):  # for section 4; the random scenes' seabed is the world plane z = 0
             e_nav = evaluate_pair(s, o, rig, seabed=SeabedPlane.from_pose(s.pose))
-            random_pairs.append((sc, s.pose, o, rig, e, e_nav, seed + k))
+            random_pairs.append((sc, s.pose, o, rig, e, e_nav, seed + k, seed * 1000 + k - len(builtins)))
         m = e["matches"]
         per_scene.append([sc.name, e["n_visible"], len(e["ok"]), int(np.sum(e["ok"])), len(e["base_ok"]),
                           int(np.sum(e["base_ok"]))])
@@ -765,6 +802,45 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
         figures.append((f_sb, f"Matches on {name_s} with the realistic sonar model (soft elevation beam, speckle) and "
                               "the seabed plane from the navigation (colour = score, x = wrong by the depth map)."))
 
+    # 5. Seabed relief: the matcher's seabed is one plane; real seabeds have relief. The first random
+    #    scenes again, their seabed a heightfield of RELIEF_RMS_M (relief_scene).
+    import tempfile
+
+    reliefs = RELIEF_RMS_M[::2] if quick else RELIEF_RMS_M
+    relief_rows, relief_curves = [], []
+    with tempfile.TemporaryDirectory(prefix="oas-relief-") as tmp:
+        for rms in reliefs:
+            ev = []
+            for *_, sd, scene_seed in random_pairs[:n_sub]:
+                ev.append(evaluate_pair(*simulate_pair(relief_scene(scene_seed, rms, tmp), "thesis", "default", sd)))
+            rc_, pc_ = _fine_curve(ev)
+            bp, br, _ = _baseline(ev)
+            ok_ = np.concatenate([e["ok"] for e in ev])
+            nv = sum(e["n_visible"] for e in ev)
+            relief_rows.append(dict(rms_m=rms, n_visible=int(nv), n_matches=int(ok_.size),
+                                    precision_at_recall_0_5=_best_at(rc_, pc_, 0.5) if rc_.size else float("nan"),
+                                    precision_at_recall_0_25=_best_at(rc_, pc_, 0.25) if rc_.size else float("nan"),
+                                    precision_all=float(ok_.mean()) if ok_.size else float("nan"),
+                                    recall_all=float(ok_.sum() / nv) if nv else float("nan"),
+                                    baseline_precision=bp))
+            relief_curves.append((rms, rc_, pc_))
+    fig, ax = plt.subplots(figsize=(5.5, 4.5))
+    for (rms, rc_, pc_), col in zip(relief_curves, plt.cm.viridis(np.linspace(0, 0.9, len(relief_curves)))):
+        ax.plot(rc_, pc_, color=col, label=f"seabed relief {rms * 100:g} cm RMS")
+    ax.axhline(0.95, color="0.6", ls=":", lw=1)
+    ax.axvline(0.5, color="0.6", ls=":", lw=1)
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1.02)
+    ax.set_xlabel("recall (of sonar features visible in both sensors)")
+    ax.set_ylabel("precision")
+    ax.set_title(f"{min(n_sub, len(random_pairs))} random scenes on a seabed with relief (waves 1-4 m)", fontsize=9)
+    ax.legend(fontsize=8, loc="lower left")
+    fig.tight_layout()
+    f_rl = savefig(fig, out_dir / "matching_relief.png", dpi=110)
+    plt.close(fig)
+    figures.append((f_rl, "Precision-recall when the seabed is not flat: the matcher's seabed is one plane, and "
+                          "centimetres of relief take its precision down (docs/matching.md, 'Seabed relief')."))
+
     err = np.concatenate([e["err"] for e in evals]) if evals else np.zeros(0)
     err_true = np.concatenate([e["err_true"] for e in evals]) if evals else np.zeros(0)
     err = err[np.isfinite(err)]
@@ -792,6 +868,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
         sonar_noise=[dict(zip(["noise_floor", "n_visible", "precision_cut", "recall_cut", "precision_all",
                                "recall_all", "baseline_precision", "baseline_recall"], r_)) for r_ in noi],
         soft_beam=soft_beam,
+        seabed_relief=relief_rows,
     )
     fmt = lambda v: f"{v:.2f}" if isinstance(v, (float, np.floating)) and np.isfinite(v) else str(v)  # noqa: E731
     tables = [
@@ -843,6 +920,12 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
          ["sonar", "seabed plane", "pairs declined", "visible", "matches", "prec@rec 0.5", "prec all", "rec all"],
          [[d["sonar"], d["seabed"], d["declined"], d["n_visible"], d["n_matches"], fmt(d["precision_at_recall_0_5"]),
            fmt(d["precision_all"]), fmt(d["recall_all"])] for d in soft_beam]),
+        (f"Seabed relief ({min(n_sub, len(random_pairs))} random scenes, their seabed a heightfield of plane waves "
+         "1-4 m long; thesis water and sonar)",
+         ["relief RMS (cm)", "visible", "matches", "prec@rec 0.25", "prec@rec 0.5", "prec all", "rec all", "base prec"],
+         [[f"{d['rms_m'] * 100:g}", d["n_visible"], d["n_matches"], fmt(d["precision_at_recall_0_25"]),
+           fmt(d["precision_at_recall_0_5"]), fmt(d["precision_all"]), fmt(d["recall_all"]),
+           fmt(d["baseline_precision"])] for d in relief_rows]),
     ]
     summary = (f"{len(all_scenes)} scenes, {n_vis} sonar features visible in both sensors (some pixel of the "
                f"feature's arc sees its point): arc search, all assigned matches have "
@@ -860,7 +943,7 @@ def run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
                f"{textured['single_precision_all']:.2f} vs {textured['two_view_precision_all']:.2f} at "
                f"{textured['single_max_recall']:.2f} vs {textured['two_view_max_recall']:.2f} (AUC "
                f"{textured['single_auc']:.2f} vs {textured['two_view_auc']:.2f}); precision >= 0.95 at recall >= 0.5 "
-               f"reached by neither." + _soft_beam_sentence(soft_beam))
+               f"reached by neither." + _soft_beam_sentence(soft_beam) + _relief_sentence(relief_rows))
     return ExperimentResult(NAME, figures, numbers, summary, tables)
 
 
@@ -876,7 +959,7 @@ def _soft_beam_rows(random_pairs):
                 ("realistic", "fitted (allow_soft_beam)"), ("realistic", "navigation"))
     evs = {v: [] for v in variants}
     example = None
-    for sc, pose, o, rig, e_fit, e_nav, sd in random_pairs:
+    for sc, pose, o, rig, e_fit, e_nav, sd, _ in random_pairs:
         s_real = simulate_sonar(sc, rig.sonar, pose, seed=sd, **real)
         evs[variants[0]].append(e_fit)
         evs[variants[1]].append(e_nav)
@@ -897,6 +980,13 @@ def _soft_beam_rows(random_pairs):
                          precision_all=float(ok.mean()) if ok.size else float("nan"),
                          recall_all=float(ok.sum() / n_vis) if n_vis else float("nan")))
     return rows, example
+
+
+def _relief_sentence(rows) -> str:
+    if len(rows) < 2:
+        return ""
+    parts = ", ".join(f"{d['rms_m'] * 100:g} cm {d['precision_all']:.2f}" for d in rows)
+    return f" Seabed relief (RMS), all matches' precision: {parts}."
 
 
 def _soft_beam_sentence(rows) -> str:
