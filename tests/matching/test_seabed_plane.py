@@ -99,3 +99,40 @@ def test_far_edges_of_a_beam_with_no_seabed_end():
     assert not found[11:16].any()          # nothing
     assert found[20:25].all()
     np.testing.assert_allclose(e[20:25], edge, atol=0.1 * 0.025)
+
+
+def test_flat_seabed_residual_is_the_onsets_bin_quantisation(frames):
+    """Physics of the fit's residual on a flat seabed: the onsets sit uniformly within their range bin, so the
+    median absolute height residual is a quarter of a bin times |n . d| (``flat_rms``): ratio about 1."""
+    for s in frames:
+        plane = fit_seabed(s.image, s.ranges, s.azimuths, s.spec.fov_elevation)
+        assert 0.8 < plane.relief_ratio < 1.35, (s.pose, plane.rms, plane.flat_rms)
+
+
+def test_relief_raises_the_residual_and_the_matcher_warns(tmp_path, frames):
+    """2 cm RMS of seabed relief: the residual is well above a flat seabed's, and match() says so (a
+    SeabedReliefWarning and a note in the message); on a flat seabed it does not."""
+    import warnings
+
+    from optiacoustic.experiments.matching import relief_scene
+    from optiacoustic.matching import SeabedReliefWarning, match
+
+    ratios = []
+    for sd in (6101, 6102, 6103):
+        s, o, rig = simulate_pair(relief_scene(sd, 0.02, tmp_path), "thesis", "default", sd)
+        ratios.append(fit_seabed(s.image, s.ranges, s.azimuths, s.spec.fov_elevation).relief_ratio)
+    assert min(ratios) > 1.5, ratios
+    with pytest.warns(SeabedReliefWarning, match="depart from one plane"):
+        m = match(s, o.image, rig)
+    assert m and "depart from one plane" in m.message
+    # given the plane (navigation), nothing is fitted and nothing is said
+    from optiacoustic.matching import SeabedPlane
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SeabedReliefWarning)
+        match(s, o.image, rig, seabed=SeabedPlane.from_pose(s.pose))
+    flat, o_f, rig_f = simulate_pair(random_scene(6101), "thesis", "default", 6101)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SeabedReliefWarning)
+        m_f = match(flat, o_f.image, rig_f)
+    assert "depart from one plane" not in m_f.message

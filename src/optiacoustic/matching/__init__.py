@@ -14,7 +14,7 @@ motion: optical flow against the motion, the arc sweep, acoustic consistency), :
 
 from .acoustic import SeabedPlane, elevation_bounds, fit_seabed
 from .camera_features import CameraFeatures, KeypointOptions, detect_camera_features
-from .match import Matches, MatchNoise, MatchOptions, match
+from .match import Matches, MatchNoise, MatchOptions, SeabedReliefWarning, match
 from .sonar_features import CfarOptions, SonarFeatures, detect_sonar_features
 
 __all__ = [
@@ -23,6 +23,7 @@ __all__ = [
     "KeypointOptions",
     "MatchNoise",
     "MatchOptions",
+    "SeabedReliefWarning",
     "Matches",
     "SeabedPlane",
     "SonarFeatures",

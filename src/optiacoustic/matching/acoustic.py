@@ -47,6 +47,10 @@ class SeabedPlane:
         Beams whose onset supported the fit.
     message : str
         Why no plane was found (the object is then falsy).
+    flat_rms : float
+        (m) What ``rms`` is for a flat seabed: the onsets' placement within their range bin (about
+        uniform, so the median absolute height residual is a quarter of a bin times ``|n . d|`` along the
+        near edge's rays). NaN for a plane not fitted to a sonar image.
     """
 
     normal: np.ndarray
@@ -54,9 +58,16 @@ class SeabedPlane:
     rms: float
     n_beams: int
     message: str = ""
+    flat_rms: float = float("nan")
 
     def __bool__(self) -> bool:
         return bool(np.all(np.isfinite(self.normal)))
+
+    @property
+    def relief_ratio(self) -> float:
+        """``rms / flat_rms``: about 1 on a flat seabed (0.9-1.2 on 52 seeded flat scenes), more where the
+        seabed has relief (1.6-3.7 at 1 cm RMS) or objects break the near edge; NaN when unknown."""
+        return float(self.rms / self.flat_rms) if self.flat_rms > 0 else float("nan")
 
     def height(self, points_sonar) -> np.ndarray:
         """Signed height (m) of sonar-frame points ``(..., 3)`` above the plane."""
@@ -279,7 +290,9 @@ def fit_seabed(image, ranges, azimuths, fov_elevation: float, *, min_beams: int 
     if not np.isfinite(rms) or rms > 0.15:
         return SeabedPlane(**_NO_PLANE, n_beams=int(ok.sum()), message=f"seabed: onsets do not lie on a plane "
                            f"(median residual {rms:.2f} m)")
-    return SeabedPlane(n / norm, float(c / norm), rms, int(ok.sum()))
+    dr = float(np.median(np.diff(r))) if r.size > 1 else float("nan")
+    flat_rms = dr / 4.0 * float(np.median(np.abs(sonar_from_spherical(1.0, to, -half) @ (n / norm))))
+    return SeabedPlane(n / norm, float(c / norm), rms, int(ok.sum()), flat_rms=flat_rms)
 
 
 def moved_plane(rig, plane: SeabedPlane, R_o, t_o) -> SeabedPlane:

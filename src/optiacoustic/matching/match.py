@@ -236,6 +236,18 @@ def _empty(message, sf=None, cf=None, seabed=None) -> Matches:
     return Matches(np.zeros((0, 2)), z, z, np.zeros((0, 3)), z, z, zi, zi, sf, cf, seabed, message)
 
 
+class SeabedReliefWarning(UserWarning):
+    """The sonar's seabed onsets depart from one plane by more than a flat seabed's: relief (or objects at
+    the near edge). The matcher's seabed is one plane and its scores were calibrated on flat seabeds, so
+    they run high (docs/matching.md, "Seabed relief")."""
+
+
+#: The fitted seabed plane's residual, as a multiple of a flat seabed's (``SeabedPlane.relief_ratio``), above
+#: which :func:`match` warns (:class:`SeabedReliefWarning`): 52 seeded flat scenes gave 0.9-1.2; 1 cm RMS of
+#: relief 1.6-3.7, where precision at recall 0.5 fell from 0.93 to 0.86 (2 cm: 1.9-6.8 and 0.62).
+RELIEF_RATIO_WARN = 1.5
+
+
 #: Soft-beam frames: echoes with no shadow behind them where the seabed lies more than this (rad) below
 #: the aperture's lower edge are the sidelobes' seabed returns, left out (0.5 and 2 deg gave the same
 #: matches on held-out scenes 6000-6011 and 9000-9005).
@@ -643,6 +655,15 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
         return _empty("no sonar features: CFAR found no echo standing out of its background")
     if opt.method == "arc":
         intervals = _elevation_intervals(sf, img_s, r_bins, th_beams, rig, opt, seabed)
+        plane = intervals[3]
+        if seabed is None and plane and plane.relief_ratio > RELIEF_RATIO_WARN:
+            relief_note = (f"the seabed's echo onsets depart from one plane by {plane.rms * 1000:.1f} mm, "
+                           f"{plane.relief_ratio:.1f} times a flat seabed's (relief, or objects at the near edge): the "
+                           f"matcher's seabed is one plane and its scores, calibrated on flat seabeds, run high "
+                           f"(docs/matching.md, 'Seabed relief')")
+            warnings.warn(SeabedReliefWarning(relief_note), stacklevel=2)
+        else:
+            relief_note = ""
         if opt.use_acoustic and not intervals[3]:
             # Without the seabed every echo's elevation spans the whole aperture and the arc search's
             # choice is a guess: 1.5% of matches right on held-out scenes 6000-6011 and 9000-9005,
@@ -667,6 +688,8 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
         # the echo's start and end and the faces' beam creases read the default options' maps
         echo_maps = maps if opt.cfar == CfarOptions() else cfar_map(np.asarray(img_s, np.float64))
         out = _match_arcs(sf, cam_img, rig, noise, opt, intervals, sonar=(img_s, r_bins, th_beams, echo_maps))
+        if relief_note and out:
+            out = dataclasses.replace(out, message=f"{out.message}; {relief_note}")
         return _finish(out, cam_img, second, motion, rig, noise, opt, min_score, sf=sf, intervals=intervals,
                        seabed=seabed)
     cf = detect_camera_features(cam_img, opt.keypoints)
