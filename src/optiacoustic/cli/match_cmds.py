@@ -48,7 +48,13 @@ def match_cmd(
         kw = dict(second=(sonar2, image2), motion=_motion(pair_dir, second))
     if seabed_z is not None:
         kw["seabed"] = _seabed(pair_dir, seabed_z)
-    m = match(sonar, image, rig, min_score=min_score, **kw)
+    import warnings
+
+    from ..matching import SeabedReliefWarning
+
+    with warnings.catch_warnings():  # its note is in the message printed below
+        warnings.simplefilter("ignore", SeabedReliefWarning)
+        m = match(sonar, image, rig, min_score=min_score, **kw)
     correct = None
     if truth and depth is not None and m:
         from ..matching.truth import correct as is_correct

@@ -658,9 +658,9 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
         plane = intervals[3]
         if seabed is None and plane and plane.relief_ratio > RELIEF_RATIO_WARN:
             relief_note = (f"the seabed's echo onsets depart from one plane by {plane.rms * 1000:.1f} mm, "
-                           f"{plane.relief_ratio:.1f} times a flat seabed's (relief, or objects at the near edge): the "
-                           f"matcher's seabed is one plane and its scores, calibrated on flat seabeds, run high "
-                           f"(docs/matching.md, 'Seabed relief')")
+                           f"{plane.relief_ratio:.1f} times a flat seabed's (relief, objects at the near edge, or no seabed): "
+                           f"the matcher's seabed is one plane, and on seabeds with relief its precision falls and "
+                           f"its scores, calibrated on flat seabeds, run high (docs/matching.md, 'Seabed relief')")
             warnings.warn(SeabedReliefWarning(relief_note), stacklevel=2)
         else:
             relief_note = ""
