@@ -237,9 +237,10 @@ def _empty(message, sf=None, cf=None, seabed=None) -> Matches:
 
 
 class SeabedReliefWarning(UserWarning):
-    """The sonar's seabed onsets depart from one plane by more than a flat seabed's: relief (or objects at
-    the near edge). The matcher's seabed is one plane and its scores were calibrated on flat seabeds, so
-    they run high (docs/matching.md, "Seabed relief")."""
+    """The sonar's seabed onsets depart from one plane by more than a flat seabed's: relief, objects at the
+    near edge, or no seabed. The matcher's seabed is one plane and its scores were calibrated on flat
+    seabeds: on seabeds with relief its precision falls and its scores run high (docs/matching.md,
+    "Seabed relief")."""
 
 
 #: The fitted seabed plane's residual, as a multiple of a flat seabed's (``SeabedPlane.relief_ratio``), above
@@ -603,7 +604,8 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
         (altitude and attitude, :meth:`.SeabedPlane.from_pose`). Used instead of the plane fitted
         to the image, and then frames with a soft elevation beam are matched too (the fit is what
         needs hard edges). With ``second`` it is moved by ``motion`` for the second pair. The
-        matcher needs it to about 0.05 deg and 1 cm (docs/matching.md, "Soft elevation beams").
+        matcher needs it to millimetres and about 0.02 deg: 1 cm of height error halves its
+        precision (docs/matching.md, "Soft elevation beams").
 
     Returns
     -------
@@ -658,9 +660,10 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
         plane = intervals[3]
         if seabed is None and plane and plane.relief_ratio > RELIEF_RATIO_WARN:
             relief_note = (f"the seabed's echo onsets depart from one plane by {plane.rms * 1000:.1f} mm, "
-                           f"{plane.relief_ratio:.1f} times a flat seabed's (relief, objects at the near edge, or no seabed): "
-                           f"the matcher's seabed is one plane, and on seabeds with relief its precision falls and "
-                           f"its scores, calibrated on flat seabeds, run high (docs/matching.md, 'Seabed relief')")
+                           f"{plane.relief_ratio:.1f} times a flat seabed's (relief, objects at the near edge, or no "
+                           f"seabed): the matcher's seabed is one plane, and on seabeds with relief its precision "
+                           f"falls and its scores, calibrated on flat seabeds, run high (docs/matching.md, "
+                           f"'Seabed relief')")
             warnings.warn(SeabedReliefWarning(relief_note), stacklevel=2)
         else:
             relief_note = ""
