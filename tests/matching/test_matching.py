@@ -2,6 +2,8 @@
 
 from dataclasses import dataclass
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -304,7 +306,7 @@ def test_measured_frames_go_through_the_protocol(name):
 
     from optiacoustic import PinholeCamera
     from optiacoustic.io import open_sonar
-    from optiacoustic.matching import MatchOptions
+    from optiacoustic.matching import MatchOptions, SeabedReliefWarning
 
     frame = open_sonar(Path(__file__).resolve().parents[1] / "data" / name)[0]
     assert frame.beam_model == "aperture"
@@ -312,9 +314,15 @@ def test_measured_frames_go_through_the_protocol(name):
     blank = np.zeros((400, 600, 3), np.float32)
     m = match(frame, blank, rig)
     assert not m and "soft elevation beam" in m.message and "allow_soft_beam" in m.message
-    m = match(frame, blank, rig, options=MatchOptions(allow_soft_beam=True))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        m = match(frame, blank, rig, options=MatchOptions(allow_soft_beam=True))
     # the ARIS sample shows no seabed onset at all (no plane, so nothing to bound elevations with)
     assert not m and ("no camera features" in m.message or "no seabed plane" in m.message)
+    # the Oculus ping's onsets do not lie on a hard-edged aperture's plane: the matcher says so
+    # (56 times a flat hard-edged seabed's residual)
+    relief = [w for w in caught if issubclass(w.category, SeabedReliefWarning)]
+    assert bool(relief) == ("oculus" in name)
     sf = m.sonar_features
     assert sf is not None and len(sf) > 0
     assert np.all((sf.ranges >= frame.ranges[0]) & (sf.ranges <= frame.ranges[-1]))
