@@ -245,7 +245,7 @@ class SeabedReliefWarning(UserWarning):
 
 #: The fitted seabed plane's residual, as a multiple of a flat seabed's (``SeabedPlane.relief_ratio``), above
 #: which :func:`match` warns (:class:`SeabedReliefWarning`): 52 seeded flat scenes gave 0.9-1.2; 1 cm RMS of
-#: relief 1.6-3.7, where precision at recall 0.5 fell from 0.93 to 0.86 (2 cm: 1.9-6.8 and 0.62).
+#: relief 1.6-3.7, where precision at recall 0.5 fell from 0.93 to 0.82 (2 cm: 1.9-6.8 and 0.51).
 RELIEF_RATIO_WARN = 1.5
 
 
