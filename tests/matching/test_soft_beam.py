@@ -231,3 +231,18 @@ def test_two_views_with_the_seabed_from_navigation():
     m = match(soft1, o1.image, rig, second=(soft2, o2.image), motion=(R_o, t_o), seabed=nav1, min_score=0.0)
     # re-scored with view 2, whose own matches (needing the moved plane) reconstruct some of the same points
     assert m and "single_view_score" in m.features and m.features["two_view"].any()
+
+
+def test_device_frames_keep_the_beam_they_were_formed_with(scene_frames, tmp_path):
+    """A simulated frame emitted in a device's units keeps its beam model through save and load; a measured
+    frame's default is the soft beam; a wrong value is refused, naming the field."""
+    from optiacoustic.io.units import as_device_frame
+    from optiacoustic.sonar.frame import MeasuredSonarFrame
+
+    *_, thesis, soft = scene_frames
+    dev = as_device_frame(thesis, "aris_db")
+    assert isinstance(dev, MeasuredSonarFrame) and dev.beam_model == "thesis"
+    assert as_device_frame(soft, "aris_db").beam_model == "aperture"
+    assert load_frame(dev.save(tmp_path / "dev.npz")).beam_model == "thesis"
+    with pytest.raises(ValueError, match="beam_model"):
+        MeasuredSonarFrame(raw=dev.raw, image=dev.image, spec=dev.spec, beam_model="soft")

@@ -191,4 +191,5 @@ def as_device_frame(frame, encoding: str, **params):
     return MeasuredSonarFrame(raw=raw, image=decode(raw, encoding, **params), spec=frame.spec,
                               time=float(getattr(frame, "time", float("nan"))), encoding=encoding,
                               source=getattr(frame, "source", "simulated"), index=int(getattr(frame, "index", 0)),
-                              meta={"encoding_params": dict(params)})
+                              meta={"encoding_params": dict(params)},
+                              beam_model=getattr(frame, "beam_model", "aperture"))

@@ -116,6 +116,12 @@ class MeasuredSonarFrame:
         Frame index within the file or topic.
     meta : mapping
         Device settings as read (read-only; JSON-able values).
+    beam_model : {"aperture", "thesis"}
+        The elevation beam the image was formed with. ``"aperture"`` (the default): a real
+        transducer's beam has no hard edge, its two-way pattern fades in and out
+        (``spec.elevation_pattern()``), as in the simulator's ``beam_model="aperture"``. A simulated
+        frame emitted in a device's units (``io.units.as_device_frame``) keeps its own; a log read
+        back does not record it and reads as ``"aperture"``.
     """
 
     raw: np.ndarray
@@ -126,12 +132,11 @@ class MeasuredSonarFrame:
     source: str = ""
     index: int = 0
     meta: Mapping = field(default_factory=dict)
-
-    #: A real transducer's elevation beam has no hard edge: its two-way pattern fades in and out
-    #: (``spec.elevation_pattern()``), as in the simulator's ``beam_model="aperture"``.
-    beam_model = "aperture"
+    beam_model: str = "aperture"
 
     def __post_init__(self):
+        if self.beam_model not in ("thesis", "aperture"):
+            raise ValueError(f"MeasuredSonarFrame.beam_model: expected 'thesis' or 'aperture', got {self.beam_model!r}")
         shape = (self.spec.n_bins, self.spec.n_beams)
         for name in ("raw", "image"):
             a = getattr(self, name)
@@ -170,7 +175,7 @@ class MeasuredSonarFrame:
 
         header = dict(format=_FORMAT, version=_VERSION, kind="measured", spec=spec_to_dict(self.spec),
                       time=self.time, encoding=self.encoding, source=self.source, index=int(self.index),
-                      meta=dict(self.meta))
+                      meta=dict(self.meta), beam_model=self.beam_model)
         return save_npz(path, header=np.array(json.dumps(header, default=_json_default)), raw=self.raw,
                         image=self.image)
 
@@ -214,7 +219,7 @@ def load_frame(path) -> "SonarFrame | MeasuredSonarFrame":
     if header["kind"] == "measured":
         return MeasuredSonarFrame(raw=z["raw"], image=z["image"], spec=spec, time=float(header["time"]),
                                   encoding=header["encoding"], source=header["source"], index=header["index"],
-                                  meta=header["meta"])
+                                  meta=header["meta"], beam_model=str(header.get("beam_model", "aperture")))
     arrays = {k: z[k] for k in z.files}
     rays = SonarRays(**{f.name: arrays[f"ray_{f.name}"] for f in dataclasses.fields(SonarRays)
                         if f.name != "elevation_step"}, elevation_step=float(header["elevation_step"]))
