@@ -92,9 +92,6 @@ def _continuing_rays(F, scene, spec, pose, f) -> int:
 def run() -> list[dict]:
     from optiacoustic import Pose, SonarSpec, scenes, simulate_sonar
     from optiacoustic.raycast import caster_for
-    from optiacoustic.sonar import SonarOptions
-    from optiacoustic.sonar.gain import DeviceGain
-    from optiacoustic.sonar.noise import ScattererNoise
 
     scene = scenes.get("thesis_scene1")
     spec = SonarSpec.preset("blueview-p900-90")
@@ -119,8 +116,10 @@ def run() -> list[dict]:
         gt = f.ground_truth
         gt.body, gt.shadow
 
-    real_opts = SonarOptions(beam_model="aperture", propagation="spreading")
-    real_noise = ScattererNoise(density=500.0, gain=DeviceGain(noise_db=-60.0, volume_db=-50.0, spreading_db=30.0))
+    from optiacoustic.experiments.matching import realistic_sonar
+
+    real = realistic_sonar()  # the one definition of the realistic frame (the matching experiment uses it too)
+    real_opts, real_noise = real["options"], real["noise"]
     ro32, rd32, _ = _recorded_rays(caster, lambda: frame(noise=real_noise, options=real_opts))
     real_bare = lambda: caster.bare_intersect(ro32, rd32)  # noqa: E731
 

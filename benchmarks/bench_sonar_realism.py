@@ -25,15 +25,14 @@ DESCRIPTION = (
 
 def run() -> list[dict]:
     from optiacoustic import Pose, SonarSpec, scenes, simulate_sonar
-    from optiacoustic.sonar import SonarOptions
-    from optiacoustic.sonar.gain import DeviceGain
-    from optiacoustic.sonar.noise import ScattererNoise
 
     scene = scenes.get("thesis_scene1")
     spec = SonarSpec.preset("blueview-p900-90")
     pose = Pose.look_at(scene.view.eye, scene.view.target)
-    real_opts = SonarOptions(beam_model="aperture", propagation="spreading")
-    noise = ScattererNoise(density=500.0, gain=DeviceGain(noise_db=-60.0, volume_db=-50.0, spreading_db=30.0))
+    from optiacoustic.experiments.matching import realistic_sonar
+
+    real = realistic_sonar()  # the benchmark's realistic frame, one definition
+    real_opts, noise = real["options"], real["noise"]
     seeds = iter(range(10_000))
 
     # timed alternately (medians of each), so that load falls on both alike

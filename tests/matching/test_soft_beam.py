@@ -173,14 +173,11 @@ def test_a_soft_beam_frame_matches_with_the_seabed_from_navigation():
     """Realistic soft-beam frames (the benchmark's: aperture pattern, spreading, scatterer speckle) of seeded
     scenes: with the true seabed (what navigation gives) about half the matches are right, several times as
     many as with the plane fitted to the image (``allow_soft_beam``; 0.48 against 0.05 on held-out scenes)."""
+    from optiacoustic.experiments.matching import realistic_sonar
     from optiacoustic.matching import SeabedPlane
     from optiacoustic.simulation import simulate_rig
-    from optiacoustic.sonar.gain import DeviceGain
-    from optiacoustic.sonar.noise import ScattererNoise
 
-    realistic = dict(options=SonarOptions(beam_model="aperture", propagation="spreading"),
-                     noise=ScattererNoise(density=500.0, gain=DeviceGain(noise_db=-60.0, volume_db=-50.0,
-                                                                         spreading_db=30.0)))
+    realistic = realistic_sonar()
     right_nav, right_fit = [], []
     for sd in (331, 332, 333):
         sc = random_scene(sd)

@@ -95,38 +95,35 @@ def _preset_resolution(pair_dir: Path):
         return None, None
 
 
-def _seabed(pair_dir: Path, seabed_z: float):
-    """The seabed plane ``z_world = seabed_z`` in the sonar frame, from pair.json's ``sonar_pose``."""
+def _pair_pose(folder: Path, key: str, needed_for: str):
+    """``(R, t)`` of the pose ``key`` (``"sonar_pose"``, ``"camera_pose"``) a pair folder's pair.json records."""
     import json
 
     import numpy as np
 
+    path = folder / "pair.json"
+    try:
+        p = json.loads(path.read_text())[key]
+        return np.asarray(p["R"], float).reshape(3, 3), np.asarray(p["t"], float).reshape(3)
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"{path}: field '{key}' (R, t) needed for {needed_for}: {exc!r}") from None
+
+
+def _seabed(pair_dir: Path, seabed_z: float):
+    """The seabed plane ``z_world = seabed_z`` in the sonar frame, from pair.json's ``sonar_pose``."""
     from ..frames import Pose
     from ..matching import SeabedPlane
 
-    path = pair_dir / "pair.json"
+    R, t = _pair_pose(pair_dir, "sonar_pose", "--seabed-z")
     try:
-        sp = json.loads(path.read_text())["sonar_pose"]
-        pose = Pose(np.asarray(sp["R"], float).reshape(3, 3), np.asarray(sp["t"], float).reshape(3))
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise ValueError(f"{path}: field 'sonar_pose' (R, t) needed for --seabed-z: {exc!r}") from None
+        pose = Pose(R, t)
+    except ValueError as exc:
+        raise ValueError(f"{pair_dir / 'pair.json'}: field 'sonar_pose': {exc}") from None
     return SeabedPlane.from_pose(pose, seabed_z=seabed_z)
 
 
 def _motion(pair_1: Path, pair_2: Path):
     """``(R_o, t_o)`` with ``P_camera2 = R_o P_camera1 + t_o`` from the camera poses of two pair folders."""
-    import json
-
-    import numpy as np
-
-    poses = []
-    for folder in (pair_1, pair_2):
-        path = folder / "pair.json"
-        try:
-            cp = json.loads(path.read_text())["camera_pose"]
-            poses.append((np.asarray(cp["R"], float).reshape(3, 3), np.asarray(cp["t"], float).reshape(3)))
-        except (OSError, ValueError, KeyError, TypeError) as exc:
-            raise ValueError(f"{path}: field 'camera_pose' (R, t) needed for --second: {exc!r}") from None
-    (R1, t1), (R2, t2) = poses
+    (R1, t1), (R2, t2) = (_pair_pose(folder, "camera_pose", "--second") for folder in (pair_1, pair_2))
     return R2.T @ R1, R2.T @ (t1 - t2)
 

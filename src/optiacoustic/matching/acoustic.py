@@ -203,9 +203,10 @@ def _plane_ranges(p, D):
         return p[2] / (D[:, 2] - p[0] * D[:, 0] - p[1] * D[:, 1])
 
 
-def _fit_both_edges(p, image, r, th, ro, to, half, min_beams, far_gate_m):
+def _fit_both_edges(p, image, r, th, ro, D_near, half, min_beams, far_gate_m):
     """Refit the plane ``z = p0 x + p1 y + p2`` to the onsets ``(ro, to)`` and the far edges together.
 
+    ``D_near``: the onsets' ray directions (unit, at the aperture's lower edge).
     Residuals in range along each ray (near and far edges alike) with a Cauchy loss: the onsets
     of objects and the far edges that are the end of an object's shadow weigh little. The onsets'
     plane is refitted so first (the z-fit's soft loss lets objects' onsets drag it along the loose
@@ -214,7 +215,6 @@ def _fit_both_edges(p, image, r, th, ro, to, half, min_beams, far_gate_m):
     """
     from scipy.optimize import least_squares
 
-    D_near = sonar_from_spherical(1.0, to, -half)
     p = least_squares(lambda q: ro - _plane_ranges(q, D_near), p, loss="cauchy", f_scale=0.05).x
     r_far, found = far_edges(image, r)
     D_far = sonar_from_spherical(1.0, th, half)
@@ -273,7 +273,8 @@ def fit_seabed(image, ranges, azimuths, fov_elevation: float, *, min_beams: int 
                            message=f"seabed: only {int(ok.sum())} beams show an echo onset (need {min_beams})")
     half = fov_elevation / 2
     ro, to = r_near[ok], th[ok]
-    P = np.atleast_2d(ro[:, None] * sonar_from_spherical(1.0, to, -half))
+    D_near = np.atleast_2d(sonar_from_spherical(1.0, to, -half))  # the onsets' rays, at the lower edge
+    P = ro[:, None] * D_near
 
     # z = a x + b y + c, robust to onsets that are objects rather than seabed.
     def res(p):
@@ -281,7 +282,7 @@ def fit_seabed(image, ranges, azimuths, fov_elevation: float, *, min_beams: int 
 
     p = least_squares(res, np.array([0.0, 0.0, float(np.median(P[:, 2]))]), loss="soft_l1", f_scale=0.05).x
     if far_edge:
-        p = _fit_both_edges(p, image, r, th, ro, to, half, min_beams, far_gate_m)
+        p = _fit_both_edges(p, image, r, th, ro, D_near, half, min_beams, far_gate_m)
     a, b, c = p
     n = np.array([-a, -b, 1.0])
     norm = np.linalg.norm(n)
@@ -291,7 +292,7 @@ def fit_seabed(image, ranges, azimuths, fov_elevation: float, *, min_beams: int 
         return SeabedPlane(**_NO_PLANE, n_beams=int(ok.sum()), message=f"seabed: onsets do not lie on a plane "
                            f"(median residual {rms:.2f} m)")
     dr = float(np.median(np.diff(r))) if r.size > 1 else float("nan")
-    flat_rms = dr / 4.0 * float(np.median(np.abs(sonar_from_spherical(1.0, to, -half) @ (n / norm))))
+    flat_rms = dr / 4.0 * float(np.median(np.abs(D_near @ (n / norm))))
     return SeabedPlane(n / norm, float(c / norm), rms, int(ok.sum()), flat_rms=flat_rms)
 
 

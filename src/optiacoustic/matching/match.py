@@ -667,12 +667,12 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
             warnings.warn(SeabedReliefWarning(relief_note), stacklevel=2)
         else:
             relief_note = ""
-        if opt.use_acoustic and not intervals[3]:
+        if opt.use_acoustic and not plane:
             # Without the seabed every echo's elevation spans the whole aperture and the arc search's
             # choice is a guess: 1.5% of matches right on held-out scenes 6000-6011 and 9000-9005,
             # below the nearest-conic baseline (docs/matching.md, "Soft elevation beams").
             return _empty(f"no seabed plane, which the arc search needs to bound each echo's elevation: "
-                          f"{intervals[3].message}", sf)
+                          f"{plane.message}", sf)
         if beam_model != "thesis" and opt.use_acoustic:
             # A soft beam's sidelobes return the seabed from below the aperture, before the main lobe
             # reaches it: echoes with no shadow behind them at ranges where the seabed lies more than
