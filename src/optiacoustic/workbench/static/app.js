@@ -331,7 +331,8 @@ $("undo").addEventListener("click", undo);
 $("suggest").addEventListener("click", async () => {
   status("matching automatically ...");
   const r = await guarded(() => post("/api/matches/suggest"));
-  if (r) status(`${r.added} suggested matches added (${r.message}); Undo removes them`);
+  if (r) status(r.added ? `${r.added} suggested matches added (${r.message}); Undo removes them`
+                        : `no matches suggested: ${r.message}`);
   await refresh();
 });
 $("delete").addEventListener("click", deleteSelected);
