@@ -44,6 +44,11 @@ def test_matching_experiment(tmp_path):
     nav, fit = sb[("realistic", "navigation")], sb[("realistic", "fitted (allow_soft_beam)")]
     assert nav["declined"] == fit["declined"] == 0
     assert nav["precision_all"] > 2 * fit["precision_all"]
+    # The navigation plane with a drawn error: the same matches' features whether or not its sigmas are
+    # declared; declared, the seabed points' scores fall by the chance the error leaves them right.
+    blind = next(r for k, r in sb.items() if k[1].endswith("error, not declared"))
+    told = next(r for k, r in sb.items() if k[1].endswith("error, declared"))
+    assert told["n_matches"] == blind["n_matches"] > 0 and told["mean_score"] < blind["mean_score"]
     # quick mode has no built-in scenes: the thesis row with the fitted plane is the headline's pairs
     assert sb[("thesis", "fitted")]["precision_all"] == n["precision_all_assigned"]
     # Seabed relief: fractions, and 5 cm of relief costs precision (the matcher's seabed is one plane).

@@ -78,6 +78,17 @@ def test_match_command_with_the_seabed_from_the_pair_pose(tmp_path):
     # (the images are the thesis model's: the true seabed does as well as the plane fitted to its hard edges)
     n_fit, n_nav = sum(fitted["correct_by_depth_map"]), sum(data["correct_by_depth_map"])
     assert data["n_matches"] > 0 and n_nav >= n_fit - max(2, 0.1 * fitted["n_matches"]), (n_nav, n_fit)
+    # the navigation's declared errors: the same matches, scores no higher; refused without --seabed-z or below 0
+    r = runner.invoke(app, ["match", str(pair), "--out", str(out), "--seabed-z", "0", "--seabed-sigma-z", "0.02",
+                            "--seabed-sigma-tilt", "0.1"])
+    assert r.exit_code == 0, r.output
+    told = json.loads((out / "matches.json").read_text())
+    assert told["n_matches"] == data["n_matches"]
+    assert sum(m[-1] for m in told["matches"]) <= sum(m[-1] for m in data["matches"]) + 1e-9
+    r = runner.invoke(app, ["match", str(pair), "--out", str(out), "--seabed-sigma-z", "0.02"])
+    assert r.exit_code == 2 and "--seabed-z" in r.output
+    r = runner.invoke(app, ["match", str(pair), "--out", str(out), "--seabed-z", "0", "--seabed-sigma-tilt", "-1"])
+    assert r.exit_code == 2 and "--seabed-sigma-tilt" in r.output
     del meta["sonar_pose"]
     (pair / "pair.json").write_text(json.dumps(meta))
     r = runner.invoke(app, ["match", str(pair), "--out", str(out), "--seabed-z", "0"])

@@ -23,6 +23,11 @@ def match_cmd(
                                    "the matcher takes the seabed from pair.json's sonar_pose (navigation) instead of "
                                    "fitting it to the sonar image. Needed for soft-beam sonars (beam_model "
                                    "'aperture'), which are declined otherwise."),
+    seabed_sigma_z: float = typer.Option(0.0, "--seabed-sigma-z", metavar="S", help="With --seabed-z: the altitude's "
+                                         "standard deviation (m). The seabed points placed on the plane are scored "
+                                         "by the chance that this error leaves them right."),
+    seabed_sigma_tilt: float = typer.Option(0.0, "--seabed-sigma-tilt", metavar="DEG", help="With --seabed-z: roll "
+                                            "and pitch standard deviation (deg), as --seabed-sigma-z."),
 ):
     """Match sonar and camera features of a pair; writes matches.png (colour = score) and matches.json.
 
@@ -47,7 +52,9 @@ def match_cmd(
         sonar2, image2, _, _ = read_pair(second, range_resolution=res, beamwidth_azimuth=bw)
         kw = dict(second=(sonar2, image2), motion=_motion(pair_dir, second))
     if seabed_z is not None:
-        kw["seabed"] = _seabed(pair_dir, seabed_z)
+        kw["seabed"] = _seabed(pair_dir, seabed_z, seabed_sigma_z, seabed_sigma_tilt)
+    elif seabed_sigma_z or seabed_sigma_tilt:
+        raise ValueError("--seabed-sigma-z and --seabed-sigma-tilt describe the plane of --seabed-z: give --seabed-z too")
     import warnings
 
     from ..matching import SeabedReliefWarning
@@ -109,8 +116,14 @@ def _pair_pose(folder: Path, key: str, needed_for: str):
         raise ValueError(f"{path}: field '{key}' (R, t) needed for {needed_for}: {exc!r}") from None
 
 
-def _seabed(pair_dir: Path, seabed_z: float):
-    """The seabed plane ``z_world = seabed_z`` in the sonar frame, from pair.json's ``sonar_pose``."""
+def _seabed(pair_dir: Path, seabed_z: float, sigma_z: float = 0.0, sigma_tilt_deg: float = 0.0):
+    """The seabed plane ``z_world = seabed_z`` in the sonar frame, from pair.json's ``sonar_pose``, with the
+    navigation's declared errors (altitude in m, roll and pitch in deg)."""
+    import math
+
+    for flag, v in (("--seabed-sigma-z", sigma_z), ("--seabed-sigma-tilt", sigma_tilt_deg)):
+        if not (math.isfinite(v) and v >= 0):
+            raise ValueError(f"{flag}: expected a finite number >= 0, got {v}")
     from ..frames import Pose
     from ..matching import SeabedPlane
 
@@ -119,7 +132,8 @@ def _seabed(pair_dir: Path, seabed_z: float):
         pose = Pose(R, t)
     except ValueError as exc:
         raise ValueError(f"{pair_dir / 'pair.json'}: field 'sonar_pose': {exc}") from None
-    return SeabedPlane.from_pose(pose, seabed_z=seabed_z)
+    return SeabedPlane.from_pose(pose, seabed_z=seabed_z, sigma_height=sigma_z,
+                                 sigma_tilt=math.radians(sigma_tilt_deg))
 
 
 def _motion(pair_1: Path, pair_2: Path):

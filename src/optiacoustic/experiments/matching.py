@@ -8,6 +8,7 @@ least one camera feature is a correct partner; recall is over those.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -81,8 +82,6 @@ def random_scene(seed: int, textured: bool = False):
         bodies.append(Body(f"{kind}_{i}", shape, Pose.from_euler_deg((x, y, float(z)), (0.0, 0.0, yaw)), mat))
     name = f"random_{seed}"
     if textured:
-        import dataclasses
-
         rng_t = np.random.default_rng(seed + 10 ** 6)
         bodies = [dataclasses.replace(b, material=dataclasses.replace(
             b.material, texture=Texture("checker", float(rng_t.uniform(0.05, 0.15)),
@@ -102,8 +101,6 @@ def relief_scene(seed: int, rms_m: float, folder) -> "Scene":
     over 32 m x 32 m (a PLY written to ``folder``). The bodies stay where they were (their bases sink into
     the crests by up to the relief's height, as on a real seabed). ``rms_m = 0``: the flat seabed as a mesh.
     """
-    import dataclasses
-
     import trimesh
 
     from ..frames import Pose
@@ -935,9 +932,11 @@ def _run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
          [[fmt(med_auto), fmt(med_true)]]),
         (f"Sonar elevation beam ({len(random_pairs)} random scenes): the thesis model's hard-edged aperture against "
          "the realistic model's soft beam, with the seabed plane fitted to the sonar image or given by the navigation",
-         ["sonar", "seabed plane", "pairs declined", "visible", "matches", "prec@rec 0.5", "prec all", "rec all"],
-         [[d["sonar"], d["seabed"], d["declined"], d["n_visible"], d["n_matches"], fmt(d["precision_at_recall_0_5"]),
-           fmt(d["precision_all"]), fmt(d["recall_all"])] for d in soft_beam]),
+         ["sonar", "seabed plane", "pairs declined", "visible", "matches", "prec@rec 0.25", "prec@rec 0.5",
+          "prec all", "rec all", "mean score"],
+         [[d["sonar"], d["seabed"], d["declined"], d["n_visible"], d["n_matches"], fmt(d["precision_at_recall_0_25"]),
+           fmt(d["precision_at_recall_0_5"]), fmt(d["precision_all"]), fmt(d["recall_all"]), fmt(d["mean_score"])]
+          for d in soft_beam]),
         (f"Seabed relief ({min(n_sub, len(random_pairs))} random scenes, their seabed a heightfield of plane waves "
          "1-4 m long; thesis water and sonar)",
          ["relief RMS (cm)", "pairs warned (SeabedReliefWarning)", "visible", "matches", "prec@rec 0.25",
@@ -975,8 +974,11 @@ def _soft_beam_rows(random_pairs):
     from ..matching import MatchOptions, SeabedPlane
 
     real = realistic_sonar()
+    err = f"{NAV_ERROR[0] * 100:g} cm / {np.rad2deg(NAV_ERROR[1]):g} deg"
     variants = (("thesis", "fitted"), ("thesis", "navigation"), ("realistic", "fitted (declined)"),
-                ("realistic", "fitted (allow_soft_beam)"), ("realistic", "navigation"))
+                ("realistic", "fitted (allow_soft_beam)"), ("realistic", "navigation"),
+                ("realistic", f"navigation, {err} error, not declared"),
+                ("realistic", f"navigation, {err} error, declared"))
     evs = {v: [] for v in variants}
     example = None
     for sc, pose, o, rig, e_fit, e_nav, sd, _ in random_pairs:
@@ -987,6 +989,11 @@ def _soft_beam_rows(random_pairs):
         evs[variants[3]].append(evaluate_pair(s_real, o, rig, options=MatchOptions(allow_soft_beam=True)))
         e_real = evaluate_pair(s_real, o, rig, seabed=SeabedPlane.from_pose(pose))
         evs[variants[4]].append(e_real)
+        # the navigation's plane with an error drawn from its stated sigmas, given with and without them
+        off = navigation_plane(pose, np.random.default_rng(sd), *NAV_ERROR)
+        evs[variants[5]].append(evaluate_pair(s_real, o, rig, seabed=off))
+        told = dataclasses.replace(off, sigma_offset=NAV_ERROR[0], sigma_tilt=NAV_ERROR[1])
+        evs[variants[6]].append(evaluate_pair(s_real, o, rig, seabed=told))
         if example is None and e_real["matches"]:
             example = (sc.name, s_real, o, e_real["matches"], e_real["correct"])
     rows = []
@@ -995,11 +1002,32 @@ def _soft_beam_rows(random_pairs):
         n_vis = sum(e["n_visible"] for e in ev)
         ok = np.concatenate([e["ok"] for e in ev]) if ev else np.zeros(0, bool)
         declined = sum(1 for e in ev if not e["matches"] and "soft elevation beam" in e["matches"].message)
+        sc_ = np.concatenate([e["score"] for e in ev]) if ev else np.zeros(0)
         rows.append(dict(sonar=sonar, seabed=seabed, declined=declined, n_visible=int(n_vis), n_matches=int(ok.size),
+                         precision_at_recall_0_25=_best_at(rc, pc, 0.25) if rc.size else float("nan"),
                          precision_at_recall_0_5=_best_at(rc, pc, 0.5) if rc.size else float("nan"),
+                         mean_score=float(sc_.mean()) if sc_.size else float("nan"),
                          precision_all=float(ok.mean()) if ok.size else float("nan"),
                          recall_all=float(ok.sum() / n_vis) if n_vis else float("nan")))
     return rows, example
+
+
+#: The navigation plane's error in the soft-beam section: altitude (m) and roll/pitch (rad) standard deviations,
+#: a DVL's or altimeter's centimetre and a good attitude sensor's 0.05 deg.
+NAV_ERROR = (0.01, float(np.deg2rad(0.05)))
+
+
+def navigation_plane(pose, rng, sigma_height: float, sigma_tilt: float):
+    """The seabed plane a navigation system with these errors reports: the true plane from the sonar's
+    ``pose`` with its altitude off by a draw of ``N(0, sigma_height)`` and its normal rotated by draws of
+    ``N(0, sigma_tilt)`` about the sonar's x and y axes (no sigmas declared on it)."""
+    from scipy.spatial.transform import Rotation
+
+    from ..matching import SeabedPlane
+
+    true = SeabedPlane.from_pose(pose)
+    rot = Rotation.from_rotvec([rng.normal(0.0, sigma_tilt), rng.normal(0.0, sigma_tilt), 0.0])
+    return SeabedPlane(rot.apply(true.normal), float(true.offset - rng.normal(0.0, sigma_height)), 0.0, 0)
 
 
 def _relief_sentence(rows) -> str:

@@ -29,7 +29,7 @@ from scipy import ndimage as ndi
 from ..frames import sonar_from_spherical
 from ..geometry.projection import cos_sin_roots
 
-__all__ = ["SeabedPlane", "fit_seabed", "far_edges", "moved_plane", "seabed_elevation", "seabed_points", "elevation_maps", "elevation_bounds", "occluded", "seabed_view"]
+__all__ = ["SeabedPlane", "fit_seabed", "far_edges", "moved_plane", "plane_error_probability", "seabed_elevation", "seabed_points", "elevation_maps", "elevation_bounds", "occluded", "seabed_view"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -51,6 +51,13 @@ class SeabedPlane:
         (m) What ``rms`` is for a flat seabed: the onsets' placement within their range bin (about
         uniform, so the median absolute height residual is a quarter of a bin times ``|n . d|`` along the
         near edge's rays). NaN for a plane not fitted to a sonar image.
+    sigma_offset : float
+        (m) Standard deviation of ``offset`` declared by whoever gave the plane (a navigation plane:
+        the altimeter's or DVL's error); 0 for a fitted plane, whose own error the matcher's scores
+        were calibrated with.
+    sigma_tilt : float
+        (rad) Standard deviation of the normal's tilt about each horizontal axis (the attitude's
+        roll and pitch error), pivoting about the sonar; 0 likewise.
     """
 
     normal: np.ndarray
@@ -59,6 +66,28 @@ class SeabedPlane:
     n_beams: int
     message: str = ""
     flat_rms: float = float("nan")
+    sigma_offset: float = 0.0
+    sigma_tilt: float = 0.0
+
+    def __post_init__(self):
+        for name in ("sigma_offset", "sigma_tilt"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float, np.floating, np.integer)) and np.isfinite(v) and v >= 0):
+                raise ValueError(f"SeabedPlane.{name}: expected a finite number >= 0, got {v!r}")
+
+    @property
+    def uncertain(self) -> bool:
+        """Whether the plane comes with a declared error (``sigma_offset`` or ``sigma_tilt`` above 0)."""
+        return self.sigma_offset > 0 or self.sigma_tilt > 0
+
+    def offset_sigma_at(self, points_sonar) -> np.ndarray:
+        """(m) Standard deviation of the plane's height at sonar-frame points ``(..., 3)`` from the declared
+        errors: ``sqrt(sigma_offset^2 + sigma_tilt^2 |P_par|^2)``, ``P_par`` the point's component along the
+        plane (a tilt ``eps`` about a horizontal axis ``a`` moves the normal by ``eps a x n``, and the height
+        of ``P`` by ``eps (a x n) . P``, whose variance over both axes is ``sigma_tilt^2 |P_par|^2``)."""
+        P = np.asarray(points_sonar, float)
+        par = P - (P @ self.normal)[..., None] * self.normal
+        return np.sqrt(self.sigma_offset ** 2 + self.sigma_tilt ** 2 * np.einsum("...i,...i->...", par, par))
 
     def __bool__(self) -> bool:
         return bool(np.all(np.isfinite(self.normal)))
@@ -74,7 +103,8 @@ class SeabedPlane:
         return np.asarray(points_sonar, float) @ self.normal - self.offset
 
     @classmethod
-    def from_pose(cls, sonar_pose, seabed_z: float = 0.0) -> "SeabedPlane":
+    def from_pose(cls, sonar_pose, seabed_z: float = 0.0, *, sigma_height: float = 0.0,
+                  sigma_tilt: float = 0.0) -> "SeabedPlane":
         """The horizontal seabed ``z_world = seabed_z`` in the sonar frame, from the sonar's pose in the world.
 
         What a vehicle's navigation gives: attitude (roll, pitch, heading; only roll and pitch matter)
@@ -88,6 +118,12 @@ class SeabedPlane:
             The sonar's pose (``.R``, ``.t``: ``P_world = R P_sonar + t``, world z up).
         seabed_z : float
             The seabed's height in the world (m).
+        sigma_height : float
+            (m) Standard deviation of the altitude (``sigma_offset``). The matcher needs the plane to
+            about a centimetre: with more, the seabed points it places on the plane are wrong more
+            often, and it lowers their scores by that chance (:func:`plane_error_probability`).
+        sigma_tilt : float
+            (rad) Standard deviation of roll and pitch (``sigma_tilt``).
         """
         R = np.asarray(getattr(sonar_pose, "R", None), float)
         t = np.asarray(getattr(sonar_pose, "t", None), float)
@@ -95,8 +131,12 @@ class SeabedPlane:
             raise ValueError(f"sonar_pose: expected a Pose (R (3, 3), t (3,), finite), got {type(sonar_pose).__name__}")
         if not np.isfinite(seabed_z):
             raise ValueError(f"seabed_z: expected a finite height (m), got {seabed_z!r}")
+        for name, v in (("sigma_height", sigma_height), ("sigma_tilt", sigma_tilt)):
+            if not (isinstance(v, (int, float, np.floating, np.integer)) and np.isfinite(v) and v >= 0):
+                raise ValueError(f"{name}: expected a finite number >= 0, got {v!r}")
         n = R.T @ np.array([0.0, 0.0, 1.0])
-        return cls(n / np.linalg.norm(n), float(seabed_z - t[2]), 0.0, 0, "")
+        return cls(n / np.linalg.norm(n), float(seabed_z - t[2]), 0.0, 0, "",
+                   sigma_offset=float(sigma_height), sigma_tilt=float(sigma_tilt))
 
 
 #: Where the seabed edge lies after the centre of the first bin above the onset threshold (bins).
@@ -307,7 +347,10 @@ def moved_plane(rig, plane: SeabedPlane, R_o, t_o) -> SeabedPlane:
     M = R @ np.asarray(R_o, float) @ R.T
     u = t + R @ np.asarray(t_o, float) - M @ t
     n2 = M @ plane.normal
-    return SeabedPlane(n2, float(plane.offset + n2 @ u), plane.rms, plane.n_beams, plane.message)
+    # the declared errors carried over as they are (the tilt's pivot then sits at the second sonar: over
+    # the decimetres a rig moves between views, a difference of sigma_tilt x the move)
+    return SeabedPlane(n2, float(plane.offset + n2 @ u), plane.rms, plane.n_beams, plane.message,
+                       sigma_offset=plane.sigma_offset, sigma_tilt=plane.sigma_tilt)
 
 
 def seabed_elevation(plane: SeabedPlane, ranges, azimuths) -> np.ndarray:
@@ -366,6 +409,40 @@ def seabed_points(rig, plane: SeabedPlane, ranges, azimuths, fov_elevation: floa
     px = rig.camera.project(Pc)
     found = ok & (Pc[:, 2] > 0) & rig.camera.in_image(px)
     return np.where(found, phi, np.nan), np.where(found[:, None], px, np.nan), found
+
+
+def plane_error_probability(rig, plane: SeabedPlane, points_sonar, bin_width: float, beam_width: float) -> np.ndarray:
+    """Probability that the plane's declared error keeps a point placed on it a right match (``(N,)``).
+
+    A seabed point ``P`` (sonar frame, on the plane ``n . P = d``) is matched to the pixel that sees
+    it. If the true seabed lies ``delta`` higher there, that pixel's ray ``C + s (P - C)`` (``C`` the
+    camera centre, ``rig.t``) meets it at ``Q = P + delta (P - C) / (n . (P - C))``, whose range
+    and azimuth differ from ``P``'s by ``delta g_r`` and ``delta g_theta`` to first order, with
+    ``g_r = rhat . v / (n . v)``, ``g_theta = (P_y v_x - P_x v_y) / ((P_x^2 + P_y^2) (n . v))`` and
+    ``v = P - C`` (docs/derivations.md, "A seabed point under an uncertain plane"). The match stays
+    right (``matching.truth.correct``: within one bin and one beam) while ``|delta| <= tau``,
+    ``tau = min(bin / |g_r|, beam / |g_theta|)``; with ``delta ~ N(0, s^2)``, ``s`` the plane's
+    height error at ``P`` (:meth:`SeabedPlane.offset_sigma_at`), that is ``erf(tau / (sqrt(2) s))``.
+    1 where the plane declares no error; 0 where ``n . v`` is 0 (the pixel's ray along the plane).
+    At grazing views ``|g_r|`` is 3-5, so an altitude known to 1 cm leaves a seabed point right only
+    about half the time at 2.5 cm bins.
+    """
+    from scipy.special import erf
+
+    P = np.asarray(points_sonar, float).reshape(-1, 3)
+    if not plane.uncertain:
+        return np.ones(len(P))
+    v = P - np.asarray(rig.t, float)
+    nv = v @ plane.normal
+    r = np.linalg.norm(P, axis=1)
+    rho2 = P[:, 0] ** 2 + P[:, 1] ** 2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        g_r = np.einsum("ij,ij->i", P, v) / (r * nv)
+        g_t = (P[:, 1] * v[:, 0] - P[:, 0] * v[:, 1]) / (rho2 * nv)
+        tau = np.minimum(bin_width / np.abs(g_r), beam_width / np.abs(g_t))
+        s = plane.offset_sigma_at(P)
+        p = erf(tau / (np.sqrt(2.0) * s))
+    return np.where(np.isfinite(p), p, np.where(nv == 0, 0.0, 1.0))
 
 
 def _seabed_level(sm):

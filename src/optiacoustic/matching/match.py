@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..frames import spherical_from_sonar
+from ..frames import sonar_from_spherical, spherical_from_sonar
 from ..geometry import epipolar as ep
 from ..geometry import reconstruct as rc
 from ..rig import Rig
@@ -1262,6 +1262,17 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     p_plane = np.where(fp.found, _logistic(plane_score_features(feats), PLANE_SCORE_MODEL), 0.0)
     p_foot = np.where(ft.found, _logistic(foot_score_features(feats), FOOT_SCORE_MODEL), 0.0)
     p_seabed = np.where(sb_found, _logistic(seabed_score_features(feats), SEABED_SCORE_MODEL), 0.0)
+    feats["seabed_plane_probability"] = np.where(sb_found, 1.0, np.nan)
+    if seabed.uncertain and sonar is not None and sb_found.any():
+        # A plane given with a declared error (navigation): the seabed point is placed on it, so it is
+        # right only while that error keeps it within a bin and a beam (:func:`.acoustic.plane_error_probability`)
+        from .acoustic import plane_error_probability
+
+        beam_rad = float(np.median(np.abs(np.diff(sonar[2])))) if len(sonar[2]) > 1 else float("inf")
+        p_nav = plane_error_probability(rig, seabed, sonar_from_spherical(
+            sf.ranges[rows], sf.azimuths[rows], np.nan_to_num(sb_el)), bin_m, beam_rad)
+        feats["seabed_plane_probability"] = np.where(sb_found, p_nav, np.nan)
+        p_seabed = p_seabed * np.where(sb_found, p_nav, 1.0)
     # 0: the arc search's pixel, 1: the point below the crease, 2: the point on the face's plane,
     # 3: the point above the face's foot, 4: the seabed point.
     probs = np.column_stack([p_arc, p_crease, p_plane, p_foot, p_seabed])
