@@ -1148,6 +1148,65 @@ def calibrate_face_score(scenes=FACE_TRAINING, *, ridge: float = 1.0) -> dict:
     return {k: _fit_logistic(np.concatenate(X[k]), np.concatenate(y[k]), ridge) for k in X if X[k]}
 
 
+def calibrate_soft_beam(random_seeds=range(5000, 5024), varied_seeds=range(8000, 8024)) -> dict:
+    """Refit ``matching.match.SOFT_BEAM_RECALIBRATION``: per candidate kind ``(a, b)`` of
+    ``p' = sigmoid(a + b logit p)``.
+
+    Simulates the realistic model's frames (:func:`realistic_sonar`) of random scenes ``random_seeds`` and
+    varied scenes ``varied_seeds`` (thesis water for the camera), matches them with the seabed from the
+    navigation (the true plane, from the sonar's pose) and the recalibration off, and labels every offered
+    candidate (arc pixel, crease, plane, foot and seabed points) by the depth-map truth. Each kind's
+    ``(a, b)`` is the logistic regression of its labels on the logit of its thesis-frame probability, the
+    slope shrunk towards 1 (penalty ``(b - 1)^2``), scipy BFGS. Returns ``{kind: dict(a, b, n,
+    positive_rate, mean_probability)}``. Use seeds disjoint from the evaluation's.
+    """
+    from scipy.optimize import minimize
+
+    from .. import simulate_sonar
+    from ..matching import MatchOptions, SeabedPlane, match, truth
+    from ..matching.match import CANDIDATES
+    from ..optical import Water
+    from ..simulation import simulate_rig
+
+    opts = MatchOptions(soft_beam_recalibration=False)
+    x = {k: [] for k in CANDIDATES}
+    y = {k: [] for k in CANDIDATES}
+    scenes = [random_scene(int(sd)) for sd in random_seeds] + [varied_scene(int(sd)) for sd in varied_seeds]
+    seeds = list(random_seeds) + list(varied_seeds)
+    for sc, sd in zip(scenes, seeds):
+        rig, pose = _rig_for(sc.view.eye, sc.view.target)
+        optical = simulate_rig(sc, rig, pose, water=Water.preset("thesis"), seed=int(sd)).optical
+        sonar = simulate_sonar(sc, rig.sonar, pose, seed=int(sd), **realistic_sonar())
+        m = match(sonar, optical.image, rig, seabed=SeabedPlane.from_pose(pose), options=opts, min_score=0.0)
+        if not m:
+            continue
+        f = m.features
+        bw, aw = float(np.median(np.diff(sonar.ranges))), float(np.median(np.diff(sonar.azimuths)))
+        for k in CANDIDATES:
+            p = np.asarray(f[f"p_{k}"], float)
+            px = np.column_stack([f[f"{k}_u"], f[f"{k}_v"]])
+            c = (p > 0) & np.all(np.isfinite(px), axis=1)
+            if c.any():
+                q = np.clip(p[c], 1e-12, 1.0 - 1e-12)
+                x[k].append(np.log(q / (1.0 - q)))
+                y[k].append(truth.correct(rig, optical.depth, px[c], m.ranges[c], m.azimuths[c], bin_width=bw,
+                                          beam_width=aw).astype(float))
+    out = {}
+    for k in CANDIDATES:
+        if not x[k]:
+            continue
+        xk, yk = np.concatenate(x[k]), np.concatenate(y[k])
+
+        def nll(w, xk=xk, yk=yk):
+            z = w[0] + w[1] * xk
+            return np.sum(np.logaddexp(0.0, z) - yk * z) + (w[1] - 1.0) ** 2
+
+        w = minimize(nll, np.array([0.0, 1.0]), method="BFGS").x
+        out[k] = dict(a=float(w[0]), b=float(w[1]), n=int(xk.size), positive_rate=float(yk.mean()),
+                      mean_probability=float(np.mean(1.0 / (1.0 + np.exp(-xk)))))
+    return out
+
+
 def _fit_logistic(X, y, ridge):
     """Ridge-penalised logistic regression of labels ``y`` on standardised features ``X`` (scipy BFGS)."""
     from scipy.optimize import minimize

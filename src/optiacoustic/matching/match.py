@@ -132,6 +132,10 @@ class MatchOptions:
         and top faces washes out and the plane follows the top face's far edge. The training
         scenes' images have 0.79-0.86 in thesis water and 0.53 in Jerlov 1C, where the plane cost
         correct matches (302 -> 298 on scenes 5000-5023); 0.65 lies between.
+    soft_beam_recalibration : bool
+        On soft-beam frames, map each candidate's probability through :data:`SOFT_BEAM_RECALIBRATION`
+        (fitted on the realistic model's frames, where the models fitted on the thesis model's are
+        miscalibrated). Off: the thesis-frame probabilities (``calibrate_soft_beam`` fits on those).
     allow_soft_beam : bool
         Match frames whose elevation beam is soft (``sonar.beam_model == "aperture"``: every measured
         frame, and simulated frames of ``SonarOptions(beam_model="aperture")``) although the seabed
@@ -159,6 +163,7 @@ class MatchOptions:
     face_plane_beams: bool = True
     seabed_point: bool = True
     allow_soft_beam: bool = False
+    soft_beam_recalibration: bool = True
     cfar: CfarOptions = field(default_factory=CfarOptions)
     keypoints: KeypointOptions = field(default_factory=KeypointOptions)
 
@@ -690,7 +695,8 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
                 intervals = (lo[~below], hi[~below], shadowed[~below], plane)
         # the echo's start and end and the faces' beam creases read the default options' maps
         echo_maps = maps if opt.cfar == CfarOptions() else cfar_map(np.asarray(img_s, np.float64))
-        out = _match_arcs(sf, cam_img, rig, noise, opt, intervals, sonar=(img_s, r_bins, th_beams, echo_maps))
+        out = _match_arcs(sf, cam_img, rig, noise, opt, intervals, sonar=(img_s, r_bins, th_beams, echo_maps),
+                          soft_beam=beam_model != "thesis")
         if relief_note and out:
             out = dataclasses.replace(out, message=f"{out.message}; {relief_note}")
         return _finish(out, cam_img, second, motion, rig, noise, opt, min_score, sf=sf, intervals=intervals,
@@ -1068,6 +1074,27 @@ def seabed_score_features(feats: dict) -> np.ndarray:
 #: The five candidate pixels of a one-view match, in ``features["face_source"]`` order.
 CANDIDATES = ("arc", "crease", "plane", "foot", "seabed")
 
+#: Soft-beam frames (round i15s): ``p' = sigmoid(a + b logit p)`` per candidate, ``(a, b)``, fitted by
+#: ``experiments.matching.calibrate_soft_beam()`` (logistic regression of each offered candidate's
+#: correctness on the logit of its thesis-frame probability, the slope shrunk towards 1 with weight 1) on
+#: the realistic model's frames of random scenes 5000-5023 and varied scenes 8000-8023 with the seabed
+#: from the navigation (exact): arc pixel 2326 offered, 52% right (mean probability 0.43); crease 815, 37%
+#: (0.55); plane 902, 37% (0.51); foot 850, 39% (0.42); seabed point 1157, 94% (0.85).
+SOFT_BEAM_RECALIBRATION = {
+    "arc": (0.198, 0.421),
+    "crease": (-0.614, 0.355),
+    "plane": (-0.673, 0.500),
+    "foot": (-0.251, 0.659),
+    "seabed": (1.408, 0.902),
+}
+
+
+def soft_beam_probability(p, kind: str) -> np.ndarray:
+    """A candidate's thesis-frame probability ``p`` mapped through :data:`SOFT_BEAM_RECALIBRATION` ``[kind]``."""
+    a, b = SOFT_BEAM_RECALIBRATION[kind]
+    q = np.clip(np.asarray(p, float), 1e-12, 1.0 - 1e-12)
+    return 1.0 / (1.0 + np.exp(-(a + b * np.log(q / (1.0 - q)))))
+
 def _logistic(X, model):
     w = np.asarray(model["weights"], float)
     z = w[0] + ((X - np.asarray(model["mean"])) / np.asarray(model["std"])) @ w[1:]
@@ -1114,7 +1141,7 @@ def _beam_creases(rig, sonar, face, c_ok, ranges, azimuths, r_on, labels):
     return beam_creases(rig, starts, r_bins, th_beams, labels, labs, lo, hi, r0, r1)
 
 
-def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Matches:
+def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None, soft_beam: bool = False) -> Matches:
     """Every sonar feature takes a pixel of the longest edge-free run of its arc (:mod:`.arc_search`).
 
     The run's middle (or 70% up for onsets), the point below the face's crease
@@ -1262,6 +1289,12 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None) -> Match
     p_plane = np.where(fp.found, _logistic(plane_score_features(feats), PLANE_SCORE_MODEL), 0.0)
     p_foot = np.where(ft.found, _logistic(foot_score_features(feats), FOOT_SCORE_MODEL), 0.0)
     p_seabed = np.where(sb_found, _logistic(seabed_score_features(feats), SEABED_SCORE_MODEL), 0.0)
+    if soft_beam and opt.soft_beam_recalibration:
+        # Soft-beam frames: each candidate's probability mapped through its recalibration, fitted on the
+        # realistic model's frames (round i15s; docs/matching.md, "Soft-beam frames recalibrated")
+        p_arc, p_crease, p_plane, p_foot, p_seabed = (
+            np.where(p > 0, soft_beam_probability(p, kind), 0.0)
+            for p, kind in zip((p_arc, p_crease, p_plane, p_foot, p_seabed), CANDIDATES))
     feats["seabed_plane_probability"] = np.where(sb_found, 1.0, np.nan)
     if seabed.uncertain and sonar is not None and sb_found.any():
         # A plane given with a declared error (navigation): the seabed point is placed on it, so it is
