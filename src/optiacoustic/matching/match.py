@@ -1095,6 +1095,7 @@ def soft_beam_probability(p, kind: str) -> np.ndarray:
     q = np.clip(np.asarray(p, float), 1e-12, 1.0 - 1e-12)
     return 1.0 / (1.0 + np.exp(-(a + b * np.log(q / (1.0 - q)))))
 
+
 def _logistic(X, model):
     w = np.asarray(model["weights"], float)
     z = w[0] + ((X - np.asarray(model["mean"])) / np.asarray(model["std"])) @ w[1:]
