@@ -117,14 +117,24 @@ def test_relief_raises_the_residual_and_the_matcher_warns(tmp_path, frames):
     from optiacoustic.experiments.matching import relief_scene
     from optiacoustic.matching import SeabedReliefWarning, match
 
-    ratios = []
+    ratios, sigmas = [], []
     for sd in (6101, 6102, 6103):
         s, o, rig = simulate_pair(relief_scene(sd, 0.02, tmp_path), "thesis", "default", sd)
-        ratios.append(fit_seabed(s.image, s.ranges, s.azimuths, s.spec.fov_elevation).relief_ratio)
+        plane = fit_seabed(s.image, s.ranges, s.azimuths, s.spec.fov_elevation)
+        ratios.append(plane.relief_ratio)
+        sigmas.append(plane.relief_sigma)
     assert min(ratios) > 1.5, ratios
+    # the relief the residual implies, against the heightfield's own RMS (2 cm): the onsets sample it along
+    # one line, so a scene's estimate varies (0.45-1.35 times the RMS over 15 scenes of 1 and 2 cm)
+    assert all(0.006 < x < 0.04 for x in sigmas) and 0.01 < np.mean(sigmas) < 0.03, sigmas
     with pytest.warns(SeabedReliefWarning, match="depart from one plane"):
         m = match(s, o.image, rig)
     assert m and "depart from one plane" in m.message
+    # the fitted plane is then uncertain by that relief: its seabed points are scored by the chance it leaves
+    # them right (acoustic.plane_error_probability), the message says by how much
+    assert m.seabed.sigma_offset == pytest.approx(sigmas[-1]) and f"{sigmas[-1] * 1000:.0f} mm" in m.message
+    found = m.features["seabed_found"]
+    assert np.all(m.features["seabed_plane_probability"][found] < 1.0)
     # given the plane (navigation), nothing is fitted and nothing is said
     from optiacoustic.matching import SeabedPlane
 
@@ -135,4 +145,21 @@ def test_relief_raises_the_residual_and_the_matcher_warns(tmp_path, frames):
     with warnings.catch_warnings():
         warnings.simplefilter("error", SeabedReliefWarning)
         m_f = match(flat, o_f.image, rig_f)
-    assert "depart from one plane" not in m_f.message
+    assert "depart from one plane" not in m_f.message and m_f.seabed.sigma_offset == 0.0
+
+
+def test_relief_sigma_is_the_residual_beyond_a_flat_seabeds():
+    """``relief_sigma``: a normal height of standard deviation s has median absolute value 0.6745 s, and adds
+    in quadrature to the flat seabed's median residual, approximately (Monte Carlo, 200 000 draws of a normal
+    relief plus a uniform placement of comparable size: within 2 %); 0 where the
+    residual is no more than a flat seabed's; NaN when that is unknown."""
+    from optiacoustic.matching import SeabedPlane
+
+    rng = np.random.default_rng(3)
+    s_true, flat_half = 0.012, 0.004          # relief sd; the onsets' placement, uniform in +-flat_half
+    x = rng.normal(0.0, s_true, 200_000) + rng.uniform(-flat_half, flat_half, 200_000)
+    flat = np.median(np.abs(rng.uniform(-flat_half, flat_half, 200_000)))
+    plane = SeabedPlane(np.array([0.0, 0.0, 1.0]), -2.0, float(np.median(np.abs(x))), 50, flat_rms=float(flat))
+    assert plane.relief_sigma == pytest.approx(s_true, rel=0.02)
+    assert SeabedPlane(np.array([0.0, 0.0, 1.0]), -2.0, 0.001, 50, flat_rms=0.002).relief_sigma == 0.0
+    assert np.isnan(SeabedPlane(np.array([0.0, 0.0, 1.0]), -2.0, 0.001, 50).relief_sigma)

@@ -98,6 +98,18 @@ class SeabedPlane:
         seabed has relief (1.6-3.7 at 1 cm RMS) or objects break the near edge; NaN when unknown."""
         return float(self.rms / self.flat_rms) if self.flat_rms > 0 else float("nan")
 
+    @property
+    def relief_sigma(self) -> float:
+        """(m) The seabed's height spread about the plane that the fit's residual implies beyond a flat
+        seabed's: ``sqrt(rms^2 - flat_rms^2) / 0.6745`` (``rms`` and ``flat_rms`` are median absolute
+        residuals, and a normal height's is 0.6745 of its standard deviation; the flat part, the onsets'
+        placement in their bins, adds in quadrature). On relief_scene's heightfields of 1 and 2 cm RMS it
+        gave 0.6-1.6 and 0.7-2.7 cm (12 scenes each). 0 where the residual is no more than a flat
+        seabed's; NaN when ``flat_rms`` is unknown."""
+        if not self.flat_rms > 0:
+            return float("nan")
+        return float(np.sqrt(max(self.rms ** 2 - self.flat_rms ** 2, 0.0)) / 0.6745)
+
     def height(self, points_sonar) -> np.ndarray:
         """Signed height (m) of sonar-frame points ``(..., 3)`` above the plane."""
         return np.asarray(points_sonar, float) @ self.normal - self.offset

@@ -664,10 +664,16 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
         intervals = _elevation_intervals(sf, img_s, r_bins, th_beams, rig, opt, seabed)
         plane = intervals[3]
         if seabed is None and plane and plane.relief_ratio > RELIEF_RATIO_WARN:
+            # The plane is then uncertain by the relief the residual implies: the seabed points placed on it
+            # are scored by the chance that relief leaves them right, as a navigation plane's declared error
+            # (round i15t; docs/matching.md, "Seabed relief as the plane's error")
+            plane = dataclasses.replace(plane, sigma_offset=plane.relief_sigma)
+            intervals = intervals[:3] + (plane,)
             relief_note = (f"the seabed's echo onsets depart from one plane by {plane.rms * 1000:.1f} mm, "
                            f"{plane.relief_ratio:.1f} times a flat seabed's (relief, objects at the near edge, or no "
                            f"seabed): the matcher's seabed is one plane, and on seabeds with relief its precision "
-                           f"falls and its scores, calibrated on flat seabeds, run high (docs/matching.md, "
+                           f"falls; the seabed points it places on the plane are scored by the chance that "
+                           f"{plane.sigma_offset * 1000:.0f} mm of relief leaves them right (docs/matching.md, "
                            f"'Seabed relief')")
             warnings.warn(SeabedReliefWarning(relief_note), stacklevel=2)
         else:
