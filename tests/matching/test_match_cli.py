@@ -89,6 +89,12 @@ def test_match_command_with_the_seabed_from_the_pair_pose(tmp_path):
     assert r.exit_code == 0, r.output
     told = json.loads((out / "matches.json").read_text())
     assert told["n_matches"] == data["n_matches"]
+    # matches.json records the plane used, where it came from and its declared errors, and each match's candidate
+    assert told["seabed"]["source"].startswith("navigation") and told["seabed"]["sigma_offset_m"] == 0.02
+    assert abs(told["seabed"]["sigma_tilt_deg"] - 0.1) < 1e-12 and abs(told["seabed"]["offset_m"] - data["seabed"]["offset_m"]) < 1e-12
+    assert fitted["seabed"]["source"].startswith("fitted") and fitted["seabed"]["sigma_offset_m"] == 0.0
+    assert len(told["candidate"]) == told["n_matches"]
+    assert set(told["candidate"]) <= {"arc", "crease", "plane", "foot", "seabed"}
     assert sum(m[-1] for m in told["matches"]) <= sum(m[-1] for m in data["matches"]) + 1e-9
     r = runner.invoke(app, ["match", str(pair), "--out", str(out), "--seabed-sigma-z", "0.02"])
     assert r.exit_code == 2 and "--seabed-z" in r.output

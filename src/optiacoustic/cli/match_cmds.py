@@ -78,6 +78,19 @@ def match_cmd(
         "columns": ["u_px", "v_px", "range_m", "azimuth_rad", "X_cam_m", "Y_cam_m", "Z_cam_m", "score"],
         "matches": np.column_stack([m.pixels, m.ranges, m.azimuths, m.points, m.score]).tolist() if m else [],
     }
+    plane = m.seabed
+    if plane is not None and plane:
+        # the seabed plane the matcher used (sonar frame), where it came from and its error
+        data["seabed"] = {
+            "source": "navigation (--seabed-z)" if seabed_z is not None else "fitted to the sonar image",
+            "normal": [float(x) for x in plane.normal], "offset_m": float(plane.offset),
+            "sigma_offset_m": float(plane.sigma_offset), "sigma_tilt_deg": float(np.rad2deg(plane.sigma_tilt)),
+            "relief_ratio": None if not np.isfinite(plane.relief_ratio) else float(plane.relief_ratio),
+        }
+    if m and "face_source" in m.features:
+        from ..matching.match import CANDIDATES
+
+        data["candidate"] = [CANDIDATES[int(k)] for k in m.features["face_source"]]
     if correct is not None:
         data["correct_by_depth_map"] = np.asarray(correct).tolist()
         data["precision_by_depth_map"] = float(np.mean(correct))
