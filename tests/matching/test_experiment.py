@@ -56,6 +56,10 @@ def test_matching_experiment(tmp_path):
     assert [d["rms_m"] for d in rl] == [0.0, 0.01, 0.05]
     assert all(0 <= d["precision_all"] <= 1 and d["n_visible"] > 0 for d in rl)
     assert rl[2]["precision_all"] < rl[0]["precision_all"]
+    for d in rl:  # the same pairs with the relief taken as the plane's error (MatchOptions.relief_as_plane_error)
+        for k in ("plane_error_precision_at_recall_0_25", "plane_error_precision_at_recall_0_5"):
+            assert np.isnan(d[k]) or 0 <= d[k] <= 1
+    assert rl[0]["plane_error_precision_at_recall_0_5"] == rl[0]["precision_at_recall_0_5"]  # flat: none warned
 
 
 def test_varied_scene_is_seeded_and_stands_on_the_seabed():

@@ -130,11 +130,17 @@ def test_relief_raises_the_residual_and_the_matcher_warns(tmp_path, frames):
     with pytest.warns(SeabedReliefWarning, match="depart from one plane"):
         m = match(s, o.image, rig)
     assert m and "depart from one plane" in m.message
-    # the fitted plane is then uncertain by that relief: its seabed points are scored by the chance it leaves
-    # them right (acoustic.plane_error_probability), the message says by how much
-    assert m.seabed.sigma_offset == pytest.approx(sigmas[-1]) and f"{sigmas[-1] * 1000:.0f} mm" in m.message
-    found = m.features["seabed_found"]
-    assert np.all(m.features["seabed_plane_probability"][found] < 1.0)
+    # by default the plane stays as fitted and the message names the option; with relief_as_plane_error the
+    # plane is uncertain by that relief: its seabed points are scored by the chance it leaves them right
+    # (acoustic.plane_error_probability), and the message says by how much
+    assert m.seabed.sigma_offset == 0.0 and "relief_as_plane_error" in m.message
+    from optiacoustic.matching import MatchOptions
+
+    with pytest.warns(SeabedReliefWarning):
+        m2 = match(s, o.image, rig, options=MatchOptions(relief_as_plane_error=True))
+    assert m2.seabed.sigma_offset == pytest.approx(sigmas[-1]) and f"{sigmas[-1] * 1000:.0f} mm" in m2.message
+    found = m2.features["seabed_found"]
+    assert np.all(m2.features["seabed_plane_probability"][found] < 1.0)
     # given the plane (navigation), nothing is fitted and nothing is said
     from optiacoustic.matching import SeabedPlane
 
@@ -144,7 +150,7 @@ def test_relief_raises_the_residual_and_the_matcher_warns(tmp_path, frames):
     flat, o_f, rig_f = simulate_pair(random_scene(6101), "thesis", "default", 6101)
     with warnings.catch_warnings():
         warnings.simplefilter("error", SeabedReliefWarning)
-        m_f = match(flat, o_f.image, rig_f)
+        m_f = match(flat, o_f.image, rig_f, options=MatchOptions(relief_as_plane_error=True))
     assert "depart from one plane" not in m_f.message and m_f.seabed.sigma_offset == 0.0
 
 
