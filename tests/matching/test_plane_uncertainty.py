@@ -181,3 +181,40 @@ def test_declared_error_scales_the_seabed_points_probability():
                                np.array([by["blind"][i]["p_seabed"] for i in found]) * pp, rtol=1e-12)
     for k in ("p_arc", "p_crease", "p_plane", "p_foot"):
         assert all(by["told"][i][k] == by["blind"][i][k] for i in by["told"])
+
+
+def test_seabed_from_altitude_and_attitude():
+    """``from_attitude``: the boresight of a sonar ``h`` above the seabed and pitched down ``p`` meets it at
+    the slant range ``h / sin p`` straight ahead (elevation 0 there); a roll lifts the left side; the same
+    plane as ``from_pose`` with the sonar's world pose built independently (look_at with the aim below)."""
+    from optiacoustic.matching.acoustic import seabed_elevation
+
+    for h, p in ((1.5, 20.0), (3.0, 35.0), (0.8, 8.0)):
+        plane = SeabedPlane.from_attitude(h, p, sigma_height=0.01)
+        r = h / np.sin(np.deg2rad(p))
+        assert abs(seabed_elevation(plane, [r], [0.0])[0]) < 1e-9
+        look = Pose.look_at((0.0, 0.0, h), (0.0, 10.0 * np.cos(np.deg2rad(p)), h - 10.0 * np.sin(np.deg2rad(p))))
+        ref = SeabedPlane.from_pose(look)
+        np.testing.assert_allclose(plane.normal, ref.normal, atol=1e-12)
+        assert plane.offset == pytest.approx(ref.offset) and plane.sigma_offset == 0.01
+    rolled = SeabedPlane.from_attitude(2.0, 20.0, 5.0)
+    assert rolled.height(np.array([1.0, 0.0, 0.0])) < rolled.height(np.array([-1.0, 0.0, 0.0]))  # right side down
+    for bad in (dict(altitude=0.0), dict(altitude=-1.0), dict(altitude=float("nan")), dict(altitude=2.0, pitch_deg=float("inf"))):
+        with pytest.raises(ValueError):
+            SeabedPlane.from_attitude(**bad)
+
+
+def test_workbench_command_refuses_a_seabed_without_altitude(tmp_path):
+    """``oas workbench``: the seabed's companions without ``--seabed-altitude``, or a bad altitude, are refused
+    with a message naming the flag (before anything is served)."""
+    from typer.testing import CliRunner
+
+    from optiacoustic.cli import app
+
+    runner = CliRunner()
+    r = runner.invoke(app, ["workbench", "--no-browser", "--seabed-pitch", "20"])
+    assert r.exit_code == 2 and "--seabed-altitude" in r.output
+    r = runner.invoke(app, ["workbench", "--no-browser", "--seabed-altitude", "-1"])
+    assert r.exit_code == 2 and "altitude" in r.output
+    r = runner.invoke(app, ["workbench", "--no-browser", "--seabed-altitude", "2", "--seabed-sigma-z", "-0.1"])
+    assert r.exit_code == 2 and "--seabed-sigma-z" in r.output

@@ -80,6 +80,19 @@ def test_real_pair_from_a_real_sonar_log_and_an_image_folder(tmp_path):
     assert pair.beam_model == "aperture" and pair.sonar_frame().beam_model == "aperture"
     rows, message = suggest(pair, pair.rig)
     assert rows == [] and "soft elevation beam" in message
+    # with the seabed from the navigation (oas workbench --seabed-altitude), the matcher runs on it: the page's
+    # button adds what it returns (no real pair here has depth truth to judge them by)
+    from optiacoustic.matching import SeabedPlane
+
+    nav = SeabedPlane.from_attitude(1.5, 20.0, sigma_height=0.01, sigma_tilt=np.deg2rad(0.05))
+    rows, message = suggest(pair, pair.rig, seabed=nav)
+    assert "soft elevation beam" not in message and message
+    session, client = _client(pair)
+    session.seabed = nav
+    with client:
+        r = client.post("/api/matches/suggest")
+        assert r.status_code == 200 and r.json()["added"] == len(rows) == len(session.matches)
+        client.post("/api/undo")
     session, client = _client(pair)
     with client:
         st = client.get("/api/state").json()

@@ -29,6 +29,17 @@ def workbench_cmd(
     allow_remote: bool = typer.Option(False, "--allow-remote",
                                       help="Allow a non-loopback --host; the page then needs a per-run token."),
     no_browser: bool = typer.Option(False, "--no-browser", help="Do not open the page in a browser."),
+    seabed_altitude: Optional[float] = typer.Option(None, "--seabed-altitude", metavar="M", help="Real pair: the "
+                                                    "sonar's height above a flat seabed (m), from the navigation. "
+                                                    "'Suggest matches' needs it for a soft-beam sonar (every real one)."),
+    seabed_pitch: float = typer.Option(0.0, "--seabed-pitch", metavar="DEG", help="With --seabed-altitude: the "
+                                       "sonar's boresight pitch below horizontal (deg)."),
+    seabed_roll: float = typer.Option(0.0, "--seabed-roll", metavar="DEG", help="With --seabed-altitude: the sonar's "
+                                      "roll, right side down (deg)."),
+    seabed_sigma_z: float = typer.Option(0.0, "--seabed-sigma-z", metavar="S", help="With --seabed-altitude: its "
+                                         "standard deviation (m)."),
+    seabed_sigma_tilt: float = typer.Option(0.0, "--seabed-sigma-tilt", metavar="DEG", help="With --seabed-altitude: "
+                                            "pitch and roll standard deviation (deg)."),
 ):
     """Serve the opti-acoustic workbench: epipolar-guided matching, reconstruction, calibration, fusion."""
     from ..rig import Rig
@@ -53,9 +64,10 @@ def workbench_cmd(
         rig = Rig.load(rig_file) if rig_file is not None else Rig.from_dict(src.THESIS_RIG, "thesis rig")
         scene = resolve_scene(source or "thesis_scene1")
         make = lambda k=None: src.simulated_pair(scene, rig, eye=eye, target=target, water=water, seed=seed)  # noqa: E731
+    seabed = _navigation_seabed(seabed_altitude, seabed_pitch, seabed_roll, seabed_sigma_z, seabed_sigma_tilt)
     console.print("preparing the pair ...")
     pair = make()
-    session = Session(pair)
+    session = Session(pair, seabed=seabed)
     if port == 0:
         port = free_port(host)
     if not is_loopback(host):
@@ -67,3 +79,24 @@ def workbench_cmd(
 
     serve(session, host=host, port=port, allow_remote=allow_remote, open_browser=not no_browser, on_ready=ready,
           sources={f"{pair.kind}: {pair.name} (as started)": make})
+
+
+def _navigation_seabed(altitude, pitch_deg, roll_deg, sigma_z, sigma_tilt_deg):
+    """The matcher's seabed from ``--seabed-altitude`` and its companions (``None`` without it)."""
+    import math
+
+    if altitude is None:
+        if pitch_deg or roll_deg or sigma_z or sigma_tilt_deg:
+            raise ValueError("--seabed-pitch, --seabed-roll, --seabed-sigma-z and --seabed-sigma-tilt describe the "
+                             "seabed of --seabed-altitude: give --seabed-altitude too")
+        return None
+    from ..matching import SeabedPlane
+
+    for flag, v in (("--seabed-sigma-z", sigma_z), ("--seabed-sigma-tilt", sigma_tilt_deg)):
+        if not (math.isfinite(v) and v >= 0):
+            raise ValueError(f"{flag}: expected a finite number >= 0, got {v}")
+    try:
+        return SeabedPlane.from_attitude(altitude, pitch_deg, roll_deg, sigma_height=sigma_z,
+                                         sigma_tilt=math.radians(sigma_tilt_deg))
+    except ValueError as exc:
+        raise ValueError(f"--seabed-altitude/--seabed-pitch/--seabed-roll: {exc}") from None

@@ -151,6 +151,26 @@ class SeabedPlane:
                    sigma_offset=float(sigma_height), sigma_tilt=float(sigma_tilt))
 
 
+    @classmethod
+    def from_attitude(cls, altitude: float, pitch_deg: float = 0.0, roll_deg: float = 0.0, *,
+                      sigma_height: float = 0.0, sigma_tilt: float = 0.0) -> "SeabedPlane":
+        """The flat seabed seen from a sonar at ``altitude`` (m) above it, its boresight pitched down by
+        ``pitch_deg`` and rolled by ``roll_deg`` (right side down), as a vehicle's altimeter and attitude
+        sensor give them with the sonar's mounting added. The sonar's world rotation is a roll about its
+        forward axis after a pitch about its right axis; the rest as :meth:`from_pose`. Straight ahead the
+        boresight meets the seabed at the slant range ``altitude / sin(pitch)``."""
+        from ..frames import Pose, rotation_from_euler_xyz
+
+        for name, v in (("altitude", altitude), ("pitch_deg", pitch_deg), ("roll_deg", roll_deg)):
+            if not (isinstance(v, (int, float, np.floating, np.integer)) and np.isfinite(v)):
+                raise ValueError(f"{name}: expected a finite number, got {v!r}")
+        if altitude <= 0:
+            raise ValueError(f"altitude: the sonar must be above the seabed (m > 0), got {altitude!r}")
+        R = rotation_from_euler_xyz(np.deg2rad([-float(pitch_deg), float(roll_deg), 0.0]))
+        return cls.from_pose(Pose(R, np.array([0.0, 0.0, float(altitude)])), 0.0, sigma_height=sigma_height,
+                             sigma_tilt=sigma_tilt)
+
+
 #: Where the seabed edge lies after the centre of the first bin above the onset threshold (bins).
 ONSET_OFFSET_BINS = 0.55
 

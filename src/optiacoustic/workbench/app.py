@@ -278,7 +278,7 @@ def create_app(session: Session, *, token: Optional[str] = None,
         from .session import Match
 
         with S.lock:
-            rows, msg = compute.suggest(S.pair, S.rig)
+            rows, msg = compute.suggest(S.pair, S.rig, seabed=S.seabed)
             S.replace_all(S.matches + [Match(*row) for row in rows])
         return {"added": len(rows), "message": msg, "version": S.version}
 

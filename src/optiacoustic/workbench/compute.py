@@ -272,8 +272,10 @@ def fusion_layer(kind: str, rig: Rig, fan_small, ranges, azimuths, pixels) -> tu
     return echo, desc + (f", sigma = {sig:.3g} m" if sig is not None else "")
 
 
-def suggest(pair, rig: Rig) -> tuple[list, str]:
-    """Matches proposed by the automatic matcher, as ``(u, v, range, azimuth)`` rows, and its message."""
+def suggest(pair, rig: Rig, seabed=None) -> tuple[list, str]:
+    """Matches proposed by the automatic matcher, as ``(u, v, range, azimuth)`` rows, and its message.
+    ``seabed``: a ``SeabedPlane`` from the navigation (``oas workbench --seabed-altitude``), which a
+    soft-beam frame (every real one) needs; ``None``: the matcher fits it to the sonar image."""
     from .sources import matcher_available
 
     ok, msg = matcher_available()
@@ -282,6 +284,6 @@ def suggest(pair, rig: Rig) -> tuple[list, str]:
     from ..matching import match
 
     cam = pair.camera_linear if pair.camera_linear is not None else pair.camera_rgb8
-    m = match(pair.sonar_frame(), cam, rig)
+    m = match(pair.sonar_frame(), cam, rig, seabed=seabed)
     rows = [(float(u), float(v), float(r), float(a)) for (u, v), r, a in zip(m.pixels, m.ranges, m.azimuths)]
     return rows, m.message or f"{len(rows)} matches"

@@ -48,6 +48,7 @@ class Session:
     calibration_report: dict = None
     version: int = 0
     fan_width: int = FAN_WIDTH
+    seabed: object = None  # a SeabedPlane from the navigation for the matcher (real soft-beam pairs), or None
 
     def __post_init__(self):
         self.lock = threading.RLock()
