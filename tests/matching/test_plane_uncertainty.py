@@ -16,7 +16,7 @@ import pytest
 from scipy.special import erfinv
 from scipy.spatial.transform import Rotation
 
-from optiacoustic.experiments.matching import _rig_for, random_scene
+from optiacoustic.experiments.matching import _rig_for, navigation_plane, random_scene
 from optiacoustic.frames import Pose, sonar_from_spherical, spherical_from_sonar
 from optiacoustic.matching import SeabedPlane, match
 from optiacoustic.matching.acoustic import moved_plane, plane_error_probability, seabed_elevation
@@ -110,12 +110,6 @@ def test_no_declared_error_changes_nothing():
     assert np.all(a.features["seabed_plane_probability"][found] == 1.0)
 
 
-def _tilted(plane, rng, sigma_h, sigma_t):
-    """``plane`` with errors drawn from the declared sigmas (the truth it is not told)."""
-    rot = Rotation.from_rotvec(np.array([rng.normal(0, sigma_t), rng.normal(0, sigma_t), 0.0]))
-    return SeabedPlane(rot.apply(plane.normal), plane.offset - rng.normal(0, sigma_h), 0.0, 0)
-
-
 def test_probability_is_the_fraction_right_over_drawn_planes():
     """Monte Carlo against the depth map: seabed points right with the exact plane (by the simulated camera's
     depth map, the independent truth) are placed again on 300 planes drawn with the declared errors (1 cm,
@@ -143,7 +137,7 @@ def test_probability_is_the_fraction_right_over_drawn_planes():
     predicted = plane_error_probability(rig, told, sonar_from_spherical(r, th, el), bw, aw).mean()
     still = []
     for _ in range(300):
-        _, px, found = seabed_points(rig, _tilted(exact, rng, sh, st), r, th, rig.fov_elevation)
+        _, px, found = seabed_points(rig, navigation_plane(pose, rng, sh, st), r, th, rig.fov_elevation)
         ok = np.zeros(r.size, bool)
         ok[found] = truth.correct(rig, depth, px[found], r[found], th[found], bin_width=bw, beam_width=aw)
         still.append(ok.mean())
@@ -155,15 +149,10 @@ def test_declared_error_scales_the_seabed_points_probability():
     """In the matcher, on a realistic soft-beam frame (the frames where a navigation plane is needed): each
     feature's seabed-point probability told the sigmas is the untold one times the plane's probability
     (the same plane, the same geometry); the other candidates' are untouched."""
-    from optiacoustic import simulate_sonar
-    from optiacoustic.experiments.matching import realistic_sonar
-    from optiacoustic.simulation import simulate_rig
+    from optiacoustic.experiments.matching import realistic_pair
 
-    sc = random_scene(332)
-    rig, pose = _rig_for(sc.view.eye, sc.view.target)
-    optical = simulate_rig(sc, rig, pose, seed=332).optical
-    sonar = simulate_sonar(sc, rig.sonar, pose, seed=332, **realistic_sonar())
-    wrong = _tilted(SeabedPlane.from_pose(pose), np.random.default_rng(12), 0.01, np.deg2rad(0.05))
+    sonar, optical, rig, pose = realistic_pair(random_scene(332), 332)
+    wrong = navigation_plane(pose, np.random.default_rng(12), 0.01, np.deg2rad(0.05))
     told = dataclasses.replace(wrong, sigma_offset=0.01, sigma_tilt=np.deg2rad(0.05))
     by = {}
     for name, plane in (("blind", wrong), ("told", told)):

@@ -82,7 +82,6 @@ def test_frames_saved_before_the_beam_model_was_recorded_load_as_thesis(scene_fr
 
 def test_pair_folders_record_the_beam_model(tmp_path):
     """``oas render``'s pair.json records the sonar's beam model; read_pair gives it back, and rejects a bad one."""
-    from optiacoustic.experiments.matching import simulate_pair  # noqa: F401  (the same pair path the CLI takes)
     from optiacoustic.simulation import simulate_rig
 
     sc = random_scene(322)
@@ -173,17 +172,12 @@ def test_a_soft_beam_frame_matches_with_the_seabed_from_navigation():
     """Realistic soft-beam frames (the benchmark's: aperture pattern, spreading, scatterer speckle) of seeded
     scenes: with the true seabed (what navigation gives) about half the matches are right, several times as
     many as with the plane fitted to the image (``allow_soft_beam``; 0.48 against 0.05 on held-out scenes)."""
-    from optiacoustic.experiments.matching import realistic_sonar
+    from optiacoustic.experiments.matching import realistic_pair
     from optiacoustic.matching import SeabedPlane
-    from optiacoustic.simulation import simulate_rig
 
-    realistic = realistic_sonar()
     right_nav, right_fit = [], []
     for sd in (331, 332, 333):
-        sc = random_scene(sd)
-        rig, pose = _rig_for(sc.view.eye, sc.view.target)
-        optical = simulate_rig(sc, rig, pose, seed=sd).optical
-        soft = simulate_sonar(sc, rig.sonar, pose, seed=sd, **realistic)
+        soft, optical, rig, pose = realistic_pair(random_scene(sd), sd)
         nav = match(soft, optical.image, rig, seabed=SeabedPlane.from_pose(pose), min_score=0.0)
         assert nav and nav.seabed is not None
         with pytest.warns(SeabedReliefWarning):

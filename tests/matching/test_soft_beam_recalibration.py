@@ -11,18 +11,13 @@ fit the recalibrated probabilities agree with the depth-map truth where the thes
 import numpy as np
 import pytest
 
-from optiacoustic import simulate_sonar
-from optiacoustic.experiments.matching import _rig_for, random_scene, realistic_sonar
+from optiacoustic.experiments.matching import random_scene, realistic_pair
 from optiacoustic.matching import MatchOptions, SeabedPlane, match, truth
 from optiacoustic.matching.match import CANDIDATES, SOFT_BEAM_RECALIBRATION, soft_beam_probability
-from optiacoustic.simulation import simulate_rig
 
 
 def _pair(sd):
-    sc = random_scene(sd)
-    rig, pose = _rig_for(sc.view.eye, sc.view.target)
-    optical = simulate_rig(sc, rig, pose, seed=sd).optical
-    sonar = simulate_sonar(sc, rig.sonar, pose, seed=sd, **realistic_sonar())
+    sonar, optical, rig, pose = realistic_pair(random_scene(sd), sd)
     return sonar, optical, rig, SeabedPlane.from_pose(pose)
 
 

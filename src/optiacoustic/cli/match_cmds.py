@@ -134,11 +134,11 @@ def _seabed(pair_dir: Path, seabed_z: float, sigma_z: float = 0.0, sigma_tilt_de
     navigation's declared errors (altitude in m, roll and pitch in deg)."""
     import math
 
-    for flag, v in (("--seabed-sigma-z", sigma_z), ("--seabed-sigma-tilt", sigma_tilt_deg)):
-        if not (math.isfinite(v) and v >= 0):
-            raise ValueError(f"{flag}: expected a finite number >= 0, got {v}")
     from ..frames import Pose
     from ..matching import SeabedPlane
+    from ..matching.acoustic import check_sigma
+
+    sigma_z, sigma_tilt_deg = check_sigma("--seabed-sigma-z", sigma_z), check_sigma("--seabed-sigma-tilt", sigma_tilt_deg)
 
     R, t = _pair_pose(pair_dir, "sonar_pose", "--seabed-z")
     try:

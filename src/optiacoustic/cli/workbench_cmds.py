@@ -91,10 +91,9 @@ def _navigation_seabed(altitude, pitch_deg, roll_deg, sigma_z, sigma_tilt_deg):
                              "seabed of --seabed-altitude: give --seabed-altitude too")
         return None
     from ..matching import SeabedPlane
+    from ..matching.acoustic import check_sigma
 
-    for flag, v in (("--seabed-sigma-z", sigma_z), ("--seabed-sigma-tilt", sigma_tilt_deg)):
-        if not (math.isfinite(v) and v >= 0):
-            raise ValueError(f"{flag}: expected a finite number >= 0, got {v}")
+    sigma_z, sigma_tilt_deg = check_sigma("--seabed-sigma-z", sigma_z), check_sigma("--seabed-sigma-tilt", sigma_tilt_deg)
     try:
         return SeabedPlane.from_attitude(altitude, pitch_deg, roll_deg, sigma_height=sigma_z,
                                          sigma_tilt=math.radians(sigma_tilt_deg))

@@ -95,7 +95,7 @@ def random_scene(seed: int, textured: bool = False):
 RELIEF_RMS_M = (0.0, 0.005, 0.01, 0.02, 0.05)
 
 
-def relief_scene(seed: int, rms_m: float, folder) -> "Scene":
+def relief_scene(seed: int, rms_m: float, folder):
     """:func:`random_scene` on a seabed with relief: eight seeded plane waves (wavelengths 1-4 m, random
     directions and phases) summed and scaled to ``rms_m`` RMS height, as a triangle mesh at 8 cm spacing
     over 32 m x 32 m (a PLY written to ``folder``). The bodies stay where they were (their bases sink into
@@ -201,6 +201,17 @@ def realistic_sonar():
 
     return dict(options=SonarOptions(beam_model="aperture", propagation="spreading"),
                 noise=ScattererNoise(density=500.0, gain=DeviceGain(noise_db=-60.0, volume_db=-50.0, spreading_db=30.0)))
+
+
+def realistic_pair(scene, seed=0, water=None):
+    """The rig pair of ``scene`` from its view with the realistic sonar (:func:`realistic_sonar`): (sonar
+    frame, optical frame, rig, sonar pose). ``water``: the camera's (``simulate_rig``'s default when None)."""
+    from .. import simulate_sonar
+    from ..simulation import simulate_rig
+
+    rig, pose = _rig_for(scene.view.eye, scene.view.target)
+    optical = simulate_rig(scene, rig, pose, water=water, seed=seed).optical
+    return simulate_sonar(scene, rig.sonar, pose, seed=seed, **realistic_sonar()), optical, rig, pose
 
 
 def simulate_pair(scene, water="thesis", noise_floor_db="default", seed=0):
@@ -1171,11 +1182,9 @@ def calibrate_soft_beam(random_seeds=range(5000, 5024), varied_seeds=range(8000,
     """
     from scipy.optimize import minimize
 
-    from .. import simulate_sonar
     from ..matching import MatchOptions, SeabedPlane, match, truth
-    from ..matching.match import CANDIDATES
+    from ..matching.match import CANDIDATES, logit
     from ..optical import Water
-    from ..simulation import simulate_rig
 
     opts = MatchOptions(soft_beam_recalibration=False)
     x = {k: [] for k in CANDIDATES}
@@ -1183,9 +1192,7 @@ def calibrate_soft_beam(random_seeds=range(5000, 5024), varied_seeds=range(8000,
     scenes = [random_scene(int(sd)) for sd in random_seeds] + [varied_scene(int(sd)) for sd in varied_seeds]
     seeds = list(random_seeds) + list(varied_seeds)
     for sc, sd in zip(scenes, seeds):
-        rig, pose = _rig_for(sc.view.eye, sc.view.target)
-        optical = simulate_rig(sc, rig, pose, water=Water.preset("thesis"), seed=int(sd)).optical
-        sonar = simulate_sonar(sc, rig.sonar, pose, seed=int(sd), **realistic_sonar())
+        sonar, optical, rig, pose = realistic_pair(sc, int(sd), Water.preset("thesis"))
         m = match(sonar, optical.image, rig, seabed=SeabedPlane.from_pose(pose), options=opts, min_score=0.0)
         if not m:
             continue
@@ -1196,8 +1203,7 @@ def calibrate_soft_beam(random_seeds=range(5000, 5024), varied_seeds=range(8000,
             px = np.column_stack([f[f"{k}_u"], f[f"{k}_v"]])
             c = (p > 0) & np.all(np.isfinite(px), axis=1)
             if c.any():
-                q = np.clip(p[c], 1e-12, 1.0 - 1e-12)
-                x[k].append(np.log(q / (1.0 - q)))
+                x[k].append(logit(p[c]))
                 y[k].append(truth.correct(rig, optical.depth, px[c], m.ranges[c], m.azimuths[c], bin_width=bw,
                                           beam_width=aw).astype(float))
     out = {}

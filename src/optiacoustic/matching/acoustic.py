@@ -32,6 +32,14 @@ from ..geometry.projection import cos_sin_roots
 __all__ = ["SeabedPlane", "fit_seabed", "far_edges", "moved_plane", "plane_error_probability", "seabed_elevation", "seabed_points", "elevation_maps", "elevation_bounds", "occluded", "seabed_view"]
 
 
+def check_sigma(name: str, value) -> float:
+    """``value`` as a float when it is a finite number >= 0 (a standard deviation); else a ValueError naming
+    ``name`` (a field, an argument or a command-line flag)."""
+    if not (isinstance(value, (int, float, np.floating, np.integer)) and np.isfinite(value) and value >= 0):
+        raise ValueError(f"{name}: expected a finite number >= 0, got {value!r}")
+    return float(value)
+
+
 @dataclass(frozen=True, eq=False)
 class SeabedPlane:
     """The plane ``normal . P_s = offset`` of the seabed in the sonar frame (unit normal, pointing up).
@@ -71,9 +79,7 @@ class SeabedPlane:
 
     def __post_init__(self):
         for name in ("sigma_offset", "sigma_tilt"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float, np.floating, np.integer)) and np.isfinite(v) and v >= 0):
-                raise ValueError(f"SeabedPlane.{name}: expected a finite number >= 0, got {v!r}")
+            check_sigma(f"SeabedPlane.{name}", getattr(self, name))
 
     @property
     def uncertain(self) -> bool:
@@ -143,13 +149,10 @@ class SeabedPlane:
             raise ValueError(f"sonar_pose: expected a Pose (R (3, 3), t (3,), finite), got {type(sonar_pose).__name__}")
         if not np.isfinite(seabed_z):
             raise ValueError(f"seabed_z: expected a finite height (m), got {seabed_z!r}")
-        for name, v in (("sigma_height", sigma_height), ("sigma_tilt", sigma_tilt)):
-            if not (isinstance(v, (int, float, np.floating, np.integer)) and np.isfinite(v) and v >= 0):
-                raise ValueError(f"{name}: expected a finite number >= 0, got {v!r}")
+        sigma_height, sigma_tilt = check_sigma("sigma_height", sigma_height), check_sigma("sigma_tilt", sigma_tilt)
         n = R.T @ np.array([0.0, 0.0, 1.0])
         return cls(n / np.linalg.norm(n), float(seabed_z - t[2]), 0.0, 0, "",
-                   sigma_offset=float(sigma_height), sigma_tilt=float(sigma_tilt))
-
+                   sigma_offset=sigma_height, sigma_tilt=sigma_tilt)
 
     @classmethod
     def from_attitude(cls, altitude: float, pitch_deg: float = 0.0, roll_deg: float = 0.0, *,

@@ -1108,11 +1108,16 @@ SOFT_BEAM_RECALIBRATION = {
 }
 
 
+def logit(p) -> np.ndarray:
+    """``log(p / (1 - p))`` of probabilities, clipped to ``[1e-12, 1 - 1e-12]`` first."""
+    q = np.clip(np.asarray(p, float), 1e-12, 1.0 - 1e-12)
+    return np.log(q / (1.0 - q))
+
+
 def soft_beam_probability(p, kind: str) -> np.ndarray:
     """A candidate's thesis-frame probability ``p`` mapped through :data:`SOFT_BEAM_RECALIBRATION` ``[kind]``."""
     a, b = SOFT_BEAM_RECALIBRATION[kind]
-    q = np.clip(np.asarray(p, float), 1e-12, 1.0 - 1e-12)
-    return 1.0 / (1.0 + np.exp(-(a + b * np.log(q / (1.0 - q)))))
+    return 1.0 / (1.0 + np.exp(-(a + b * logit(p))))
 
 
 def _logistic(X, model):
