@@ -466,3 +466,33 @@ def test_two_view_score_is_calibrated_against_depth_map_truth(pairs):
     assert p.size >= 40 and np.all((p >= 0) & (p <= 1))
     sd_rate = np.sqrt(np.sum(p * (1 - p))) / p.size
     assert abs(p.mean() - ok.mean()) <= 3 * sd_rate + 0.10
+
+
+def test_top_failures_counts_by_surface():
+    """The report's top-of-ranking anatomy on hand-made evaluations: every count known in advance."""
+    from optiacoustic.experiments.matching import top_failures
+
+    # 10 visible features over two pairs, so recall 0.5 is the fifth right match down the pooled ranking.
+    e1 = dict(n_visible=6, score=np.array([0.99, 0.9, 0.8, 0.3]), ok=np.array([True, False, False, True]),
+              range_error_bins=np.array([0.2, 1.4, -7.0, 0.5]),
+              surface=np.array(["box", "box", "cylinder", "seabed"], dtype=object))
+    e2 = dict(n_visible=4, score=np.array([0.95, 0.85, 0.7, 0.6, 0.2]), ok=np.array([True, True, True, False, True]),
+              range_error_bins=np.array([0.0, -0.9, 0.1, 1.2, 0.3]),
+              surface=np.array(["seabed", "cylinder", "box", "sphere", "box"], dtype=object))
+    t = top_failures([e1, e2])
+    # Order: 0.99 ok box, 0.95 ok seabed, 0.9 wrong box (near), 0.85 ok cylinder, 0.8 wrong cylinder (far),
+    # 0.7 ok box -> 4 right = recall 0.4; 0.6 wrong sphere (near); 0.3 ok seabed -> 5 right = recall 0.5.
+    assert (t["n"], t["wrong"], t["near_miss"]) == (8, 3, 2)
+    assert t["by_surface"] == {"box": (3, 1, 1), "cylinder": (2, 1, 0), "seabed": (2, 0, 0), "sphere": (1, 1, 1)}
+    # A recall never reached: nothing counted.
+    assert top_failures([e1, e2], recall=0.9)["n"] == 0
+
+
+def test_evaluation_range_errors_and_surfaces_agree_with_the_criterion(evals):
+    """A right match's true point lies within a bin of its feature; the surfaces are the scene's bodies."""
+    for e in evals[0]:
+        ok, dr, kind = e["ok"], e["range_error_bins"], e["surface"]
+        assert len(dr) == len(ok) == len(kind)
+        assert np.all(np.abs(dr[ok]) <= 1.0 + 1e-9)
+        assert set(kind) <= {"seabed", "box", "cylinder", "sphere", "water"}  # random_scene's bodies
+        assert "water" not in set(kind[ok])

@@ -297,7 +297,8 @@ def evaluate_pair(sonar, optical, rig, *, options=None, seabed=None):
     m = match(sonar, optical.image, rig, options=options, min_score=0.0, seabed=seabed)
     out = dict(n_visible=0, score=np.zeros(0), ok=np.zeros(0, bool), base_ok=np.zeros(0, bool), err=np.zeros(0),
                ok3=np.zeros(0, bool), base_ok3=np.zeros(0, bool),
-               err_true=np.zeros(0), matches=m, correct=np.zeros(0, bool))
+               err_true=np.zeros(0), matches=m, correct=np.zeros(0, bool), range_error_bins=np.zeros(0),
+               surface=np.zeros(0, dtype=object))
     sf = m.sonar_features
     # The baseline's (and the "true matches"') camera features: OpenCV corners, whatever the matcher used.
     cf = detect_camera_features(optical.image)
@@ -314,6 +315,14 @@ def evaluate_pair(sonar, optical, rig, *, options=None, seabed=None):
         out["err"] = np.linalg.norm(m.points - P_true, axis=-1)
         out["ok3"] = truth.correct(rig, optical.depth, m.pixels, m.ranges, m.azimuths, bin_width=3 * bin_w,
                                    beam_width=3 * beam_w)
+        # Why a wrong match is wrong (evaluation only): how far in range the pixel's true point is from the
+        # feature (bins), and the surface the pixel sees (the camera's body map).
+        from ..geometry.projection import to_sonar
+
+        seen = np.all(np.isfinite(P_true), axis=1)
+        sp = to_sonar(rig, np.where(seen[:, None], P_true, 0.0))
+        out["range_error_bins"] = np.where(seen, (sp.ranges - m.ranges) / bin_w, np.nan)
+        out["surface"] = _surfaces(optical, m.pixels)
     # Baseline: every sonar feature takes the camera feature nearest (Mahalanobis) to its conic.
     d2 = mahalanobis_sq(rig, cf.pixels, cf.sigma_pixel, sf.ranges, sf.azimuths, sf.sigma_range, sf.sigma_azimuth)
     j = np.argmin(d2, axis=1)
@@ -333,6 +342,58 @@ def evaluate_pair(sonar, optical, rig, *, options=None, seabed=None):
         P_true = truth.pixel_points(rig, optical.depth, cf.pixels[cols])
         e = np.linalg.norm(ref.points - P_true, axis=-1)
         out["err_true"] = e[np.isfinite(e)]
+    return out
+
+
+def _surfaces(optical, pixels) -> np.ndarray:
+    """The kind of surface each pixel sees, from the camera's body map: the body's name up to its first
+    underscore or digit (``box_3`` -> ``box``, ``cuboid_right`` -> ``cuboid``, ``bar_x0`` -> ``bar``), ``lying``
+    for a cylinder lying on the seabed, ``"water"`` where the pixel sees no body. Evaluation only."""
+    import re
+
+    body = getattr(optical, "body", None)
+    names = list(getattr(optical, "body_names", None) or ())
+    px = np.asarray(pixels, float).reshape(-1, 2)
+    if body is None or not names or px.size == 0:
+        return np.full(len(px), "unknown", dtype=object)
+    H, W = body.shape
+    ui = np.clip(np.rint(np.nan_to_num(px[:, 0])).astype(int), 0, W - 1)
+    vi = np.clip(np.rint(np.nan_to_num(px[:, 1])).astype(int), 0, H - 1)
+    ids = np.asarray(body)[vi, ui]
+    kinds = ["lying" if "lying" in n else re.split(r"[_\d]", n)[0] or n for n in names]
+    return np.array([kinds[i] if 0 <= i < len(kinds) else "water" for i in ids], dtype=object)
+
+
+def top_failures(evals, recall: float = 0.5, near_bins: float = 1.5) -> dict:
+    """The top of the pooled ranking, down to where recall reaches ``recall``: its matches and its wrong ones by
+    the surface the pixel sees, and how many of the wrong ones are near misses (the pixel's true point within
+    ``near_bins`` range bins of the feature, where one bin is right). Evaluation only.
+
+    Returns ``dict(n, wrong, near_miss, by_surface={kind: (matches, wrong, near misses)})``; empty counts where
+    the recall is never reached.
+    """
+    n_vis = sum(e["n_visible"] for e in evals)
+    score = np.concatenate([e["score"] for e in evals]) if evals else np.zeros(0)
+    ok = np.concatenate([e["ok"] for e in evals]) if evals else np.zeros(0, bool)
+    dr = np.concatenate([e.get("range_error_bins", np.full(len(e["ok"]), np.nan)) for e in evals]) if evals else np.zeros(0)
+    kind = np.concatenate([e.get("surface", np.full(len(e["ok"]), "unknown", dtype=object)) for e in evals]) \
+        if evals else np.zeros(0, dtype=object)
+    out = dict(n=0, wrong=0, near_miss=0, by_surface={})
+    if score.size == 0 or n_vis == 0:
+        return out
+    order = np.argsort(-score, kind="stable")
+    tp = np.cumsum(ok[order])
+    reach = np.nonzero(tp >= recall * n_vis)[0]
+    if reach.size == 0:
+        return out
+    top = order[:reach[0] + 1]
+    wrong = top[~ok[top]]
+    near = np.abs(np.nan_to_num(dr[wrong], nan=np.inf)) <= near_bins
+    out.update(n=int(top.size), wrong=int(wrong.size), near_miss=int(near.sum()))
+    for k in sorted(set(kind[top])):
+        in_k = kind[top] == k
+        w_k = kind[wrong] == k
+        out["by_surface"][str(k)] = (int(in_k.sum()), int(w_k.sum()), int((w_k & near).sum()))
     return out
 
 
@@ -640,6 +701,7 @@ def _run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     ok_target = np.nonzero((rec >= 0.5) & (prec >= 0.95))[0]
     best_at_half = np.nanmax(np.where(rec >= 0.5, prec, np.nan)) if np.any(rec >= 0.5) else float("nan")
     i05 = int(np.argmin(np.abs(thresholds - SCORE_CUT)))
+    top = top_failures(evals)
 
     fig, ax = plt.subplots(figsize=(5.5, 4.5))
     ax.plot(rec, prec, "o-", color="#4363d8", label="arc search (score threshold swept)")
@@ -902,6 +964,7 @@ def _run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
                                "recall_all", "baseline_precision", "baseline_recall"], r_)) for r_ in noi],
         soft_beam=soft_beam,
         seabed_relief=relief_rows,
+        top_failures=top,
     )
     fmt = lambda v: f"{v:.2f}" if isinstance(v, (float, np.floating)) and np.isfinite(v) else str(v)  # noqa: E731
     tables = [
@@ -948,6 +1011,11 @@ def _run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
           ["matcher, 3D error < 10 cm", fmt(loose["within_10cm"])]]),
         ("Reconstruction error (median, m)", ["automatic matches", "same number of true matches"],
          [[fmt(med_auto), fmt(med_true)]]),
+        (f"The top of the ranking down to recall 0.5 ({top['n']} matches, {top['wrong']} wrong, {top['near_miss']} "
+         "of them near misses: the pixel's true point within 1.5 bins of the feature, one bin being right), by the "
+         "surface the pixel sees (the camera's body map)",
+         ["surface", "matches", "wrong", "near misses", "precision"],
+         [[k, n_, w_, nm_, fmt(1 - w_ / n_ if n_ else float("nan"))] for k, (n_, w_, nm_) in top["by_surface"].items()]),
         (f"Sonar elevation beam ({len(random_pairs)} random scenes): the thesis model's hard-edged aperture against "
          "the realistic model's soft beam, with the seabed plane fitted to the sonar image or given by the navigation",
          ["sonar", "seabed plane", "pairs declined", "visible", "matches", "prec@rec 0.25", "prec@rec 0.5",
