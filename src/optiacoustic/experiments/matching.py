@@ -351,15 +351,14 @@ def _surfaces(optical, pixels) -> np.ndarray:
     for a cylinder lying on the seabed, ``"water"`` where the pixel sees no body. Evaluation only."""
     import re
 
+    from ..matching.arc_search import pixel_values
+
     body = getattr(optical, "body", None)
     names = list(getattr(optical, "body_names", None) or ())
     px = np.asarray(pixels, float).reshape(-1, 2)
     if body is None or not names or px.size == 0:
         return np.full(len(px), "unknown", dtype=object)
-    H, W = body.shape
-    ui = np.clip(np.rint(np.nan_to_num(px[:, 0])).astype(int), 0, W - 1)
-    vi = np.clip(np.rint(np.nan_to_num(px[:, 1])).astype(int), 0, H - 1)
-    ids = np.asarray(body)[vi, ui]
+    ids = pixel_values(np.asarray(body), px)
     kinds = ["lying" if "lying" in n else re.split(r"[_\d]", n)[0] or n for n in names]
     return np.array([kinds[i] if 0 <= i < len(kinds) else "water" for i in ids], dtype=object)
 
@@ -372,17 +371,13 @@ def top_failures(evals, recall: float = 0.5, near_bins: float = 1.5) -> dict:
     Returns ``dict(n, wrong, near_miss, by_surface={kind: (matches, wrong, near misses)})``; empty counts where
     the recall is never reached.
     """
-    n_vis = sum(e["n_visible"] for e in evals)
-    score = np.concatenate([e["score"] for e in evals]) if evals else np.zeros(0)
-    ok = np.concatenate([e["ok"] for e in evals]) if evals else np.zeros(0, bool)
+    n_vis, score, ok, order, tp = _ranked(evals)
     dr = np.concatenate([e.get("range_error_bins", np.full(len(e["ok"]), np.nan)) for e in evals]) if evals else np.zeros(0)
     kind = np.concatenate([e.get("surface", np.full(len(e["ok"]), "unknown", dtype=object)) for e in evals]) \
         if evals else np.zeros(0, dtype=object)
     out = dict(n=0, wrong=0, near_miss=0, by_surface={})
     if score.size == 0 or n_vis == 0:
         return out
-    order = np.argsort(-score, kind="stable")
-    tp = np.cumsum(ok[order])
     reach = np.nonzero(tp >= recall * n_vis)[0]
     if reach.size == 0:
         return out
@@ -586,15 +581,11 @@ def _face_plane_figure(path, scene_name, sonar, optical, rig, m, cand, pooled):
 
 def _operating_point(evals, target: float = 0.95) -> dict:
     """The lowest score threshold whose precision is >= ``target`` (every distinct score tried), and the AUC."""
-    n_vis = sum(e["n_visible"] for e in evals)
-    score = np.concatenate([e["score"] for e in evals]) if evals else np.zeros(0)
-    ok = np.concatenate([e["ok"] for e in evals]) if evals else np.zeros(0, bool)
+    n_vis, score, ok, order, tp = _ranked(evals)
     out = dict(target_precision=target, threshold=float("nan"), precision=float("nan"), recall=0.0, n=0,
                auc=float("nan"))
     if score.size == 0 or n_vis == 0:
         return out
-    order = np.argsort(-score, kind="stable")
-    tp = np.cumsum(ok[order])
     n = np.arange(1, score.size + 1)
     p = tp / n
     good = np.nonzero(p >= target)[0]
@@ -609,15 +600,21 @@ def _operating_point(evals, target: float = 0.95) -> dict:
     return out
 
 
-def _fine_curve(evals):
-    """Precision and recall at every distinct score (pooled, best first): arrays (recall, precision)."""
+def _ranked(evals):
+    """The evaluations pooled and ranked best first: ``(n_visible, score, ok, order, right matches down the
+    ranking)``; ``order`` sorts by descending score (stable), ``tp[i]`` counts the right ones in ``order[:i + 1]``."""
     n_vis = sum(e["n_visible"] for e in evals)
     score = np.concatenate([e["score"] for e in evals]) if evals else np.zeros(0)
     ok = np.concatenate([e["ok"] for e in evals]) if evals else np.zeros(0, bool)
+    order = np.argsort(-score, kind="stable")
+    return n_vis, score, ok, order, np.cumsum(ok[order])
+
+
+def _fine_curve(evals):
+    """Precision and recall at every distinct score (pooled, best first): arrays (recall, precision)."""
+    n_vis, score, _, _, tp = _ranked(evals)
     if score.size == 0 or n_vis == 0:
         return np.zeros(0), np.zeros(0)
-    order = np.argsort(-score, kind="stable")
-    tp = np.cumsum(ok[order])
     return tp / n_vis, tp / np.arange(1, score.size + 1)
 
 
