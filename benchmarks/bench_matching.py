@@ -9,7 +9,7 @@ TITLE = "Automatic opti-acoustic matching"
 DESCRIPTION = ("`matching.match` on one simulated pair of `thesis_scene1` (BlueView P900-90 750 x 512 polar "
                "image, 600 x 400 camera, thesis water, default sonar noise), target <= 1 s per pair; against "
                "simulating that pair (`simulate_rig`: both sensors) and against its stages (CFAR sonar features, "
-               "the arc search, the seabed-contact search, the face-plane model with and without every beam's crease, the point above the foot, the candidates' foot-edge evidence, the seabed point; for the first design, corners and the epipolar gate); and the two-view "
+               "the arc search, the seabed-contact search, the face-plane model with and without every beam's crease, the point above the foot, the candidates' foot-edge evidence, the seabed point, the candidate trees; for the first design, corners and the epipolar gate); and the two-view "
                "matching with a second pair after a known motion.")
 
 
@@ -92,6 +92,18 @@ def run() -> list[dict]:
     from optiacoustic.matching.acoustic import seabed_points
 
     t_seabed = median_ms(lambda: seabed_points(rig, m.seabed, m_r, m_th, rig.fov_elevation), repeat=7, warmup=1)
+    from optiacoustic.matching import ranking
+
+    avail = np.column_stack([np.isfinite(np.asarray(m.features[f"tree_p_{k}"], float)) for k in ranking.CANDIDATES])
+    t_rank = median_ms(lambda: ranking.candidate_probabilities(m.features, avail), repeat=7, warmup=1)
+
+    def load_trees():
+        ranking._booster.cache_clear()
+        ranking._booster(str(ranking.MODEL_FILE))
+
+    t_load = median_ms(load_trees, repeat=5, warmup=1)
+    no_trees = MatchOptions(rank_model=False)
+    t_match_off = median_ms(lambda: match(s, o.image, rig, options=no_trees), repeat=7, warmup=1)
     from optiacoustic.experiments.matching import moved_view
     from optiacoustic.matching.optical_two_view import flow_field
 
@@ -127,6 +139,14 @@ def run() -> list[dict]:
              note="4 candidates x (5 x 5 dilation + 16 segment samples)"),
         dict(name="seabed point (round i15k), all matches", value=t_seabed, unit="ms", reference="match",
              ratio=t_seabed / t_match, note="closed form per match: the arc meets the sonar's seabed plane"),
+        dict(name="candidate trees (round i15v), every offered candidate", value=t_rank, unit="ms", reference="match",
+             ratio=t_rank / t_match, note=f"LightGBM, 200 trees of 31 leaves, {int(avail.sum())} rows "
+                                         f"({len(m)} matches) x {len(ranking.RANK_FEATURES)} inputs, one thread"),
+        dict(name="loading the candidate trees (once per process)", value=t_load, unit="ms", reference="match",
+             ratio=t_load / t_match, note="gzip + LightGBM's text model parser"),
+        dict(name="match one pair with the trees off (rank_model=False)", value=t_match_off / 1e3, unit="s",
+             reference="match one pair (trees on)", ratio=t_match_off / t_match,
+             note="the candidate models choose and score"),
         dict(name="match / simulate the pair", value=t_match, unit="ms", reference="simulate_rig (both sensors)",
              ratio=t_match / t_sim, note=f"simulate_rig {t_sim:.0f} ms"),
         dict(name="camera corners (OpenCV)", value=t_cam, unit="ms", reference="match (arc search)",

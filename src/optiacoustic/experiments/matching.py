@@ -1233,6 +1233,63 @@ def calibrate_face_score(scenes=FACE_TRAINING, *, ridge: float = 1.0) -> dict:
     return {k: _fit_logistic(np.concatenate(X[k]), np.concatenate(y[k]), ridge) for k in X if X[k]}
 
 
+#: Training scenes of the candidate trees (:mod:`optiacoustic.matching.ranking`): the thesis-water scenes of
+#: :data:`FACE_TRAINING` (the trees choose and score only in clear water, where the face-plane model is offered).
+RANK_TRAINING = ((range(5000, 5048), "thesis"), (range(8000, 8048), "thesis", "varied"))
+
+
+def rank_training_data(scenes=RANK_TRAINING) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The candidate trees' training rows: one per offered candidate of every match where the face-plane model is
+    offered, from the matcher with the trees off (``MatchOptions(rank_model=False)``) on ``scenes`` (as
+    :data:`FACE_TRAINING`: seeds, water, optional generator). Returns the rows ``X`` ``(M, len(RANK_FEATURES))``
+    (``ranking.candidate_rows``), labels ``y`` ``(M,)`` (1: that candidate's pixel sees a point within a bin and
+    a beam of the feature, by the depth map) and each row's scene index ``(M,)``."""
+    from ..matching import MatchOptions, match, truth
+    from ..matching.ranking import CANDIDATES, candidate_rows
+
+    X, y, g = [], [], []
+    opts = MatchOptions(rank_model=False)
+    todo = [(sd, e[1], e[2] if len(e) > 2 else "random") for e in scenes for sd in e[0]]
+    for k, (sd, water, gen) in enumerate(todo):
+        s, o, rig = simulate_pair(_training_scene(sd, gen), water, "default", int(sd))
+        m = match(s, o.image, rig, min_score=0.0, options=opts)
+        if not m:
+            continue
+        f = m.features
+        px = [np.column_stack([f[f"{c}_u"], f[f"{c}_v"]]).astype(float) for c in CANDIDATES]
+        avail = np.column_stack([(np.asarray(f[f"p_{c}"], float) > 0) & np.all(np.isfinite(p), axis=1)
+                                 for c, p in zip(CANDIDATES, px)])
+        avail &= np.asarray(f["plane_offered"], bool)[:, None]
+        if not avail.any():
+            continue
+        Xk, row, cand = candidate_rows(f, avail)
+        bw, aw = float(np.median(np.diff(s.ranges))), float(np.median(np.diff(s.azimuths)))
+        ok = np.zeros(len(row), bool)
+        for j in range(len(CANDIDATES)):
+            sel = cand == j
+            if sel.any():
+                r = row[sel]
+                ok[sel] = truth.correct(rig, o.depth, px[j][r], m.ranges[r], m.azimuths[r], bin_width=bw,
+                                        beam_width=aw)
+        X.append(Xk)
+        y.append(ok.astype(float))
+        g.append(np.full(len(row), k))
+    if not X:
+        raise ValueError("rank_training_data: no match with the face-plane model offered in the training scenes")
+    return np.concatenate(X), np.concatenate(y), np.concatenate(g)
+
+
+def calibrate_rank_model(scenes=RANK_TRAINING) -> str:
+    """Refit the candidate trees (``matching.ranking``, shipped as ``data/match_candidate_trees.txt.gz``): LightGBM on
+    :func:`rank_training_data` of ``scenes`` with ``ranking.RANK_PARAMS``. Returns the model's text (write it with
+    ``ranking.write_model``). Refit after the candidate models (their probabilities are inputs). Use seeds
+    disjoint from the evaluation's."""
+    from ..matching.ranking import fit_rank_model
+
+    X, y, _ = rank_training_data(scenes)
+    return fit_rank_model(X, y)
+
+
 def calibrate_soft_beam(random_seeds=range(5000, 5024), varied_seeds=range(8000, 8024)) -> dict:
     """Refit ``matching.match.SOFT_BEAM_RECALIBRATION``: per candidate kind ``(a, b)`` of
     ``p' = sigmoid(a + b logit p)``.

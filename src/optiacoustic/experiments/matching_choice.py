@@ -156,16 +156,20 @@ def _logistic(model, X):
 def candidate_records(scenes):
     """Run the one-view matcher on ``scenes`` and label every candidate by the depth map (evaluation only).
 
-    ``scenes``: iterable of ``(sonar, optical, rig)``. Returns one dict per scene: ``features``
+    ``scenes``: iterable of ``(sonar, optical, rig)``; the matcher's candidate trees off (``MatchOptions(
+    rank_model=False)``): the candidate models choose. Returns one dict per scene: ``features``
     (the matches' feature mapping, ``{}`` when none), ``right`` ``(N, 4)`` (each candidate right),
     ``ok`` and ``score`` (the matcher's chosen pixel), ``n_visible`` (the recall's denominator,
     :func:`optiacoustic.matching.truth.visible`).
     """
-    from ..matching import match, truth
+    from ..matching import MatchOptions, match, truth
 
     recs = []
+    # the candidate models' own choice: the rules compared here are rules over their probabilities (the trees
+    # of matching.ranking, round i15v, choose otherwise and are off)
+    opts = MatchOptions(rank_model=False)
     for sonar, optical, rig in scenes:
-        m = match(sonar, optical.image, rig, min_score=0.0)
+        m = match(sonar, optical.image, rig, min_score=0.0, options=opts)
         bw, aw = float(np.median(np.diff(sonar.ranges))), float(np.median(np.diff(sonar.azimuths)))
         sf = m.sonar_features
         nv = int(truth.visible(rig, optical.depth, sf.ranges, sf.azimuths, bin_width=bw, beam_width=aw).sum()) \

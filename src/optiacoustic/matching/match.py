@@ -140,6 +140,13 @@ class MatchOptions:
         (2 cm), but the experiment's one scene without a seabed (two walls) warns too, and its right
         "seabed points" on a plane fitted through the walls' onsets fell from 0.99 to 0.27-0.48, taking the
         experiment's precision at recall 0.5 from 0.917 to 0.904 (docs/matching.md, round i15t).
+    rank_model : bool
+        Let the gradient-boosted trees of :mod:`.ranking` (all the match's evidence at once) choose among the
+        offered candidates and score the choice, where the face-plane model is offered on a thesis-beam frame
+        whose seabed plane is fitted without a relief warning or given exactly (round i15v: held-out precision
+        at recall 0.5 0.887 -> 0.918). ``features["candidate_source"]`` and ``["candidate_score"]`` keep the
+        candidate models' choice and its probability, ``["tree_p_<candidate>"]`` the trees' probabilities.
+        Off: the candidate models choose and score, as before.
     soft_beam_recalibration : bool
         On soft-beam frames, map each candidate's probability through :data:`SOFT_BEAM_RECALIBRATION`
         (fitted on the realistic model's frames, where the models fitted on the thesis model's are
@@ -172,6 +179,7 @@ class MatchOptions:
     seabed_point: bool = True
     allow_soft_beam: bool = False
     soft_beam_recalibration: bool = True
+    rank_model: bool = True
     relief_as_plane_error: bool = False
     cfar: CfarOptions = field(default_factory=CfarOptions)
     keypoints: KeypointOptions = field(default_factory=KeypointOptions)
@@ -194,8 +202,10 @@ class Matches:
     points : ndarray, shape (N, 3)
         Maximum-likelihood reconstruction, camera frame (m).
     score : ndarray, shape (N,)
-        In (0, 1): the probability that the match is correct given its evidence, from a
-        logistic model (:data:`SCORE_MODEL`) calibrated on simulated scenes.
+        In (0, 1): the probability that the match is correct given its evidence, calibrated on
+        simulated scenes: the chosen candidate's logistic model (:data:`SCORE_MODEL` for the corners),
+        or, in clear water on thesis-beam frames, the gradient-boosted trees of :mod:`.ranking`, which
+        also choose the candidate (``MatchOptions.rank_model``).
     cost : ndarray, shape (N,)
         Total cost (epipolar chi-square + evidence terms).
     sonar_index, camera_index : ndarray of int, shape (N,)
@@ -472,7 +482,7 @@ def two_view_candidates(out: Matches, sf, intervals, image_1, second, motion, ri
     back = flow_field(image_2, image_1) if flow is not None else None
     arc = dict(out.features) if n else {}
     arc.update(two_view=consistent(out.points, m2.points, motion) if (n and m2) else np.zeros(n, bool),
-               single_view_score=out.score, n_second=len(m2))
+               single_view_score=_candidate_score(out), n_second=len(m2))
     if flow is None:
         arc["flow_residual_px"] = arc["flow_px_per_m"] = np.full(n, np.nan)
         nan = np.full(len(sf), np.nan)
@@ -498,6 +508,12 @@ def two_view_candidates(out: Matches, sf, intervals, image_1, second, motion, ri
     return arc, sweep, corr
 
 
+def _candidate_score(out: Matches) -> np.ndarray:
+    """The one-view matches' probability from their chosen candidate's model, before the trees re-score them:
+    what the two-view models were fitted on (:data:`TWO_VIEW_SCORE_MODEL` predates :mod:`.ranking`)."""
+    return np.asarray(out.features.get("candidate_score", out.score), float) if len(out) else np.zeros(0)
+
+
 def _two_view(out: Matches, sf, intervals, image_1, second, motion, rig, noise, opt, seabed=None) -> Matches:
     """Matches from two views of the moved rig (known motion, thesis ch. 6).
 
@@ -516,7 +532,7 @@ def _two_view(out: Matches, sf, intervals, image_1, second, motion, rig, noise, 
         # seabed plane, not by the camera's edge-free run, and TWO_VIEW_SCORE_MODEL was fitted before it
         # existed (it pulled calibrated seabed points from 0.7-0.8 to 0.45; docs/matching.md, round i15m).
         seabed_pt = np.asarray(arc.get("face_source", np.full(len(out), -1))) == CANDIDATES.index("seabed")
-        p_arc[out.sonar_index[seabed_pt]] = out.score[seabed_pt]
+        p_arc[out.sonar_index[seabed_pt]] = _candidate_score(out)[seabed_pt]
     p_cand = []
     for cand, featurise, model in ((sweep, sweep_score_features, SWEEP_SCORE_MODEL),
                                    (corr, correlation_score_features, CORRELATION_SCORE_MODEL)):
@@ -714,8 +730,11 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
                 intervals = (lo[~below], hi[~below], shadowed[~below], plane)
         # the echo's start and end and the faces' beam creases read the default options' maps
         echo_maps = maps if opt.cfar == CfarOptions() else cfar_map(np.asarray(img_s, np.float64))
+        # The ranking trees were fitted on flat seabeds with a fitted or exact plane: not where the fit says the
+        # seabed has relief (there they trusted seabed points that relief had moved: 0.5 cm RMS 0.80 -> 0.73 at
+        # recall 0.5), nor under a plane with a declared error (round i15v)
         out = _match_arcs(sf, cam_img, rig, noise, opt, intervals, sonar=(img_s, r_bins, th_beams, echo_maps),
-                          soft_beam=beam_model != "thesis")
+                          soft_beam=beam_model != "thesis", rank=not relief_note and not intervals[3].uncertain)
         if relief_note and out:
             out = dataclasses.replace(out, message=f"{out.message}; {relief_note}")
         return _finish(out, cam_img, second, motion, rig, noise, opt, min_score, sf=sf, intervals=intervals,
@@ -1166,7 +1185,8 @@ def _beam_creases(rig, sonar, face, c_ok, ranges, azimuths, r_on, labels):
     return beam_creases(rig, starts, r_bins, th_beams, labels, labs, lo, hi, r0, r1)
 
 
-def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None, soft_beam: bool = False) -> Matches:
+def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None, soft_beam: bool = False,
+                rank: bool = True) -> Matches:
     """Every sonar feature takes a pixel of the longest edge-free run of its arc (:mod:`.arc_search`).
 
     The run's middle (or 70% up for onsets), the point below the face's crease
@@ -1338,20 +1358,48 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None, soft_bea
     for k, name in enumerate(CANDIDATES):
         feats[f"p_{name}"], feats[f"{name}_elevation"] = probs[:, k], elevs[:, k]
     source = np.argmax(probs, axis=1)
-    feats["face_source"] = source
-    feats["elevation"] = np.choose(source, [ch.elevations[rows], np.nan_to_num(cr.elevations),
-                                            np.nan_to_num(fp.elevations), np.nan_to_num(ft.elevations),
-                                            np.nan_to_num(sb_el)])
-    px = np.choose(source[:, None], [px_arc, np.nan_to_num(cr.pixels), np.nan_to_num(fp.pixels),
-                                     np.nan_to_num(ft.pixels), np.nan_to_num(sb_px)])
-    score = probs[np.arange(rows.size), source]
+    cand_el = [ch.elevations[rows], np.nan_to_num(cr.elevations), np.nan_to_num(fp.elevations),
+               np.nan_to_num(ft.elevations), np.nan_to_num(sb_el)]
+    cand_px = [px_arc, cr.pixels, fp.pixels, ft.pixels, sb_px]
     s_px = noise.sigma_pixel or 0.5
     s_r = np.full(rows.size, noise.sigma_range) if noise.sigma_range else sf.sigma_range[rows]
     s_a = np.full(rows.size, noise.sigma_azimuth) if noise.sigma_azimuth else sf.sigma_azimuth[rows]
-    ref = rc.refine(rig, px, sf.ranges[rows], sf.azimuths[rows], sigma_pixel=float(s_px),
-                    sigma_range=float(np.median(s_r)), sigma_azimuth=float(np.median(s_a)), max_iter=10)
-    P = np.where(ref.valid[:, None], ref.points,
-                 camera_from_sonar(rig, sf.ranges[rows], sf.azimuths[rows], feats["elevation"]))
+
+    def place(src):
+        """The chosen candidates' elevations, pixels, ML reconstruction and points."""
+        el = np.choose(src, cand_el)
+        p = np.choose(src[:, None], [np.nan_to_num(c) for c in cand_px])
+        ref = rc.refine(rig, p, sf.ranges[rows], sf.azimuths[rows], sigma_pixel=float(s_px),
+                        sigma_range=float(np.median(s_r)), sigma_azimuth=float(np.median(s_a)), max_iter=10)
+        pts = np.where(ref.valid[:, None], ref.points, camera_from_sonar(rig, sf.ranges[rows], sf.azimuths[rows], el))
+        return el, p, ref, pts
+
+    el, px, ref, P = place(source)
+    score = probs[np.arange(rows.size), source]
+    # the candidate models' choice, its probability and its reconstruction's cost (the trees' inputs)
+    feats["candidate_source"], feats["candidate_score"] = source, score
+    feats["candidate_epipolar_chi2"] = np.nan_to_num(ref.cost, nan=0.0)
+    p_tree = np.full(probs.shape, np.nan)
+    if opt.rank_model and rank and not soft_beam and np.any(offered):
+        # Gradient-boosted trees on all the match's evidence give each offered candidate P(right); the most
+        # probable is the match, that probability its score (round i15v, :mod:`.ranking`), where they were
+        # fitted: clear water (the plane offered), the thesis's beam, a flat or given seabed
+        from .ranking import candidate_probabilities
+
+        has_px = np.column_stack([np.all(np.isfinite(c), axis=1) for c in cand_px])
+        avail = (probs > 0) & has_px & np.asarray(offered, bool)[:, None]
+        p_tree = candidate_probabilities(feats, avail)
+        use = avail.any(axis=1)
+        tree_src = np.argmax(np.nan_to_num(p_tree, nan=-1.0), axis=1)
+        score = np.where(use, p_tree[np.arange(rows.size), tree_src], score)
+        new_src = np.where(use, tree_src, source)
+        if np.any(new_src != source):
+            source = new_src
+            el, px, ref, P = place(source)
+    for k, name in enumerate(CANDIDATES):
+        feats[f"tree_p_{name}"] = p_tree[:, k]
+    feats["face_source"] = source
+    feats["elevation"] = el
     feats["epipolar_chi2"] = np.nan_to_num(ref.cost, nan=0.0)
     cf = CameraFeatures(px, np.full(rows.size, float(s_px)), ch.run_px[rows])
     order = np.argsort(-score, kind="stable")
