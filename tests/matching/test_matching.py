@@ -206,9 +206,8 @@ def test_two_view_match(pairs):
     for key in ("source", "single_view_score", "flow_residual_px", "flow_px_per_m", "two_view", "sweep_fb_error"):
         assert two.features[key].shape == (len(two),)
     arc = two.features["source"] == 0
-    # The arc search's choices keep their pixel and their one-view candidate score (the chosen candidate's
-    # probability, before the ranking trees: what the two-view models were fitted on).
-    k1 = {tuple(p): sc for p, sc in zip(one.pixels.tolist(), one.features["candidate_score"])}
+    # The arc search's choices keep their pixel and their one-view score.
+    k1 = {tuple(p): sc for p, sc in zip(one.pixels.tolist(), one.score)}
     assert all(np.isclose(k1[tuple(p)], sc) for p, sc in zip(two.pixels[arc].tolist(),
                                                               two.features["single_view_score"][arc]))
     assert np.all(np.isfinite(two.pixels)) and np.all(np.isfinite(two.points))
@@ -237,8 +236,7 @@ def test_two_views_keep_the_seabed_points_one_view_score():
     one = match(s, o.image, rig, min_score=0.0)
     two = match(s, o.image, rig, min_score=0.0, second=(s2, o2.image), motion=mo)
     source_1 = dict(zip(one.sonar_index.tolist(), one.features["face_source"].tolist()))
-    # (its candidate score: the chosen candidate's probability, before the one-view ranking trees, round i15v)
-    score_1 = dict(zip(one.sonar_index.tolist(), one.features["candidate_score"].tolist()))
+    score_1 = dict(zip(one.sonar_index.tolist(), one.score.tolist()))
     arc = two.features["source"] == 0
     seabed = arc & np.array([source_1.get(i, -1) == 4 for i in two.sonar_index.tolist()])
     assert seabed.sum() >= 3

@@ -367,14 +367,15 @@ def _assign(cost, rows, cols, n_rows, null_cost):
 #: with the second pair's own matches). Fitted by
 #: ``experiments.matching.calibrate_two_view_score()`` on random scenes seeded 5000-5023, plain
 #: and textured, each with the random vehicle motion of its seed
-#: (``experiments.matching.vehicle_motion``), disjoint from the evaluation's scenes (1023 arc
-#: matches, 52% correct), on the one-view scores before round i15h: refitted on round i15h's
-#: they ranked held-out scenes no better (docs/matching.md, round i15i), so these stay; refitted on
-#: round i15k's, again no better (round i15m). Not applied to the seabed point (it keeps its one-view score).
+#: (``experiments.matching.vehicle_motion``), disjoint from the evaluation's scenes (1029 arc
+#: matches, 66% correct), refitted in round i15v on the one-view scores of the candidate trees (:mod:`.ranking`):
+#: with the older constants two views fell below one view (0.911 against 0.950 at recall 0.5 on the
+#: experiment's scenes), refitted they are level (0.947; held-out random 6000-6023 0.924 against 0.926;
+#: docs/matching.md, round i15v). Not applied to the seabed point (it keeps its one-view score).
 TWO_VIEW_SCORE_MODEL = dict(
-    weights=(-0.091, 1.233, -0.472, 0.401, 0.381, 0.127, 0.154, 0.262, -0.062, -0.463),
-    mean=(0.2531, 1.0692, 0.5198, 1.465, 0.0391, 0.5523, 1.6185, 0.724, 1.4446),
-    std=(1.5409, 0.9878, 0.712, 0.9435, 0.1938, 0.4973, 1.2223, 1.4355, 1.9833),
+    weights=(1.127, 2.071, -0.302, -0.046, 0.143, -0.11, 0.206, -0.22, 0.378, -0.436),
+    mean=(0.8526, 1.1049, 0.5188, 1.478, 0.0622, 0.5782, 1.7436, 0.7932, 1.7266),
+    std=(1.9229, 1.0606, 0.6995, 0.9534, 0.2415, 0.4938, 1.2745, 1.5313, 2.4452),
 )
 
 
@@ -400,11 +401,11 @@ def two_view_score_features(feats: dict) -> np.ndarray:
 #: forward-backward flow error, log of the number of crossings, log of 1 + the residual's slope,
 #: log sensitivity, log of 1 + the distance to the arc search's pixel and no arc pixel, log SNR,
 #: onset or peak). Fitted by ``experiments.matching.calibrate_two_view_score()`` (see
-#: :data:`TWO_VIEW_SCORE_MODEL`; 624 sweep choices, 51% correct).
+#: :data:`TWO_VIEW_SCORE_MODEL`; 599 sweep choices, 54% correct).
 SWEEP_SCORE_MODEL = dict(
-    weights=(0.01, -0.359, 0.07, -0.483, 0.446, -0.518, -0.576, -0.065, 0.045),
-    mean=(0.4967, 0.916, 1.0869, 1.5753, 3.0581, 0.0096, 2.8849, 0.476),
-    std=(0.6205, 0.7511, 0.6572, 0.8567, 1.0065, 0.0976, 0.5826, 0.4994),
+    weights=(0.162, -0.699, 0.319, -0.097, 0.583, -0.595, -0.651, 0.028, -0.024),
+    mean=(0.502, 0.9535, 1.06, 1.5982, 3.0237, 0.0117, 2.8814, 0.4474),
+    std=(0.6587, 0.7588, 0.649, 0.8405, 0.9964, 0.1075, 0.5976, 0.4972),
 )
 
 
@@ -423,12 +424,12 @@ def sweep_score_features(feats: dict) -> np.ndarray:
 #: :func:`correlation_score_features` (peak correlation, its margin over the best correlation
 #: 0.5 deg away, log patch texture, log sensitivity, log of 1 + the distance to the arc search's
 #: pixel and no arc pixel, log SNR, onset or peak). Fitted by
-#: ``experiments.matching.calibrate_two_view_score()`` (see :data:`TWO_VIEW_SCORE_MODEL`; 1034
+#: ``experiments.matching.calibrate_two_view_score()`` (see :data:`TWO_VIEW_SCORE_MODEL`; 1020
 #: correlation peaks, 27% correct).
 CORRELATION_SCORE_MODEL = dict(
-    weights=(-1.216, 0.481, -0.52, 0.175, 0.008, -0.497, -0.624, 0.027, -0.018),
-    mean=(0.9086, 0.3396, 2.7121, 1.468, 2.843, 0.0629, 2.8556, 0.4913),
-    std=(0.2385, 0.6642, 0.8621, 0.93, 1.2777, 0.2427, 0.6057, 0.4999),
+    weights=(-1.37, 0.294, -0.977, 0.272, 0.148, -0.931, -0.938, 0.056, 0.091),
+    mean=(0.9128, 0.345, 2.6858, 1.5053, 2.7395, 0.0657, 2.8567, 0.4784),
+    std=(0.2013, 0.6665, 0.8448, 0.9116, 1.3016, 0.2477, 0.6175, 0.4995),
 )
 
 
@@ -482,7 +483,7 @@ def two_view_candidates(out: Matches, sf, intervals, image_1, second, motion, ri
     back = flow_field(image_2, image_1) if flow is not None else None
     arc = dict(out.features) if n else {}
     arc.update(two_view=consistent(out.points, m2.points, motion) if (n and m2) else np.zeros(n, bool),
-               single_view_score=_candidate_score(out), n_second=len(m2))
+               single_view_score=out.score, n_second=len(m2))
     if flow is None:
         arc["flow_residual_px"] = arc["flow_px_per_m"] = np.full(n, np.nan)
         nan = np.full(len(sf), np.nan)
@@ -508,12 +509,6 @@ def two_view_candidates(out: Matches, sf, intervals, image_1, second, motion, ri
     return arc, sweep, corr
 
 
-def _candidate_score(out: Matches) -> np.ndarray:
-    """The one-view matches' probability from their chosen candidate's model, before the trees re-score them:
-    what the two-view models were fitted on (:data:`TWO_VIEW_SCORE_MODEL` predates :mod:`.ranking`)."""
-    return np.asarray(out.features.get("candidate_score", out.score), float) if len(out) else np.zeros(0)
-
-
 def _two_view(out: Matches, sf, intervals, image_1, second, motion, rig, noise, opt, seabed=None) -> Matches:
     """Matches from two views of the moved rig (known motion, thesis ch. 6).
 
@@ -532,7 +527,7 @@ def _two_view(out: Matches, sf, intervals, image_1, second, motion, rig, noise, 
         # seabed plane, not by the camera's edge-free run, and TWO_VIEW_SCORE_MODEL was fitted before it
         # existed (it pulled calibrated seabed points from 0.7-0.8 to 0.45; docs/matching.md, round i15m).
         seabed_pt = np.asarray(arc.get("face_source", np.full(len(out), -1))) == CANDIDATES.index("seabed")
-        p_arc[out.sonar_index[seabed_pt]] = _candidate_score(out)[seabed_pt]
+        p_arc[out.sonar_index[seabed_pt]] = out.score[seabed_pt]
     p_cand = []
     for cand, featurise, model in ((sweep, sweep_score_features, SWEEP_SCORE_MODEL),
                                    (corr, correlation_score_features, CORRELATION_SCORE_MODEL)):
