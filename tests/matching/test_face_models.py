@@ -142,3 +142,20 @@ def test_seabed_model_is_calibrated_against_depth_map_truth():
     assert p.size >= 25
     assert abs(p.mean() - ok.mean()) <= 3 * sd_rate + 0.10
     assert p[ok].mean() > p[~ok].mean()
+
+
+@pytest.mark.skipif(os.environ.get("OAS_CALIBRATION_TESTS") != "1",
+                    reason="refits the three two-view models on 48 training pairs with a second view (about a "
+                           "minute); set OAS_CALIBRATION_TESTS=1 to run")
+def test_shipped_two_view_constants_come_from_calibrate_two_view_score():
+    """``TWO_VIEW_SCORE_MODEL``, ``SWEEP_SCORE_MODEL`` and ``CORRELATION_SCORE_MODEL`` are what their fitter gives at
+    its defaults (random 5000-5023, plain and textured, each with its seed's motion; refitted in round i15v on the
+    one-view scores of the candidate trees)."""
+    from optiacoustic.experiments.matching import calibrate_two_view_score
+
+    fitted = calibrate_two_view_score()
+    for key, name in (("arc", "TWO_VIEW_SCORE_MODEL"), ("sweep", "SWEEP_SCORE_MODEL"),
+                      ("correlation", "CORRELATION_SCORE_MODEL")):
+        shipped = getattr(MM, name)
+        for field in ("weights", "mean", "std"):
+            np.testing.assert_allclose(fitted[key][field], shipped[field], atol=1.5e-3, err_msg=f"{key}.{field}")
