@@ -1236,23 +1236,35 @@ def calibrate_face_score(scenes=FACE_TRAINING, *, ridge: float = 1.0) -> dict:
 #: Training scenes of the candidate trees (:mod:`optiacoustic.matching.ranking`): the thesis-water scenes of
 #: :data:`FACE_TRAINING` (the trees choose and score only in clear water, where the face-plane model is offered).
 RANK_TRAINING = ((range(5000, 5048), "thesis"), (range(8000, 8048), "thesis", "varied"))
+#: And random scenes on seabeds with relief (:func:`relief_scene`): seeds and RMS heights (m).
+RANK_RELIEF_TRAINING = (range(5000, 5016), (0.005, 0.01, 0.02))
 
 
-def rank_training_data(scenes=RANK_TRAINING) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def rank_training_data(scenes=RANK_TRAINING, relief=RANK_RELIEF_TRAINING) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The candidate trees' training rows: one per offered candidate of every match where the face-plane model is
     offered, from the matcher with the trees off (``MatchOptions(rank_model=False)``) on ``scenes`` (as
-    :data:`FACE_TRAINING`: seeds, water, optional generator). Returns the rows ``X`` ``(M, len(RANK_FEATURES))``
+    :data:`FACE_TRAINING`: seeds, water, optional generator) and on ``relief`` (seeds and RMS heights:
+    :func:`relief_scene`, thesis water; ``None``: none). Returns the rows ``X`` ``(M, len(RANK_FEATURES))``
     (``ranking.candidate_rows``), labels ``y`` ``(M,)`` (1: that candidate's pixel sees a point within a bin and
     a beam of the feature, by the depth map) and each row's scene index ``(M,)``."""
-    from ..matching import MatchOptions, match, truth
+    from ..matching import MatchOptions, SeabedReliefWarning, match, truth
     from ..matching.ranking import CANDIDATES, candidate_rows
+
+    import tempfile
+    import warnings
 
     X, y, g = [], [], []
     opts = MatchOptions(rank_model=False)
-    todo = [(sd, e[1], e[2] if len(e) > 2 else "random") for e in scenes for sd in e[0]]
-    for k, (sd, water, gen) in enumerate(todo):
-        s, o, rig = simulate_pair(_training_scene(sd, gen), water, "default", int(sd))
-        m = match(s, o.image, rig, min_score=0.0, options=opts)
+    todo = [(sd, e[1], e[2] if len(e) > 2 else "random", 0.0) for e in scenes for sd in e[0]]
+    if relief:
+        todo += [(sd, "thesis", "relief", rms) for rms in relief[1] for sd in relief[0]]
+    tmp = tempfile.TemporaryDirectory(prefix="oas-rank-relief-")
+    for k, (sd, water, gen, rms) in enumerate(todo):
+        sc = relief_scene(int(sd), rms, tmp.name) if gen == "relief" else _training_scene(sd, gen)
+        s, o, rig = simulate_pair(sc, water, "default", int(sd))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SeabedReliefWarning)
+            m = match(s, o.image, rig, min_score=0.0, options=opts)
         if not m:
             continue
         f = m.features
@@ -1274,6 +1286,7 @@ def rank_training_data(scenes=RANK_TRAINING) -> tuple[np.ndarray, np.ndarray, np
         X.append(Xk)
         y.append(ok.astype(float))
         g.append(np.full(len(row), k))
+    tmp.cleanup()
     if not X:
         raise ValueError("rank_training_data: no match with the face-plane model offered in the training scenes")
     return np.concatenate(X), np.concatenate(y), np.concatenate(g)

@@ -12,11 +12,12 @@ scenes precision at recall 0.5 rose from 0.887 to 0.918 and the right matches fr
 (docs/matching.md, "Gradient-boosted trees choose and score the candidates").
 
 The trees are fitted by :func:`optiacoustic.experiments.matching.calibrate_rank_model` (thesis water, the
-training scenes of the candidate models) and shipped in LightGBM's own text format, which its loader reads
+training scenes of the candidate models, and random scenes on seabeds with 0.5-2 cm of relief, the fitted
+plane's relief ratio among the inputs) and shipped in LightGBM's own text format, which its loader reads
 across versions (:data:`MODEL_FILE`). They are applied where they were fitted: where the face-plane model
 is offered (images of contrast ``MatchOptions.face_plane_min_contrast`` and more: clear water), on frames
-with the thesis's hard elevation beam, with a seabed plane fitted without a relief warning or given
-exactly. Elsewhere the candidate models choose and score, as before. lightgbm is imported on first use only.
+with the thesis's hard elevation beam, with a seabed plane fitted to the image or given without a declared
+error. Elsewhere the candidate models choose and score, as before. lightgbm is imported on first use only.
 """
 
 from __future__ import annotations
@@ -29,8 +30,9 @@ import numpy as np
 
 #: The evidence the trees see about a match, in the model's column order: every per-match input of the
 #: candidate models (:mod:`.match`'s ``features``) that does not depend on the rig's layout (no pixel
-#: coordinates, elevations or ranges), the five candidates' probabilities by their own models, and
-#: ``candidate_epipolar_chi2``, the maximum-likelihood reconstruction's cost of the candidate models' choice.
+#: coordinates, elevations or ranges), the five candidates' probabilities by their own models,
+#: ``candidate_epipolar_chi2``, the maximum-likelihood reconstruction's cost of the candidate models' choice, and
+#: ``seabed_relief_ratio``, the fitted seabed plane's residual in flat seabeds' (NaN for a given plane).
 MATCH_FEATURES = (
     "arc_face_edge", "arc_foot_edge", "arc_score", "contact_dphi_deg", "contact_found", "crease_dphi_deg",
     "crease_face_edge", "crease_foot_edge", "crease_found", "crease_position", "crowding", "echo_depth_bins",
@@ -40,7 +42,7 @@ MATCH_FEATURES = (
     "plane_crease_dphi_deg", "plane_dphi_deg", "plane_face_edge", "plane_fit_height", "plane_foot_edge",
     "plane_found", "plane_height", "plane_in_face", "plane_n_creases", "plane_n_inliers", "plane_own_residual",
     "plane_position", "plane_spread", "position", "run_px", "seabed_contrast", "seabed_dphi_deg", "seabed_found",
-    "seabed_gradient", "seabed_in_run", "shadowed", "snr", "top_edge", "visible_px",
+    "seabed_gradient", "seabed_in_run", "shadowed", "snr", "top_edge", "visible_px", "seabed_relief_ratio",
 )
 #: The candidates, in :data:`.match.CANDIDATES`' order (the ``candidate`` input is the index).
 CANDIDATES = ("arc", "crease", "plane", "foot", "seabed")
