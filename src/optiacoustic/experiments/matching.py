@@ -1248,7 +1248,7 @@ def rank_training_data(scenes=RANK_TRAINING, relief=RANK_RELIEF_TRAINING) -> tup
     (``ranking.candidate_rows``), labels ``y`` ``(M,)`` (1: that candidate's pixel sees a point within a bin and
     a beam of the feature, by the depth map) and each row's scene index ``(M,)``."""
     from ..matching import MatchOptions, SeabedReliefWarning, match, truth
-    from ..matching.ranking import CANDIDATES, candidate_rows
+    from ..matching.ranking import CANDIDATES, available, candidate_rows
 
     import tempfile
     import warnings
@@ -1258,35 +1258,30 @@ def rank_training_data(scenes=RANK_TRAINING, relief=RANK_RELIEF_TRAINING) -> tup
     todo = [(sd, e[1], e[2] if len(e) > 2 else "random", 0.0) for e in scenes for sd in e[0]]
     if relief:
         todo += [(sd, "thesis", "relief", rms) for rms in relief[1] for sd in relief[0]]
-    tmp = tempfile.TemporaryDirectory(prefix="oas-rank-relief-")
-    for k, (sd, water, gen, rms) in enumerate(todo):
-        sc = relief_scene(int(sd), rms, tmp.name) if gen == "relief" else _training_scene(sd, gen)
-        s, o, rig = simulate_pair(sc, water, "default", int(sd))
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", SeabedReliefWarning)
-            m = match(s, o.image, rig, min_score=0.0, options=opts)
-        if not m:
-            continue
-        f = m.features
-        px = [np.column_stack([f[f"{c}_u"], f[f"{c}_v"]]).astype(float) for c in CANDIDATES]
-        avail = np.column_stack([(np.asarray(f[f"p_{c}"], float) > 0) & np.all(np.isfinite(p), axis=1)
-                                 for c, p in zip(CANDIDATES, px)])
-        avail &= np.asarray(f["plane_offered"], bool)[:, None]
-        if not avail.any():
-            continue
-        Xk, row, cand = candidate_rows(f, avail)
-        bw, aw = float(np.median(np.diff(s.ranges))), float(np.median(np.diff(s.azimuths)))
-        ok = np.zeros(len(row), bool)
-        for j in range(len(CANDIDATES)):
-            sel = cand == j
-            if sel.any():
-                r = row[sel]
-                ok[sel] = truth.correct(rig, o.depth, px[j][r], m.ranges[r], m.azimuths[r], bin_width=bw,
-                                        beam_width=aw)
-        X.append(Xk)
-        y.append(ok.astype(float))
-        g.append(np.full(len(row), k))
-    tmp.cleanup()
+    with tempfile.TemporaryDirectory(prefix="oas-rank-relief-") as tmp:
+        for k, (sd, water, gen, rms) in enumerate(todo):
+            sc = relief_scene(int(sd), rms, tmp) if gen == "relief" else _training_scene(sd, gen)
+            s, o, rig = simulate_pair(sc, water, "default", int(sd))
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", SeabedReliefWarning)
+                m = match(s, o.image, rig, min_score=0.0, options=opts)
+            if not m:
+                continue
+            avail = available(m.features)
+            if not avail.any():
+                continue
+            Xk, row, cand = candidate_rows(m.features, avail)
+            bw, aw = float(np.median(np.diff(s.ranges))), float(np.median(np.diff(s.azimuths)))
+            ok = np.zeros(len(row), bool)
+            for j, c in enumerate(CANDIDATES):
+                r = row[cand == j]
+                if r.size:
+                    px = np.column_stack([m.features[f"{c}_u"], m.features[f"{c}_v"]]).astype(float)[r]
+                    ok[cand == j] = truth.correct(rig, o.depth, px, m.ranges[r], m.azimuths[r], bin_width=bw,
+                                                  beam_width=aw)
+            X.append(Xk)
+            y.append(ok.astype(float))
+            g.append(np.full(len(row), k))
     if not X:
         raise ValueError("rank_training_data: no match with the face-plane model offered in the training scenes")
     return np.concatenate(X), np.concatenate(y), np.concatenate(g)

@@ -144,8 +144,9 @@ class MatchOptions:
         Let the gradient-boosted trees of :mod:`.ranking` (all the match's evidence at once) choose among the
         offered candidates and score the choice, where the face-plane model is offered on a thesis-beam frame
         whose seabed plane is fitted or given without a declared error (round i15v: held-out precision at
-        recall 0.5 0.887 -> 0.904, and on seabeds with 1-2 cm of relief 0.82 -> 0.87 and 0.51 -> 0.63). ``features["candidate_source"]`` and ``["candidate_score"]`` keep the
-        candidate models' choice and its probability, ``["tree_p_<candidate>"]`` the trees' probabilities.
+        recall 0.5 0.887 -> 0.904, and on seabeds with 1-2 cm of relief 0.82 -> 0.87 and 0.51 -> 0.63).
+        ``features["candidate_source"]`` and ``["candidate_score"]`` keep the candidate models' choice and
+        its probability, ``["tree_p_<candidate>"]`` the trees' probabilities.
         Off: the candidate models choose and score, as before.
     soft_beam_recalibration : bool
         On soft-beam frames, map each candidate's probability through :data:`SOFT_BEAM_RECALIBRATION`
@@ -1361,42 +1362,42 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None, soft_bea
     s_r = np.full(rows.size, noise.sigma_range) if noise.sigma_range else sf.sigma_range[rows]
     s_a = np.full(rows.size, noise.sigma_azimuth) if noise.sigma_azimuth else sf.sigma_azimuth[rows]
 
-    def place(src):
-        """The chosen candidates' elevations, pixels, ML reconstruction and points."""
-        el = np.choose(src, cand_el)
-        p = np.choose(src[:, None], [np.nan_to_num(c) for c in cand_px])
-        ref = rc.refine(rig, p, sf.ranges[rows], sf.azimuths[rows], sigma_pixel=float(s_px),
-                        sigma_range=float(np.median(s_r)), sigma_azimuth=float(np.median(s_a)), max_iter=10)
-        pts = np.where(ref.valid[:, None], ref.points, camera_from_sonar(rig, sf.ranges[rows], sf.azimuths[rows], el))
-        return el, p, ref, pts
+    def place(src, at=slice(None)):
+        """The chosen candidates' elevations, pixels, ML reconstruction (its cost) and points, rows ``at``."""
+        r_, th_ = sf.ranges[rows][at], sf.azimuths[rows][at]
+        el = np.choose(src, [c[at] for c in cand_el])
+        p = np.choose(src[:, None], [np.nan_to_num(c[at]) for c in cand_px])
+        ref = rc.refine(rig, p, r_, th_, sigma_pixel=float(s_px), sigma_range=float(np.median(s_r)),
+                        sigma_azimuth=float(np.median(s_a)), max_iter=10)
+        pts = np.where(ref.valid[:, None], ref.points, camera_from_sonar(rig, r_, th_, el))
+        return el, p, np.nan_to_num(ref.cost, nan=0.0), pts
 
-    el, px, ref, P = place(source)
+    el, px, chi2, P = place(source)
     score = probs[np.arange(rows.size), source]
     # the candidate models' choice, its probability and its reconstruction's cost (the trees' inputs)
     feats["candidate_source"], feats["candidate_score"] = source, score
-    feats["candidate_epipolar_chi2"] = np.nan_to_num(ref.cost, nan=0.0)
+    feats["candidate_epipolar_chi2"] = chi2.copy()  # (chi2 is updated in place below where the trees move a match)
     p_tree = np.full(probs.shape, np.nan)
     if opt.rank_model and rank and not soft_beam and np.any(offered):
         # Gradient-boosted trees on all the match's evidence give each offered candidate P(right); the most
         # probable is the match, that probability its score (round i15v, :mod:`.ranking`), where they were
         # fitted: clear water (the plane offered), the thesis's beam, a fitted or exact seabed plane
-        from .ranking import candidate_probabilities
+        from .ranking import available, candidate_probabilities
 
-        has_px = np.column_stack([np.all(np.isfinite(c), axis=1) for c in cand_px])
-        avail = (probs > 0) & has_px & np.asarray(offered, bool)[:, None]
+        avail = available(feats)
         p_tree = candidate_probabilities(feats, avail)
         use = avail.any(axis=1)
         tree_src = np.argmax(np.nan_to_num(p_tree, nan=-1.0), axis=1)
         score = np.where(use, p_tree[np.arange(rows.size), tree_src], score)
-        new_src = np.where(use, tree_src, source)
-        if np.any(new_src != source):
-            source = new_src
-            el, px, ref, P = place(source)
+        moved = np.nonzero(use & (tree_src != source))[0]
+        if moved.size:  # only the matches whose candidate changed are placed again (the ML refine is per point)
+            source = np.where(use, tree_src, source)
+            el[moved], px[moved], chi2[moved], P[moved] = place(source[moved], moved)
     for k, name in enumerate(CANDIDATES):
         feats[f"tree_p_{name}"] = p_tree[:, k]
     feats["face_source"] = source
     feats["elevation"] = el
-    feats["epipolar_chi2"] = np.nan_to_num(ref.cost, nan=0.0)
+    feats["epipolar_chi2"] = chi2
     cf = CameraFeatures(px, np.full(rows.size, float(s_px)), ch.run_px[rows])
     order = np.argsort(-score, kind="stable")
     feats = {k: np.asarray(v)[order] for k, v in feats.items()}

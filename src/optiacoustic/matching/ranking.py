@@ -74,6 +74,16 @@ def match_inputs(features: dict) -> np.ndarray:
     return np.column_stack(cols)
 
 
+def available(features: dict) -> np.ndarray:
+    """Which candidates the trees score, ``(N, 5)`` bool in :data:`CANDIDATES`' order: those offered (their own
+    model's probability ``p_<candidate>`` above 0, a finite pixel ``<candidate>_u``, ``_v``) on matches where the
+    face-plane model is offered (``plane_offered``), as in the training (``experiments.matching.rank_training_data``)."""
+    offered = np.asarray(features["plane_offered"], bool)[:, None]
+    return offered & np.column_stack([(np.asarray(features[f"p_{k}"], float) > 0)
+                                      & np.isfinite(np.asarray(features[f"{k}_u"], float))
+                                      & np.isfinite(np.asarray(features[f"{k}_v"], float)) for k in CANDIDATES])
+
+
 def candidate_rows(features: dict, available: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The trees' rows ``X`` ``(M, len(RANK_FEATURES))``, one per available candidate (``available`` bool ``(N, 5)``,
     columns in :data:`CANDIDATES`' order), with each row's match ``(M,)`` and candidate index ``(M,)``."""
