@@ -176,3 +176,43 @@ def test_shipped_model_comes_from_calibrate_rank_model(tmp_path):
     refit = ranking._booster(str(path)).predict(X, num_threads=1)
     shipped = ranking._booster(str(ranking.MODEL_FILE)).predict(X, num_threads=1)
     np.testing.assert_allclose(refit, shipped, atol=1e-9)
+
+
+def test_unloadable_trees_are_a_clear_error_in_the_library_and_the_cli(tmp_path, monkeypatch):
+    """A broken model file, or a lightgbm that does not load (no libgomp1), is a ``RankModelError`` (an
+    ``OSError``) that names the file and the way out, and ``oas match`` says so in one line (exit 2), no
+    traceback."""
+    import sys
+
+    from typer.testing import CliRunner
+
+    from optiacoustic.cli import app
+
+    s, o, rig = simulate_pair(random_scene(211), "thesis", "default", 211)
+    bad = tmp_path / "trees.txt.gz"
+    bad.write_bytes(b"\x1f\x8b truncated")
+    monkeypatch.setattr(ranking, "MODEL_FILE", bad)
+    ranking._booster.cache_clear()
+    with pytest.raises(ranking.RankModelError, match="cannot read the ranking model.*rank_model=False") as err:
+        match(s, o.image, rig, min_score=0.0)
+    assert isinstance(err.value, OSError) and err.value.filename == str(bad)
+    # the candidate models alone still match
+    assert match(s, o.image, rig, min_score=0.0, options=MatchOptions(rank_model=False))
+
+    rig_yaml = ranking.Path(__file__).resolve().parents[2] / "examples" / "rig_thesis.yaml"
+    pair = tmp_path / "pair"
+    runner = CliRunner()
+    assert runner.invoke(app, ["render", "thesis_scene1", "--rig", str(rig_yaml), "--out", str(pair)]).exit_code == 0
+    r = runner.invoke(app, ["match", str(pair), "--out", str(tmp_path / "m")])
+    assert r.exit_code == 2 and "cannot read the ranking model" in r.output and "Traceback" not in r.output
+    assert str(bad) in r.output.replace("\n", "")
+
+    monkeypatch.setattr(ranking, "MODEL_FILE", ranking.Path(ranking.__file__).resolve().parent.parent / "data"
+                        / "match_candidate_trees.txt.gz")
+    ranking._booster.cache_clear()
+    monkeypatch.setitem(sys.modules, "lightgbm", None)  # import lightgbm raises ImportError
+    with pytest.raises(ranking.RankModelError, match="libgomp1"):
+        match(s, o.image, rig, min_score=0.0)
+    monkeypatch.undo()
+    ranking._booster.cache_clear()
+    assert match(s, o.image, rig, min_score=0.0)

@@ -287,3 +287,19 @@ def test_suggest_matches_is_either_the_matcher_or_says_not_available(client, ses
         assert all(p["distance_sigma"] is None or p["distance_sigma"] >= 0 for p in rec["points"])
         client.post("/api/undo")
         assert session.matches == []
+
+
+def test_suggest_matches_reports_unloadable_trees(client, session, monkeypatch):
+    """When the matcher's candidate trees cannot be loaded (a broken install, no libgomp1) the suggest call answers
+    with the reason as JSON (the page shows its ``error``), not a bare server error; nothing is added."""
+    from optiacoustic.matching.ranking import RankModelError
+    from optiacoustic.workbench import compute
+
+    def broken(*a, **k):
+        raise RankModelError(0, "cannot read the ranking model: truncated", "/x/match_candidate_trees.txt.gz")
+
+    monkeypatch.setattr(compute, "suggest", broken)
+    r = client.post("/api/matches/suggest")
+    assert r.status_code == 500
+    assert r.json()["error"] == "/x/match_candidate_trees.txt.gz: cannot read the ranking model: truncated"
+    assert session.matches == []

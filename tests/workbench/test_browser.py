@@ -241,6 +241,31 @@ def test_fusion_overlay_with_opacity(page, live_server, session, shots):
     page.screenshot(path=str(shots / "07_fusion.png"))
 
 
+def test_suggest_matches_says_why_when_the_trees_do_not_load(page, live_server, session, shots, tmp_path,
+                                                             monkeypatch):
+    """A broken install (the matcher's candidate trees truncated): the button's click shows the reason in the
+    status line, as an error, and adds nothing."""
+    st = page.request.get(live_server + "/api/state").json()
+    if not st["matcher"]["available"]:
+        pytest.skip(f"suggest matches: {st['matcher']['message']}")
+    from optiacoustic.matching import ranking
+
+    bad = tmp_path / "match_candidate_trees.txt.gz"
+    bad.write_bytes(ranking.MODEL_FILE.read_bytes()[:1000])
+    monkeypatch.setattr(ranking, "MODEL_FILE", bad)
+    ranking._booster.cache_clear()
+    try:
+        page.click("#suggest")
+        page.wait_for_function("document.getElementById('status').textContent.includes('cannot read the ranking "
+                               "model')", timeout=120000)
+        assert "error" in page.locator("#status").get_attribute("class")
+        assert session.matches == []
+        page.screenshot(path=str(shots / "08b_suggest_trees_broken.png"))
+    finally:
+        monkeypatch.undo()
+        ranking._booster.cache_clear()
+
+
 def test_suggest_matches_button(page, live_server, session, shots):
     st = page.request.get(live_server + "/api/state").json()
     if not st["matcher"]["available"]:

@@ -97,31 +97,42 @@ def candidate_rows(features: dict, available: np.ndarray) -> tuple[np.ndarray, n
     return X, row, cand
 
 
+class RankModelError(OSError, RuntimeError):
+    """The candidate trees cannot be loaded: their file is unreadable or was fitted on other inputs, or lightgbm
+    itself does not load (on Linux it needs the system's libgomp1). An ``OSError`` (the command line reports
+    it in one line) and a ``RuntimeError``."""
+
+
 @functools.lru_cache(maxsize=4)
 def _booster(path: str):
-    import lightgbm as lgb
-
+    fix = "or match with MatchOptions(rank_model=False) (the candidate models alone)"
+    try:
+        import lightgbm as lgb
+    except (ImportError, OSError) as e:  # e.g. "libgomp.so.1: cannot open shared object file"
+        raise RankModelError(0, f"lightgbm, which runs the matcher's candidate trees, does not load ({e}); on "
+                                f"Debian and Ubuntu install libgomp1, {fix}", path) from e
     try:
         text = gzip.decompress(Path(path).read_bytes()).decode("ascii")
-    except OSError as e:
-        raise RuntimeError(f"cannot read the ranking model {path}: {e}") from e
-    booster = lgb.Booster(model_str=text)
+        booster = lgb.Booster(model_str=text)
+    except (OSError, EOFError, UnicodeDecodeError, lgb.basic.LightGBMError) as e:
+        raise RankModelError(0, f"cannot read the ranking model: {e}; reinstall optiacoustic, {fix}", path) from e
     names = tuple(booster.feature_name())
     if names != RANK_FEATURES:
-        raise RuntimeError(f"the ranking model {path} was fitted on features {names[:3]}... "
-                           f"({len(names)}), not RANK_FEATURES ({len(RANK_FEATURES)}): refit it "
-                           f"(experiments.matching.calibrate_rank_model)")
+        raise RankModelError(0, f"the ranking model was fitted on features {names[:3]}... ({len(names)}), not "
+                                f"RANK_FEATURES ({len(RANK_FEATURES)}): refit it "
+                                f"(experiments.matching.calibrate_rank_model), {fix}", path)
     return booster
 
 
-def candidate_probabilities(features: dict, available: np.ndarray,
-                            model_file: Path | str = MODEL_FILE) -> np.ndarray:
-    """P(the candidate's pixel is right) by the shipped trees, ``(N, 5)`` (:data:`CANDIDATES`' order), NaN where
-    a candidate is not ``available``."""
+def candidate_probabilities(features: dict, available: np.ndarray, model_file: Path | str | None = None) -> np.ndarray:
+    """P(the candidate's pixel is right) by the trees of ``model_file`` (default :data:`MODEL_FILE`, the shipped
+    ones), ``(N, 5)`` (:data:`CANDIDATES`' order), NaN where a candidate is not ``available``. Raises
+    :class:`RankModelError` when the trees cannot be loaded."""
     X, row, cand = candidate_rows(features, available)
     out = np.full(np.shape(available), np.nan)
     if X.shape[0]:
-        out[row, cand] = np.asarray(_booster(str(model_file)).predict(X, num_threads=1), float)
+        booster = _booster(str(MODEL_FILE if model_file is None else model_file))
+        out[row, cand] = np.asarray(booster.predict(X, num_threads=1), float)
     return out
 
 

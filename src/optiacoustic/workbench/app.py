@@ -193,6 +193,13 @@ def create_app(session: Session, *, token: Optional[str] = None,
     async def _key_error(request: Request, exc: KeyError):
         return JSONResponse({"error": str(exc.args[0] if exc.args else exc)}, status_code=404)
 
+    from ..matching.ranking import RankModelError
+
+    @api.exception_handler(RankModelError)
+    async def _rank_model_error(request: Request, exc: RankModelError):
+        # the matcher's candidate trees do not load (a broken install, no libgomp1): the page shows why
+        return JSONResponse({"error": f"{exc.filename}: {exc.strerror}"}, status_code=500)
+
     def no_store(resp):
         resp.headers["cache-control"] = "no-store"
         resp.headers["x-content-type-options"] = "nosniff"
