@@ -246,10 +246,15 @@ def test_two_views_keep_the_seabed_points_one_view_score():
 
 
 def test_two_views_beat_one_view_on_textured_scenes():
-    """On checkered surfaces a second view (known motion) finds more right matches than one view."""
+    """On checkered surfaces a second view (known motion) finds more right matches than one view, and ranks them
+    better (the score's AUC). Since round i15w the precision of *all* matches is no longer claimed: on these four
+    scenes two views still have it (53 of 116 against 43 of 96), but on held-out textured scenes 6000-6015 they
+    do not (0.601 against 0.623), while their precision at recall 0.5 is far above one view's (0.755 against
+    0.663): the gain is in the ranking (docs/matching.md, round i15w)."""
+    from scipy.stats import rankdata
     from optiacoustic.experiments.matching import evaluate_two_views, moved_view  # noqa: F401
 
-    ok1, ok2, n_vis = [], [], 0
+    ok1, ok2, sc1, sc2, n_vis = [], [], [], [], 0
     # Four scenes: since the point above the foot (no image texture needed) one view's precision on
     # textured scenes rose, and on 203-204 alone it is 21 of 56 against two views' 26 of 75 (scene
     # 204: 19 more two-view matches, 2 right); on 203-206 one view gets 42 of 102, two views 63 of 121.
@@ -260,11 +265,18 @@ def test_two_views_beat_one_view_on_textured_scenes():
         e2 = evaluate_two_views(sc, s, o, rig, dict(surge=0.4, sway=0.3, heave=0.05, yaw_deg=1.0), sd)
         ok1.append(e1["ok"])
         ok2.append(e2["ok"])
+        sc1.append(e1["score"])
+        sc2.append(e2["score"])
         n_vis += e1["n_visible"]
-    ok1, ok2 = np.concatenate(ok1), np.concatenate(ok2)
+    ok1, ok2, sc1, sc2 = (np.concatenate(x) for x in (ok1, ok2, sc1, sc2))
+
+    def auc(score, ok):  # P(a right match outscores a wrong one), the Mann-Whitney statistic
+        rk = rankdata(score)
+        return (rk[ok].sum() - ok.sum() * (ok.sum() + 1) / 2) / (ok.sum() * (~ok).sum())
+
     assert n_vis >= 10
     assert ok2.sum() > ok1.sum()  # recall
-    assert ok2.mean() > ok1.mean()  # precision of all matches
+    assert auc(sc2, ok2) > auc(sc1, ok1) + 0.05  # the ranking (0.795 against 0.669 in round i15w)
 
 
 def test_epipolar_residual_identity():

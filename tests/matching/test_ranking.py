@@ -164,7 +164,7 @@ def test_model_file_and_fit_inputs_are_checked(tmp_path):
 
 
 @pytest.mark.skipif(os.environ.get("OAS_CALIBRATION_TESTS") != "1",
-                    reason="refits the trees on the 144 training pairs (about 1.5 min); set OAS_CALIBRATION_TESTS=1")
+                    reason="refits the trees on the 672 training pairs (about 6 min); set OAS_CALIBRATION_TESTS=1")
 def test_shipped_model_comes_from_calibrate_rank_model(tmp_path):
     """A refit (:func:`calibrate_rank_model`, deterministic LightGBM on one thread) predicts what the shipped
     model predicts, on its own training rows."""

@@ -588,7 +588,8 @@ def _operating_point(evals, target: float = 0.95) -> dict:
         return out
     n = np.arange(1, score.size + 1)
     p = tp / n
-    good = np.nonzero(p >= target)[0]
+    cuts = _cuts(score[order])
+    good = cuts[p[cuts] >= target]
     if good.size:
         i = int(good[-1])
         out.update(threshold=float(score[order][i]), precision=float(p[i]), recall=float(tp[i] / n_vis), n=int(n[i]))
@@ -610,12 +611,22 @@ def _ranked(evals):
     return n_vis, score, ok, order, np.cumsum(ok[order])
 
 
+def _cuts(score_sorted: np.ndarray) -> np.ndarray:
+    """Positions in a descending ranking where a threshold ``score >= t`` can cut it: the last match of each run
+    of equal scores (a cut inside a tie is no threshold)."""
+    n = score_sorted.size
+    return np.nonzero(np.append(score_sorted[1:] != score_sorted[:-1], True))[0] if n else np.zeros(0, int)
+
+
 def _fine_curve(evals):
-    """Precision and recall at every distinct score (pooled, best first): arrays (recall, precision)."""
-    n_vis, score, _, _, tp = _ranked(evals)
+    """The exact precision-recall curve: precision and recall at every distinct score threshold (pooled, best
+    first; ``score >= t`` for each distinct score ``t``): arrays (recall, precision). The report's 20-point
+    curve (:func:`_pr`) samples it; the target's verdict is taken here."""
+    n_vis, score, _, order, tp = _ranked(evals)
     if score.size == 0 or n_vis == 0:
         return np.zeros(0), np.zeros(0)
-    return tp / n_vis, tp / np.arange(1, score.size + 1)
+    k = _cuts(score[order])
+    return tp[k] / n_vis, tp[k] / (k + 1)
 
 
 def _best_at(recall, precision, target: float) -> float:
@@ -695,13 +706,20 @@ def _run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     b_prec, b_rec, b_n = _baseline(evals)
     c_prec, c_rec, _, c_vis, _ = _pr(evals_corners, [0.0])
     op = _operating_point(evals)
-    ok_target = np.nonzero((rec >= 0.5) & (prec >= 0.95))[0]
-    best_at_half = np.nanmax(np.where(rec >= 0.5, prec, np.nan)) if np.any(rec >= 0.5) else float("nan")
+    # the verdict on the exact curve (every distinct score a threshold); the 20-point curve samples it
+    best_at_half = _best_at(*_fine_curve(evals), 0.5)
+    target_met = bool(best_at_half >= 0.95)
+    best_at_half_sampled = np.nanmax(np.where(rec >= 0.5, prec, np.nan)) if np.any(rec >= 0.5) else float("nan")
     i05 = int(np.argmin(np.abs(thresholds - SCORE_CUT)))
     top = top_failures(evals)
 
     fig, ax = plt.subplots(figsize=(5.5, 4.5))
-    ax.plot(rec, prec, "o-", color="#4363d8", label="arc search (score threshold swept)")
+    rc_f, pc_f = _fine_curve(evals)
+    ax.plot(rc_f, pc_f, "-", color="#4363d8", lw=0.8, alpha=0.6, label="arc search, every score a threshold")
+    ax.plot(rec, prec, "o", color="#4363d8", label="arc search, 20 score thresholds")
+    if np.isfinite(op["threshold"]):
+        ax.plot([op["recall"]], [op["precision"]], "*", color="#f58231", ms=12, zorder=5,
+                label=f"lowest threshold with precision >= 0.95 (score {op['threshold']:.2f})")
     ax.plot([c_rec[0]], [c_prec[0]], "D", color="#3cb44b", ms=8, label="first design: gated corners + assignment")
     ax.plot([b_rec], [b_prec], "s", color="#e6194b", ms=9, label="baseline: nearest camera feature to each conic")
     ax.axhline(0.95, color="0.6", ls=":", lw=1)
@@ -949,7 +967,8 @@ def _run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
         n_scenes=len(all_scenes), n_visible=n_vis, thresholds=thresholds, score_cut=float(thresholds[i05]), precision=prec, recall=rec, n_matches=npt,
         precision_at_score_cut=float(prec[i05]), recall_at_score_cut=float(rec[i05]),
         precision_all_assigned=p_all, recall_all_assigned=float(rec[0]),
-        best_precision_at_recall_0_5=best_at_half, target_met=bool(ok_target.size),
+        best_precision_at_recall_0_5=best_at_half, target_met=target_met,
+        best_precision_at_recall_0_5_sampled=best_at_half_sampled,
         operating_point_precision_0_95=op,
         corners_precision_all_assigned=float(c_prec[0]), corners_recall_all_assigned=float(c_rec[0]),
         baseline_precision=b_prec, baseline_recall=b_rec, baseline_n=b_n, precision_ratio_to_baseline=ratio,
@@ -1036,7 +1055,8 @@ def _run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
                f"precision {p_all:.2f} at recall {rec[0]:.2f} (score >= {thresholds[i05]:.2f}: {prec[i05]:.2f} at "
                f"{rec[i05]:.2f}); the "
                f"nearest-conic baseline {b_prec:.2f} at {b_rec:.2f} ({ratio:.1f}x better precision). Target "
-               f"(precision >= 0.95 at recall >= 0.5) {'met' if ok_target.size else 'NOT met'}. Median 3D error "
+               f"(precision >= 0.95 at recall >= 0.5) {'met' if target_met else 'NOT met'}: {best_at_half:.3f} at recall >= 0.5 "
+               f"(every score a threshold; {best_at_half_sampled:.3f} on the 20-point curve). Median 3D error "
                f"{med_auto:.2f} m (automatic) vs {med_true:.3f} m (true matches). First design (corners): "
                f"{c_prec[0]:.2f} at {c_rec[0]:.2f}. Precision >= 0.95 reached at recall {op['recall']:.2f} "
                f"({op['n']} matches); score AUC {op['auc']:.2f}. Two views with known motion (random vehicle "
@@ -1233,11 +1253,17 @@ def calibrate_face_score(scenes=FACE_TRAINING, *, ridge: float = 1.0) -> dict:
     return {k: _fit_logistic(np.concatenate(X[k]), np.concatenate(y[k]), ridge) for k in X if X[k]}
 
 
-#: Training scenes of the candidate trees (:mod:`optiacoustic.matching.ranking`): the thesis-water scenes of
-#: :data:`FACE_TRAINING` (the trees choose and score only in clear water, where the face-plane model is offered).
-RANK_TRAINING = ((range(5000, 5048), "thesis"), (range(8000, 8048), "thesis", "varied"))
-#: And random scenes on seabeds with relief (:func:`relief_scene`): seeds and RMS heights (m).
-RANK_RELIEF_TRAINING = (range(5000, 5016), (0.005, 0.01, 0.02))
+#: Training scenes of the candidate trees (:mod:`optiacoustic.matching.ranking`), thesis water (the trees choose
+#: and score only in clear water, where the face-plane model is offered): the thesis-water scenes of
+#: :data:`FACE_TRAINING` and (round i15w) 192 more random and 192 more varied ones, 480 in all. The trees
+#: were data-bound: fitted on 24, 48, 72 and 96 of the first 96, held-out precision at recall 0.5 rose
+#: 0.893, 0.906, 0.910, 0.911 (docs/matching.md, "More training scenes for the trees"). The seeds keep
+#: clear of the evaluation's (random 0-19, 6000-6047; varied 9000-9047) and the tests' (varied 8100-8129,
+#: 8300-8307; random 203-216).
+RANK_TRAINING = ((range(5000, 5240), "thesis"), (range(8000, 8048), "thesis", "varied"),
+                 (range(8400, 8592), "thesis", "varied"))
+#: And random scenes on seabeds with relief (:func:`relief_scene`): seeds and RMS heights (m), 192 pairs.
+RANK_RELIEF_TRAINING = (range(5000, 5064), (0.005, 0.01, 0.02))
 
 
 def rank_training_data(scenes=RANK_TRAINING, relief=RANK_RELIEF_TRAINING) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -1375,7 +1401,9 @@ def calibrate_two_view_score(seeds=range(5000, 5024), *, ridge: float = 1.0) -> 
     Each random scene seeded ``seeds``, plain and textured (:func:`random_scene`), is matched with
     a second pair after the random vehicle motion :func:`vehicle_motion` of the same seed (thesis
     water, default sonar noise); every candidate of both kinds is labelled by the depth-map
-    truth. Use seeds disjoint from the evaluation's.
+    truth. Use seeds disjoint from the evaluation's. (These seeds are among the candidate trees'
+    training scenes, where their one-view score is optimistic. Fitted on random 5240-5263 or 5240-5287,
+    outside it, two views did no better: docs/matching.md, round i15w.)
 
     Returns
     -------
