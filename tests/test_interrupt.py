@@ -93,6 +93,9 @@ def _run_code(code: str, timeout=30):
 
 _LOST_IN_FINALIZER = """
 import os, signal, time
+# Python's own SIGINT handler even where the parent ignores SIGINT (a job started in the background by a
+# non-interactive shell inherits SIG_IGN, and Python then installs no handler: the signal would do nothing)
+signal.signal(signal.SIGINT, signal.default_int_handler)
 class Finalized:
     def __del__(self):
         os.kill(os.getpid(), signal.SIGINT)  # Python raises KeyboardInterrupt here, inside __del__: "ignored"

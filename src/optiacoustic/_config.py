@@ -190,6 +190,10 @@ def parse_config(text: str, *, kind: str = "yaml"):
     try:
         return _parse_yaml(text)
     except yaml.YAMLError as exc:
+        if "maximum nesting depth" in str(exc):  # PyYAML >= 6.0.4 stops at 1000 levels, ahead of the events
+            mark = getattr(exc, "problem_mark", None)
+            where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else ""
+            raise ConfigError(f"nesting deeper than {MAX_DEPTH} levels{where}; refused") from None
         raise ConfigError(f"not valid YAML: {exc}") from None
 
 
