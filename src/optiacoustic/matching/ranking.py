@@ -51,15 +51,16 @@ CANDIDATES = ("arc", "crease", "plane", "foot", "seabed")
 #: One row per (match, offered candidate): the match's evidence, which candidate, and its own model's probability.
 RANK_FEATURES = MATCH_FEATURES + ("candidate", "candidate_probability")
 
-#: LightGBM's training parameters (binary log-loss). Chosen on the comparison protocol of earlier rounds
-#: (fitted on random 5000-5023 and varied 8000-8023, compared on 5024-5047 and 8024-8047), among six
-#: settings; one thread and ``deterministic`` so that a refit gives the shipped model.
-RANK_PARAMS = dict(objective="binary", learning_rate=0.05, num_leaves=31, min_data_in_leaf=40, lambda_l2=1.0,
+#: LightGBM's training parameters (binary log-loss), one thread and ``deterministic`` so that a refit gives the
+#: shipped model. Chosen on the comparison protocol of earlier rounds (fitted without random 5024-5047 and varied
+#: 8024-8047, compared on them). Round i15x: with round i15w's five-fold data the trees were too small; on the
+#: comparison halves, 31 leaves (400 trees) gave 0.937 at recall 0.5, 127 leaves 0.956-0.965, 255 leaves
+#: 0.959-0.967 and 511-1023 leaves 0.967-0.969 (docs/matching.md).
+RANK_PARAMS = dict(objective="binary", learning_rate=0.05, num_leaves=255, min_data_in_leaf=40, lambda_l2=1.0,
                    max_bin=255, deterministic=True, force_col_wise=True, num_threads=1, seed=0, verbose=-1)
-#: Boosting rounds (trees). Round i15w (480 flat and 192 relief training pairs, five times the rows): 400,
-#: where precision at recall 0.5 on the comparison halves levels off (fitted without them: 0.894 at 200
-#: trees, 0.926 at 400, 0.927 at 600, 0.929 at 1000).
-RANK_ROUNDS = 400
+#: Boosting rounds (trees). Round i15x: 200 of 255 leaves, the smallest model at the comparison halves' level
+#: (0.966 at 200, 300 and 400 trees; 2.5 MB compressed).
+RANK_ROUNDS = 200
 
 #: The shipped model: LightGBM's text format, gzip-compressed.
 MODEL_FILE = Path(__file__).resolve().parent.parent / "data" / "match_candidate_trees.txt.gz"
