@@ -139,7 +139,7 @@ def run() -> list[dict]:
              note="4 candidates x (5 x 5 dilation + 16 segment samples)"),
         dict(name="seabed point (round i15k), all matches", value=t_seabed, unit="ms", reference="match",
              ratio=t_seabed / t_match, note="closed form per match: the arc meets the sonar's seabed plane"),
-        dict(name="candidate trees (rounds i15v, i15w), every offered candidate", value=t_rank, unit="ms",
+        dict(name="candidate trees (rounds i15v-i15x), every offered candidate", value=t_rank, unit="ms",
              reference="match", ratio=t_rank / t_match,
              note=f"LightGBM, {ranking.RANK_ROUNDS} trees of {ranking.RANK_PARAMS['num_leaves']} leaves, {int(avail.sum())} rows "
                                          f"({len(m)} matches) x {len(ranking.RANK_FEATURES)} inputs, one thread"),

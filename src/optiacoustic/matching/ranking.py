@@ -54,8 +54,8 @@ RANK_FEATURES = MATCH_FEATURES + ("candidate", "candidate_probability")
 #: LightGBM's training parameters (binary log-loss), one thread and ``deterministic`` so that a refit gives the
 #: shipped model. Chosen on the comparison protocol of earlier rounds (fitted without random 5024-5047 and varied
 #: 8024-8047, compared on them). Round i15x: with round i15w's five-fold data the trees were too small; on the
-#: comparison halves, 31 leaves (400 trees) gave 0.937 at recall 0.5, 127 leaves 0.956-0.965, 255 leaves
-#: 0.959-0.967 and 511-1023 leaves 0.967-0.969 (docs/matching.md).
+#: comparison halves, 31 leaves (400 trees) gave 0.937 at recall 0.5, 63 leaves 0.953-0.954, 127 leaves 0.956-0.965,
+#: 255 leaves 0.959-0.971 and 511-1023 leaves 0.967-0.969 (400-600 trees, 20-80 rows a leaf; docs/matching.md).
 RANK_PARAMS = dict(objective="binary", learning_rate=0.05, num_leaves=255, min_data_in_leaf=40, lambda_l2=1.0,
                    max_bin=255, deterministic=True, force_col_wise=True, num_threads=1, seed=0, verbose=-1)
 #: Boosting rounds (trees). Round i15x: 200 of 255 leaves, the smallest model at the comparison halves' level
