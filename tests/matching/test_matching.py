@@ -251,8 +251,7 @@ def test_two_views_beat_one_view_on_textured_scenes():
     scenes two views still have it (53 of 116 against 43 of 96), but on held-out textured scenes 6000-6015 they
     do not (0.601 against 0.623), while their precision at recall 0.5 is far above one view's (0.755 against
     0.663): the gain is in the ranking (docs/matching.md, round i15w)."""
-    from scipy.stats import rankdata
-    from optiacoustic.experiments.matching import evaluate_two_views, moved_view  # noqa: F401
+    from optiacoustic.experiments.matching import evaluate_two_views, moved_view, score_auc  # noqa: F401
 
     ok1, ok2, sc1, sc2, n_vis = [], [], [], [], 0
     # Four scenes: since the point above the foot (no image texture needed) one view's precision on
@@ -270,13 +269,9 @@ def test_two_views_beat_one_view_on_textured_scenes():
         n_vis += e1["n_visible"]
     ok1, ok2, sc1, sc2 = (np.concatenate(x) for x in (ok1, ok2, sc1, sc2))
 
-    def auc(score, ok):  # P(a right match outscores a wrong one), the Mann-Whitney statistic
-        rk = rankdata(score)
-        return (rk[ok].sum() - ok.sum() * (ok.sum() + 1) / 2) / (ok.sum() * (~ok).sum())
-
     assert n_vis >= 10
     assert ok2.sum() > ok1.sum()  # recall
-    assert auc(sc2, ok2) > auc(sc1, ok1) + 0.05  # the ranking (0.795 against 0.669 in round i15w)
+    assert score_auc(sc2, ok2) > score_auc(sc1, ok1) + 0.05  # the ranking (0.795 against 0.669 in round i15w)
 
 
 def test_epipolar_residual_identity():

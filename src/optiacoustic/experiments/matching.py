@@ -593,12 +593,21 @@ def _operating_point(evals, target: float = 0.95) -> dict:
     if good.size:
         i = int(good[-1])
         out.update(threshold=float(score[order][i]), precision=float(p[i]), recall=float(tp[i] / n_vis), n=int(n[i]))
-    if 0 < ok.sum() < ok.size:
-        from scipy.stats import rankdata
-
-        rk = rankdata(score)
-        out["auc"] = float((rk[ok].sum() - ok.sum() * (ok.sum() + 1) / 2) / (ok.sum() * (~ok).sum()))
+    out["auc"] = score_auc(score, ok)
     return out
+
+
+def score_auc(score, ok) -> float:
+    """P(a right match outscores a wrong one), ties counted half: the Mann-Whitney statistic of ``score`` over
+    the right (``ok``) against the wrong matches; NaN unless both kinds are present."""
+    score = np.asarray(score, float)
+    ok = np.asarray(ok, bool)
+    if not 0 < ok.sum() < ok.size:
+        return float("nan")
+    from scipy.stats import rankdata
+
+    rk = rankdata(score)
+    return float((rk[ok].sum() - ok.sum() * (ok.sum() + 1) / 2) / (ok.sum() * (~ok).sum()))
 
 
 def _ranked(evals):
@@ -707,14 +716,14 @@ def _run(out_dir, *, quick: bool = False, seed: int = 0) -> ExperimentResult:
     c_prec, c_rec, _, c_vis, _ = _pr(evals_corners, [0.0])
     op = _operating_point(evals)
     # the verdict on the exact curve (every distinct score a threshold); the 20-point curve samples it
-    best_at_half = _best_at(*_fine_curve(evals), 0.5)
+    rc_f, pc_f = _fine_curve(evals)
+    best_at_half = _best_at(rc_f, pc_f, 0.5)
     target_met = bool(best_at_half >= 0.95)
     best_at_half_sampled = np.nanmax(np.where(rec >= 0.5, prec, np.nan)) if np.any(rec >= 0.5) else float("nan")
     i05 = int(np.argmin(np.abs(thresholds - SCORE_CUT)))
     top = top_failures(evals)
 
     fig, ax = plt.subplots(figsize=(5.5, 4.5))
-    rc_f, pc_f = _fine_curve(evals)
     ax.plot(rc_f, pc_f, "-", color="#4363d8", lw=0.8, alpha=0.6, label="arc search, every score a threshold")
     ax.plot(rec, prec, "o", color="#4363d8", label="arc search, 20 score thresholds")
     if np.isfinite(op["threshold"]):

@@ -9,9 +9,10 @@ faces that stand on the seabed...). Gradient-boosted decision trees (LightGBM) f
 evidence at once, with the candidate and its own model's probability, give every offered candidate
 P(its pixel is right); the most probable is the match, and that probability its score. On held-out
 scenes precision at recall 0.5 rose from 0.887 to 0.904 with trees fitted on 96 flat and 48 relief training
-pairs (round i15v), and to 0.935 with five times the scenes (round i15w: 480 flat and 192 relief pairs, 400
-trees); the right matches from 1857 to 1965 of 2757 (docs/matching.md, "Gradient-boosted trees choose and
-score the candidates" and "More training scenes for the trees").
+pairs (round i15v), to 0.935 with five times the scenes (round i15w: 480 flat and 192 relief pairs, 400 trees
+of 31 leaves), and to 0.948 with trees of 255 leaves (round i15x, 200 trees); the right matches from 1857 to
+1980 of 2757 (docs/matching.md, "Gradient-boosted trees choose and score the candidates", "More training
+scenes for the trees" and "Larger trees for five times the data").
 
 The trees are fitted by :func:`optiacoustic.experiments.matching.calibrate_rank_model` (thesis water, the
 training scenes of the candidate models, and random scenes on seabeds with 0.5-2 cm of relief, the fitted
