@@ -291,6 +291,67 @@ def test_scatterer_speckle_is_the_two_passes_bit_for_bit(have_words, n_r):
                                h_r, h_b, tvg, 0, B, out) == 3
 
 
+def _counts_float64(K, m, words, mu_max):
+    """``_poisson_small_row``'s counts (the float64 inversion) of one row."""
+    J = m.size
+    p0, scale, u = np.empty(J), np.empty(J), np.empty(J)
+    K._exp_neg_row(m, 40.0, p0, scale)
+    K._uniform_bits_row(words, u)
+    n = np.empty(J, np.int32)
+    K._poisson_small_row(m, p0, scale, u, mu_max, n, np.empty(J, np.int64))
+    return n
+
+
+def test_screened_float32_counts_are_the_float64_inversions():
+    """``_poisson_small_row32`` (the scatterer field's counts in float32, cells too close to call
+    counted again in float64, i14s) gives ``_poisson_small_row``'s counts: on random means over the
+    whole range (off the seabed, below and above ``mu_max``, non-float32 densities) with random
+    words, and on words placed within a few units of the last place of every float64 boundary
+    ``P(N <= n)``, n = 0..4, where a float32 comparison alone would often decide the other way. The
+    seabed cells' counts are also scipy's Poisson quantiles. The screen catches few cells (so the
+    float32 comparisons decide the rest)."""
+    from optiacoustic.sonar import _numba_kernels as K
+
+    rng = np.random.default_rng(77)
+    mu_max = 30.0
+    J = 4096
+    area = np.concatenate([np.zeros(8), np.full(8, 1e-13), rng.uniform(0.0, 2e-3, J - 96),
+                           rng.uniform(0.0, 0.09, 80)]).astype(np.float32)
+    scr = [np.empty(J, t) for t in (np.int32, np.int64, np.float32, np.float32, np.float64, np.float64, np.float64)]
+    screened = 0
+    for density in (500.0, 333.3, 1.0e4):
+        m = density * area.astype(np.float64)
+        # boundaries of the float64 inversion: P(N <= n) for n = 0..4 (the kernel's operations)
+        p0, scale = np.empty(J), np.empty(J)
+        K._exp_neg_row(m, 40.0, p0, scale)
+        c = np.empty((5, J))
+        p = p0 * scale
+        c[0] = p
+        term = p
+        for n in range(1, 5):
+            term = term * (np.minimum(np.maximum(m, 0.0), 40.0) / n)
+            c[n] = c[n - 1] + term
+        word_sets = [rng.integers(0, 2**32, J, dtype=np.uint64).astype(np.uint32)]
+        for n in range(5):  # (b + 1/2) 2^-32 within a few 2^-32 of c[n]
+            for off in (-2, -1, 0, 1, 2):
+                b = np.clip(np.floor(c[n] * 2.0**32 - 0.5) + off, 0, 2**32 - 1)
+                word_sets.append(b.astype(np.uint64).astype(np.uint32))
+        for words in word_sets:
+            want = _counts_float64(K, m, words, mu_max)
+            n32, fix, p32, s32, pp, sc, fm = scr
+            K._poisson_small_row32(area, density, m, words, mu_max, n32, fix, p32, s32, pp, sc, fm)
+            sea = (m > N.MU_NO_SEABED) & (m < mu_max)
+            assert np.array_equal(n32[sea], want[sea]), density
+        u = (words.astype(np.float64) + 0.5) * 2.0**-32
+        assert np.array_equal(want[sea], stats.poisson.ppf(u[sea], m[sea]).astype(np.int32))
+        # how often the float32 decision is not trusted, on random words
+        words = word_sets[0]
+        K._poisson_small_row32(area, density, m, words, mu_max, *scr[:2], *scr[2:])
+        want = _counts_float64(K, m, words, mu_max)
+        screened += int(np.sum((scr[0] == 4) & (want < 4) & sea))
+    assert screened <= 3 * J * 1e-3
+
+
 def test_scatterer_noise_with_large_means_takes_the_two_passes(monkeypatch):
     """A frame with cells of large mean (their counts drawn by the generator): ``ScattererNoise.apply``
     gives the image of the two-pass path (``_FUSED`` off), not the fused pass's."""

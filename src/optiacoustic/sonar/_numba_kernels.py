@@ -872,7 +872,7 @@ def _normals_row(b, r2, power, out):
         h1 = (q + one) * half
         sign_c = one - two * (np.floor(h1) - two * np.floor(h1 * half))
         sign_s = one - two * (np.floor(h) - two * np.floor(h * half))
-        s = np.float32(np.sqrt(np.float64(power[j] * half * r2[j])))
+        s = np.sqrt(power[j] * half * r2[j])
         out[2 * j] = a * sign_c * s
         out[2 * j + 1] = c * sign_s * s
 
@@ -920,10 +920,11 @@ def exp_row(x, n, out, scale):
 @njit(cache=True, nogil=True)
 def _field_row_scratch(J):
     """The per-row scratch of the scatterer field's rows (:func:`scatterer_field`, :func:`scatterer_speckle`):
-    ``m_row, p0, scale, n_row, u_row, x, e, mant, r2, power, fix, w0, w1, w2``, each ``(J,)``."""
+    ``m_row, p0, scale, n_row, u_row, x, e, mant, r2, power, fix, w0, w1, w2, p32, s32``, each ``(J,)``."""
     return (np.empty(J), np.empty(J), np.empty(J), np.empty(J, np.int32), np.empty(J), np.empty(J), np.empty(J),
             np.empty(J), np.empty(J, np.float32), np.empty(J, np.float32), np.empty(J, np.int64),
-            np.empty(J, np.uint32), np.empty(J, np.uint32), np.empty(J, np.uint32))
+            np.empty(J, np.uint32), np.empty(J, np.uint32), np.empty(J, np.uint32),
+            np.empty(J, np.float32), np.empty(J, np.float32))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -939,21 +940,20 @@ def scatterer_field(intensity, gain, back, area, density, k0, k1, mu_max, r0, r1
     get ``z = 0``.
 
     Row by row in loops without libm calls or branches on the data, which vectorise:
-    ``exp(-mu)`` (:func:`_exp_neg_row`), the first four steps of the inversion (counts 0..3:
-    all but a few cells of a resolution-cell-sized mean), the radius (:func:`_radius2_row`)
-    and the normals (:func:`_normals_row`); a scalar loop finishes the rare counts above 3.
+    ``exp(-mu)`` and the first four steps of the inversion (counts 0..3: all but a few cells of
+    a resolution-cell-sized mean) in float32, screened (:func:`_poisson_small_row32`: the float64
+    inversion's counts), the radius (:func:`_radius2_row`) and the normals (:func:`_normals_row`);
+    a scalar loop finishes the rare counts above 3 and the cells too close to call in float32.
     """
     J = intensity.shape[1]
-    m_row, p0, scale, n_row, u_row, x, e, mant, r2, power, fix, w0, w1, w2 = _field_row_scratch(J)
+    m_row, p0, scale, n_row, u_row, x, e, mant, r2, power, fix, w0, w1, w2, p32, s32 = _field_row_scratch(J)
     for i in range(r0, r1):
         _cell_words_row(k0, k1, i * J, w0, w1, w2)
         bk = back[i]
         a_row = area[i]
         for j in range(J):
             m_row[j] = density * a_row[j]
-        _exp_neg_row(m_row, 40.0, p0, scale)
-        _uniform_bits_row(w0, u_row)
-        _poisson_small_row(m_row, p0, scale, u_row, mu_max, n_row, fix)
+        _poisson_small_row32(a_row, density, m_row, w0, mu_max, n_row, fix, p32, s32, p0, scale, u_row)
         _field_power_row(m_row, n_row, intensity[i], gain, bk, mu_max, power, big[i], mean[i])
         _radius2_row(w1, x, e, mant, r2)
         _normals_row(w2, r2, power, z[i].reshape(2 * J))
@@ -993,21 +993,21 @@ def scatterer_field_words(intensity, gain, back, area, density, mu_max, r0, r1, 
     u_row = np.empty(J)
     power = np.empty(J, np.float32)
     fix = np.empty(J, np.int64)
+    p32 = np.empty(J, np.float32)
+    s32 = np.empty(J, np.float32)
     half = np.float32(0.5)
     for i in range(r0, r1):
         bk = back[i]
         a_row = area[i]
         for j in range(J):
             m_row[j] = density * a_row[j]
-        _exp_neg_row(m_row, 40.0, p0, scale)
-        _uniform_bits_row(u_words[i], u_row)
-        _poisson_small_row(m_row, p0, scale, u_row, mu_max, n_row, fix)
+        _poisson_small_row32(a_row, density, m_row, u_words[i], mu_max, n_row, fix, p32, s32, p0, scale, u_row)
         _field_power_row(m_row, n_row, intensity[i], gain, bk, mu_max, power, big[i], mean[i])
         r2i = r2[i]
         ui = unit[i].reshape(2 * J)
         zi = z[i].reshape(2 * J)
         for j in range(J):
-            sc = np.float32(np.sqrt(np.float64(power[j] * half * r2i[j])))
+            sc = np.sqrt(power[j] * half * r2i[j])
             zi[2 * j] = ui[2 * j] * sc
             zi[2 * j + 1] = ui[2 * j + 1] * sc
 
@@ -1041,6 +1041,94 @@ def _poisson_small_row(m_row, p0, scale, u_row, mu_max, n_row, fix):
         m = m_row[j]
         uu = u_row[j]
         p = p0[j]
+        c = p
+        n = 0
+        while uu > c and n < 1000:
+            n += 1
+            p *= m / n
+            c += p
+        n_row[j] = n
+
+
+#: Half-width of the band around each cumulative probability in which :func:`_poisson_small_row32`'s
+#: float32 decision is not trusted (relative part, absolute part): its float32 ``P(N <= n)`` are within
+#: ~2e-6 relative of the float64 ones for means up to 30 (``exp`` to a few ulp, the mean's own rounding
+#: times up to 30 for ``exp(-mu)``, three more for ``mu^3``) and its uniform within 1e-7 of the float64 one.
+_SCREEN_REL = np.float32(1e-5)
+_SCREEN_ABS = np.float32(2e-7)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _poisson_small_row32(a_row, density, m_row, w_row, mu_max, n_row, fix, p32, s32, p0, scale, fm):
+    """:func:`_poisson_small_row`'s counts of a row from the cells' areas ``a_row`` (float32), the
+    count words ``w_row`` (uint32) and ``m_row = density a_row`` (float64), the same counts with most
+    of the work in float32 (issue 14, i14s: twice the lanes of float64, a degree-7 ``exp``):
+    ``exp(-mu)`` as ``P(r) 2^-k`` (``ln 2`` in two parts, ``2^-k`` built as float32 bits in ``s32``,
+    ``P`` in ``p32``), the uniform ``(b + 1/2) 2^-32`` and the first four cumulative probabilities
+    ``c`` in float32. Where the float32 uniform lies within ``_SCREEN_REL c + _SCREEN_ABS`` of a float32
+    ``c`` (about 6e-5 of the cells at means below 1), its comparison could differ from float64's: such a cell, like a
+    count above 3, is counted again from the start in float64 (``exp(-mu)`` by :func:`_exp_neg_row` of those
+    cells' means gathered into ``fm``, into ``p0``, ``scale``; the uniform as :func:`_uniform_bits_row`), by the operations of
+    :func:`_poisson_small_row`. Elsewhere the float32 comparisons agree with float64's, so the counts
+    are :func:`_poisson_small_row`'s (tests/sonar/test_kernels.py checks it with uniforms placed at the
+    boundaries). The integer work (the count of 4s) in a loop of its own: in the float loop it
+    stopped the vectorisation."""
+    J = a_row.size
+    half = np.float32(0.5)
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    d32 = np.float32(density)
+    sb = s32.view(np.int32)
+    for j in range(J):  # exp(-m) = 2^-k exp(k ln 2 - m), |k ln 2 - m| <= ln 2 / 2
+        m = min(max(d32 * a_row[j], zero), np.float32(40.0))
+        ki = np.int32(m * np.float32(1.4426950408889634) + half)
+        k = np.float32(ki)
+        r = (k * np.float32(0.693359375) - m) + k * np.float32(-2.12194440e-4)  # k ln2_hi exact (k <= 58)
+        p32[j] = one + r * (one + r * (half + r * (np.float32(1.0 / 6) + r * (np.float32(1.0 / 24) + r * (
+            np.float32(1.0 / 120) + r * (np.float32(1.0 / 720) + r * np.float32(1.0 / 5040)))))))
+        sb[j] = np.int32((np.int32(127) - ki) * np.int32(8388608))  # 2^-k: the exponent field
+    wi = w_row.view(np.int32)
+    for j in range(J):  # counts 0..3, or 4: above 3 or too close to call in float32
+        m = min(max(d32 * a_row[j], zero), np.float32(40.0))
+        p = p32[j] * s32[j]
+        wv = wi[j]  # the word as int32: b = wv + 2^32 [wv < 0]
+        uu = np.float32(wv) * np.float32(2.0 ** -32) + (one if wv < 0 else zero)
+        t1 = p * m
+        c1 = p + t1
+        t2 = t1 * (m * half)
+        c2 = c1 + t2
+        c3 = c2 + t2 * (m * np.float32(1.0 / 3))
+        n = np.int32(uu > p) + np.int32(uu > c1) + np.int32(uu > c2) + np.int32(uu > c3)
+        d0 = uu - p
+        d1 = uu - c1
+        d2 = uu - c2
+        d3 = uu - c3
+        near = ((d0 * d0 <= (_SCREEN_REL * p + _SCREEN_ABS) ** 2) | (d1 * d1 <= (_SCREEN_REL * c1 + _SCREEN_ABS) ** 2)
+                | (d2 * d2 <= (_SCREEN_REL * c2 + _SCREEN_ABS) ** 2) | (d3 * d3 <= (_SCREEN_REL * c3 + _SCREEN_ABS) ** 2))
+        n_row[j] = np.int32(4) if near else n
+    fours = 0
+    for j in range(J):  # (vectorised)
+        fours += n_row[j] == 4
+    n_fix = 0
+    j = 0
+    while fours > 0:  # the row's 4s (about one a row): a scan that ends at the last
+        if n_row[j] == 4:
+            fours -= 1
+            m = m_row[j]
+            if m > MU_NO_SEABED and m < mu_max:
+                fix[n_fix] = j
+                n_fix += 1
+        j += 1
+    if n_fix == 0:
+        return
+    for t in range(n_fix):  # exp(-m) of these cells alone (element by element: the row's numbers)
+        fm[t] = m_row[fix[t]]
+    _exp_neg_row(fm[:n_fix], 40.0, p0, scale)
+    for t in range(n_fix):  # the inversion from the start in float64, as _poisson_small_row
+        j = fix[t]
+        m = m_row[j]
+        uu = (np.float64(np.int32(np.int64(w_row[j]) - 2147483648)) + 2147483648.5) * (2.0 ** -32)
+        p = p0[t] * scale[t]
         c = p
         n = 0
         while uu > c and n < 1000:
@@ -1599,7 +1687,7 @@ def scatterer_speckle(intensity, gain, back, area, density, mu_max, k0, k1, have
     zf = zb.reshape(nb * 2 * J)
     mf = mb.reshape(nb * J)
     # the field's row scratch (scatterer_field's)
-    m_row, p0, scale, n_row, u_row, x, e, mant, r2_row, power, fix, w0, w1, w2 = _field_row_scratch(J)
+    m_row, p0, scale, n_row, u_row, x, e, mant, r2_row, power, fix, w0, w1, w2, p32, s32 = _field_row_scratch(J)
     big = np.empty(J, np.bool_)
     half = np.float32(0.5)
     n_big = 0
@@ -1625,13 +1713,11 @@ def scatterer_speckle(intensity, gain, back, area, density, mu_max, k0, k1, have
             a_row = area[i]
             for j in range(J):
                 m_row[j] = density * a_row[j]
-            _exp_neg_row(m_row, 40.0, p0, scale)
             if have_words:
-                _uniform_bits_row(u_words[i], u_row)
+                _poisson_small_row32(a_row, density, m_row, u_words[i], mu_max, n_row, fix, p32, s32, p0, scale, u_row)
             else:
                 _cell_words_row(k0, k1, i * J, w0, w1, w2)
-                _uniform_bits_row(w0, u_row)
-            _poisson_small_row(m_row, p0, scale, u_row, mu_max, n_row, fix)
+                _poisson_small_row32(a_row, density, m_row, w0, mu_max, n_row, fix, p32, s32, p0, scale, u_row)
             _field_power_row(m_row, n_row, intensity[i], gain, bk, mu_max, power, big, mi)
             for j in range(J):
                 n_big += big[j]
@@ -1639,7 +1725,7 @@ def scatterer_speckle(intensity, gain, back, area, density, mu_max, k0, k1, have
                 r2i = r2[i]
                 ui = unit[i].reshape(2 * J)
                 for j in range(J):
-                    sc = np.float32(np.sqrt(np.float64(power[j] * half * r2i[j])))
+                    sc = np.sqrt(power[j] * half * r2i[j])
                     zi[2 * j] = ui[2 * j] * sc
                     zi[2 * j + 1] = ui[2 * j + 1] * sc
             else:
