@@ -1014,8 +1014,10 @@ def scatterer_field_words(intensity, gain, back, area, density, mu_max, r0, r1, 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _poisson_small_row(m_row, p0, scale, u_row, mu_max, n_row, fix):
-    """:func:`scatterer_field`'s counts of a row (``p0`` ``exp(-mu)`` as :func:`_exp_neg_row` left it,
-    times ``scale``, on return)."""
+    """The float64 inversion of a row's counts (``p0`` ``exp(-mu)`` as :func:`_exp_neg_row` left it,
+    times ``scale``, on return): what the kernels used before i14s, and the reference that
+    :func:`_poisson_small_row32` (the kernels' screened float32 counts) must equal
+    (tests/sonar/test_kernels.py)."""
     J = m_row.size
     fours = np.int32(0)
     for j in range(J):  # counts 0..3 by comparisons with the first four cumulative probabilities
