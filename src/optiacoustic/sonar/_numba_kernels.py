@@ -726,6 +726,19 @@ def box_muller(bits, scale, out):
         _normals_row(bits[2, i], r2, power, out[i].reshape(2 * J))
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _invert_poisson(uu, p, m):
+    """The least ``n`` with ``P(N <= n) >= uu`` for a Poisson mean ``m`` whose ``P(N = 0)`` is ``p``
+    (float64): the terms ``p m^n / n!`` added up until they pass ``uu`` (at most 1000)."""
+    c = p
+    n = 0
+    while uu > c and n < 1000:
+        n += 1
+        p *= m / n
+        c += p
+    return n
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def poisson_inverse(mu, u, mu_max, out):
     """Poisson counts by inversion: the least ``n`` with ``P(N <= n) >= u`` (``scipy.stats.poisson.ppf``),
@@ -738,15 +751,7 @@ def poisson_inverse(mu, u, mu_max, out):
         if m >= mu_max:
             out.flat[i] = -1
             continue
-        p = np.exp(-m)
-        c = p
-        n = 0
-        uu = u.flat[i]
-        while uu > c and n < 1000:
-            n += 1
-            p *= m / n
-            c += p
-        out.flat[i] = n
+        out.flat[i] = _invert_poisson(u.flat[i], np.exp(-m), m)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -809,12 +814,19 @@ def cell_words(k0, k1, cells, out):
         out[2, t] = c
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _uniform_bits(b):
+    """``(b + 1/2) 2^-32`` (float64, exact) of one uint32 random word (through int32, whose conversion
+    vectorises)."""
+    return (np.float64(np.int32(np.int64(b) - 2147483648)) + 2147483648.5) * (2.0 ** -32)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def _uniform_bits_row(b, out):
     """``(b + 1/2) 2^-32`` (float64, in ``(0, 1)``) of a row of uint32 random words: the midpoints of
     the 2^32 equal cells of ``[0, 1)`` (the word through int32, whose conversion vectorises)."""
     for j in range(b.size):
-        out[j] = (np.float64(np.int32(np.int64(b[j]) - 2147483648)) + 2147483648.5) * (2.0 ** -32)
+        out[j] = _uniform_bits(b[j])
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -1040,16 +1052,7 @@ def _poisson_small_row(m_row, p0, scale, u_row, mu_max, n_row, fix):
         n_fix += (n_row[j] == 4) & (m > MU_NO_SEABED) & (m < mu_max)
     for t in range(n_fix):  # counts above 3: the inversion from the start
         j = fix[t]
-        m = m_row[j]
-        uu = u_row[j]
-        p = p0[j]
-        c = p
-        n = 0
-        while uu > c and n < 1000:
-            n += 1
-            p *= m / n
-            c += p
-        n_row[j] = n
+        n_row[j] = _invert_poisson(u_row[j], p0[j], m_row[j])
 
 
 #: Half-width of the band around each cumulative probability in which :func:`_poisson_small_row32`'s
@@ -1128,16 +1131,7 @@ def _poisson_small_row32(a_row, density, m_row, w_row, mu_max, n_row, fix, p32, 
     _exp_neg_row(fm[:n_fix], 40.0, p0, scale)
     for t in range(n_fix):  # the inversion from the start in float64, as _poisson_small_row
         j = fix[t]
-        m = m_row[j]
-        uu = (np.float64(np.int32(np.int64(w_row[j]) - 2147483648)) + 2147483648.5) * (2.0 ** -32)
-        p = p0[t] * scale[t]
-        c = p
-        n = 0
-        while uu > c and n < 1000:
-            n += 1
-            p *= m / n
-            c += p
-        n_row[j] = n
+        n_row[j] = _invert_poisson(_uniform_bits(w_row[j]), p0[t] * scale[t], m_row[j])
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
