@@ -346,7 +346,7 @@ def test_screened_float32_counts_are_the_float64_inversions():
         assert np.array_equal(want[sea], stats.poisson.ppf(u[sea], m[sea]).astype(np.int32))
         # how often the float32 decision is not trusted, on random words
         words = word_sets[0]
-        K._poisson_small_row32(area, density, m, words, mu_max, *scr[:2], *scr[2:])
+        K._poisson_small_row32(area, density, m, words, mu_max, *scr)
         want = _counts_float64(K, m, words, mu_max)
         screened += int(np.sum((scr[0] == 4) & (want < 4) & sea))
     assert screened <= 3 * J * 1e-3

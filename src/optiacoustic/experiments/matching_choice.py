@@ -233,7 +233,7 @@ def calibrate_choice(records, *, variant: str = "full", ridge: float = 1.0) -> d
 
 
 def _pr_figures(score, ok, n_visible) -> dict:
-    from scipy.stats import rankdata
+    from .matching import score_auc
 
     out = dict(p_at_recall_0_25=float("nan"), p_at_recall_0_5=float("nan"), precision_all=float("nan"),
                recall_all=float("nan"), auc=float("nan"), correct=int(np.sum(ok)), n=int(len(ok)))
@@ -246,9 +246,7 @@ def _pr_figures(score, ok, n_visible) -> dict:
         if np.any(rec >= t):
             out[key] = float(np.max(prec[rec >= t]))
     out["precision_all"], out["recall_all"] = float(ok.mean()), float(ok.sum() / n_visible)
-    if 0 < ok.sum() < ok.size:
-        rk = rankdata(score)
-        out["auc"] = float((rk[ok].sum() - ok.sum() * (ok.sum() + 1) / 2) / (ok.sum() * (~ok).sum()))
+    out["auc"] = score_auc(score, ok)
     return out
 
 
