@@ -81,16 +81,15 @@ def generated_tables(text: str) -> dict[str, str]:
     return tables
 
 
-def compose(stems: list[str], new_tables: dict[str, str], old_text: str | None, notes: str) -> str:
+def compose(stems: list[str], new_tables: dict[str, str], old_tables: dict[str, str], notes: str) -> str:
     """The whole file: header, a table per module of ``stems`` (this run's, else the old file's), notes.
 
-    A module with neither a new nor an old table is left out; an old table whose module is no
-    longer in ``stems`` is dropped.
+    ``old_tables`` is :func:`generated_tables` of the existing file. A module with neither a new
+    nor an old table is left out; an old table whose module is no longer in ``stems`` is dropped.
     """
-    old = generated_tables(old_text) if old_text else {}
     text = HEADER
     for stem in stems:
-        table = new_tables.get(stem, old.get(stem))
+        table = new_tables.get(stem, old_tables.get(stem))
         if table:
             text += table
     return text + notes
@@ -109,10 +108,10 @@ def main(argv=None, bench_dir: Path = HERE) -> int:
         print(f"run_all.py: no benchmark module in {bench_dir} has a name containing {args.only!r}; "
               f"the modules are: {', '.join(stems) or 'none'}", file=sys.stderr)
         return 2
-    old_text = None
+    old_tables = {}
     if args.only and out.exists():  # read before running, so a bad file fails in seconds, not minutes
         try:
-            old_text = out.read_text(encoding="utf-8")
+            old_tables = generated_tables(out.read_text(encoding="utf-8"))
         except (OSError, UnicodeDecodeError) as e:
             print(f"run_all.py: cannot read {out} to keep its other tables: {e}", file=sys.stderr)
             return 2
@@ -135,8 +134,8 @@ def main(argv=None, bench_dir: Path = HERE) -> int:
     notes = notes_path.read_text(encoding="utf-8") if notes_path.exists() else ""
     from optiacoustic._atomic import write_text
 
-    write_text(out, compose(stems, new_tables, old_text, notes))
-    kept = [s for s in stems if s not in new_tables and old_text and s in generated_tables(old_text)]
+    write_text(out, compose(stems, new_tables, old_tables, notes))
+    kept = [s for s in stems if s not in new_tables and s in old_tables]
     print(f"wrote {out}" + (f" (kept the tables of {', '.join(kept)})" if kept else ""))
     return 0
 
