@@ -95,6 +95,26 @@ def compose(stems: list[str], new_tables: dict[str, str], old_tables: dict[str, 
     return text + notes
 
 
+def run_modules(bench_dir: Path, stems: list[str]) -> dict[str, str]:
+    """Run each module's ``run()``, print its rows, and return its rendered table by module name."""
+    machine, date = machine_name(), time.strftime("%Y-%m-%d")
+    tables = {}
+    for stem in stems:
+        spec = importlib.util.spec_from_file_location(stem, bench_dir / f"{stem}.py")
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        print(f"== {stem}", flush=True)
+        t0 = time.perf_counter()
+        rows = mod.run()
+        for r in rows:
+            ratio = r.get("ratio")
+            ratio_s = "" if ratio is None else f"  ratio {ratio:.3g} vs {r.get('reference', '')}"
+            print(f"   {r['name']}: {r['value']:.4g} {r['unit']}{ratio_s}")
+        tables[stem] = render_table(stem, getattr(mod, "TITLE", stem), getattr(mod, "DESCRIPTION", ""), rows,
+                                    time.perf_counter() - t0, date, machine)
+    return tables
+
+
 def main(argv=None, bench_dir: Path = HERE) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default=str(HERE.parent / "docs" / "benchmarks.md"))
@@ -115,26 +135,17 @@ def main(argv=None, bench_dir: Path = HERE) -> int:
         except (OSError, UnicodeDecodeError) as e:
             print(f"run_all.py: cannot read {out} to keep its other tables: {e}", file=sys.stderr)
             return 2
-    machine, date = machine_name(), time.strftime("%Y-%m-%d")
-    new_tables = {}
-    for stem in chosen:
-        spec = importlib.util.spec_from_file_location(stem, bench_dir / f"{stem}.py")
-        mod = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(mod)
-        print(f"== {stem}", flush=True)
-        t0 = time.perf_counter()
-        rows = mod.run()
-        for r in rows:
-            ratio = r.get("ratio")
-            ratio_s = "" if ratio is None else f"  ratio {ratio:.3g} vs {r.get('reference', '')}"
-            print(f"   {r['name']}: {r['value']:.4g} {r['unit']}{ratio_s}")
-        new_tables[stem] = render_table(stem, getattr(mod, "TITLE", stem), getattr(mod, "DESCRIPTION", ""), rows,
-                                        time.perf_counter() - t0, date, machine)
     notes_path = bench_dir / "notes.md"  # hand-written sections kept across regenerations
     notes = notes_path.read_text(encoding="utf-8") if notes_path.exists() else ""
-    from optiacoustic._atomic import write_text
+    from optiacoustic._atomic import OutputError, _check_destination, write_text
 
-    write_text(out, compose(stems, new_tables, old_tables, notes))
+    try:
+        _check_destination(out)  # before the modules run: a bad --out fails in seconds, not minutes
+        new_tables = run_modules(bench_dir, chosen)
+        write_text(out, compose(stems, new_tables, old_tables, notes))  # whole, or not at all
+    except OutputError as e:
+        print(f"run_all.py: {e}", file=sys.stderr)
+        return 2
     kept = [s for s in stems if s not in new_tables and s in old_tables]
     print(f"wrote {out}" + (f" (kept the tables of {', '.join(kept)})" if kept else ""))
     return 0

@@ -125,3 +125,14 @@ def test_the_committed_file_is_what_the_runner_would_compose(run_all):
     notes = (ROOT / "benchmarks" / "notes.md").read_text(encoding="utf-8")
     assert sorted(run_all.generated_tables(doc)) == stems
     assert run_all.compose(stems, {}, run_all.generated_tables(doc), notes) == doc
+
+
+def test_an_out_that_is_a_folder_is_an_error_before_any_module_runs(run_all, tmp_path, capsys):
+    d = _bench_dir(tmp_path, {"alpha": 1.5})
+    (d / "bench_alpha.py").write_text("raise RuntimeError('a module must not run')\n")
+    out = tmp_path / "benchmarks.md"
+    out.mkdir()
+    assert run_all.main(["--out", str(out)], bench_dir=d) == 2
+    assert out.is_dir() and not any(out.iterdir())
+    err = capsys.readouterr().err
+    assert str(out) in err and "folder" in err
