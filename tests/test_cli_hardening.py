@@ -26,6 +26,18 @@ def _one_line_error(r, *words):
         assert w in r.output, (w, r.output)
 
 
+def test_quiet_sonar_prints_nothing(tmp_path):
+    # not even the blank line a non-interactive progress bar leaves on stderr when it stops
+    r = runner.invoke(app, ["-q"] + SONAR + ["--out", str(tmp_path / "s")])
+    assert r.exit_code == 0 and r.output == "", repr(r.output)
+    assert (tmp_path / "s" / "frame.npz").is_file()
+
+
+def test_bad_thread_count_in_the_environment_is_one_line(tmp_path):
+    r = runner.invoke(app, SONAR + ["--out", str(tmp_path / "s")], env={"OAS_THREADS": "two"})
+    _one_line_error(r, "OAS_THREADS", "'two'")
+
+
 def test_output_folder_that_is_a_file(tmp_path):
     f = tmp_path / "taken"
     f.write_text("x")

@@ -1,5 +1,7 @@
 """The ray caster against analytic ray-plane and ray-sphere intersections."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -68,6 +70,37 @@ def test_threads_do_not_change_results():
     a = RayCaster(scene, threads=1).cast(np.zeros(3), d)
     b = RayCaster(scene, threads=2).cast(np.zeros(3), d)
     assert np.array_equal(a.body, b.body) and np.array_equal(a.distance, b.distance)
+
+
+@pytest.mark.parametrize("value", ["abc", "0", "-2", "1.5", "\u00b2", "2 threads"])
+def test_bad_oas_threads_is_an_error_naming_the_variable(monkeypatch, value):
+    from optiacoustic.raycast import default_threads
+
+    monkeypatch.setenv("OAS_THREADS", value)
+    with pytest.raises(ValueError, match=r"OAS_THREADS: expected a whole number .* got " + re.escape(repr(value))):
+        default_threads()
+
+
+def test_oas_threads_read_and_unset(monkeypatch):
+    import os
+
+    from optiacoustic.raycast import default_threads
+
+    monkeypatch.setenv("OAS_THREADS", " 3 ")
+    assert default_threads() == 3
+    monkeypatch.setenv("OAS_THREADS", "")  # empty: as unset
+    assert default_threads() == len(os.sched_getaffinity(0))
+    monkeypatch.delenv("OAS_THREADS")
+    assert default_threads() == len(os.sched_getaffinity(0))
+
+
+@pytest.mark.parametrize("threads", [0, -1, 1.5, True, "2"])
+def test_bad_thread_count_is_refused(threads):
+    scene = Scene([Body("b", Box(size=(1, 1, 1)))])
+    expected = r"RayCaster: threads must be a whole number, 1 or more .* got " + re.escape(repr(threads))
+    with pytest.raises(ValueError, match=expected):
+        RayCaster(scene, threads=threads)
+    assert RayCaster(scene, threads=np.int64(2)).threads == 2
 
 
 def test_shapes_max_distance_occlusion(caster):

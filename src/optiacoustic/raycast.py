@@ -35,10 +35,19 @@ def widen_hits(tfar32: np.ndarray, normal32: np.ndarray, miss: np.ndarray) -> tu
 
 
 def default_threads() -> int:
-    """Threads used for casting: ``OAS_THREADS`` if set, else the number of usable cores."""
-    env = os.environ.get("OAS_THREADS")
+    """Threads used for casting: ``OAS_THREADS`` if set, else the number of usable cores.
+
+    Raises
+    ------
+    ValueError
+        When ``OAS_THREADS`` is set to anything but a whole number of 1 or more (naming the variable
+        and the value: a typo must not silently become one thread or a traceback from ``int``).
+    """
+    env = os.environ.get("OAS_THREADS", "").strip()
     if env:
-        return max(1, int(env))
+        if not (env.isascii() and env.isdigit()) or int(env) < 1:
+            raise ValueError(f"OAS_THREADS: expected a whole number of threads, 1 or more, got {env!r}")
+        return int(env)
     try:
         return max(1, len(os.sched_getaffinity(0)))
     except AttributeError:  # pragma: no cover - not Linux
@@ -127,7 +136,7 @@ class RayCaster:
     ----------
     scene : Scene
     threads : int, optional
-        Worker threads (default :func:`default_threads`).
+        Worker threads, 1 or more (default :func:`default_threads`).
     """
 
     def __init__(self, scene: Scene, *, threads: int | None = None):
@@ -137,7 +146,11 @@ class RayCaster:
         if not isinstance(scene, Scene):
             raise TypeError(f"RayCaster needs a Scene, got {type(scene).__name__}")
         self.scene = scene
-        self.threads = threads or default_threads()
+        if threads is not None and (isinstance(threads, bool) or not isinstance(threads, (int, np.integer))
+                                    or threads < 1):
+            raise ValueError(f"RayCaster: threads must be a whole number, 1 or more (or None for the default), "
+                             f"got {threads!r}")
+        self.threads = int(threads) if threads is not None else default_threads()
         surfaces = scene.surfaces()
         for b, s in zip(scene.bodies, surfaces):
             # Embree works in float32: a size that overflows it (or loses all precision) hits nothing silently

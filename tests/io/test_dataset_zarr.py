@@ -112,6 +112,15 @@ def test_layout_metadata_and_xarray_view(reference):
     assert not np.array_equal(s["image"][0].values, s["image"][1].values)
 
 
+def test_global_quiet_hides_the_progress_bar(tmp_path):
+    cfg = _write_config(tmp_path / "c.yaml", {**SMALL, "duration": 0.5})
+    r = CliRunner().invoke(app, ["-q", "dataset", str(cfg), "--out", str(tmp_path / "q.zarr"), "--workers", "0"])
+    assert r.exit_code == 0 and r.output == "", repr(r.output)
+    assert open_dataset(tmp_path / "q.zarr")["sonar"]["image"].shape[0] == 2
+    r = CliRunner().invoke(app, ["dataset", str(cfg), "--out", str(tmp_path / "v.zarr"), "--workers", "0"])
+    assert r.exit_code == 0 and "frames" in r.output and "wrote" in r.output, r.output
+
+
 def test_rerun_skips_and_other_config_is_refused(reference, tmp_path):
     cfg, path, _ = reference
     rep = write_dataset(cfg, path, workers=0)

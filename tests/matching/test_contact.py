@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from optiacoustic.frames import Pose, sonar_from_spherical, spherical_from_sonar
+from optiacoustic.frames import sonar_from_spherical, spherical_from_sonar
 from optiacoustic.matching.acoustic import SeabedPlane
 from optiacoustic.matching.contact import (crease_points, echo_end_ranges, echo_start_ranges, foot_edges,
                                           foot_points, search_contacts)

@@ -5,7 +5,6 @@ import dataclasses
 import numpy as np
 import pytest
 
-from optiacoustic import Pose
 from optiacoustic.scene import Body, Material, Plane, Scene
 from optiacoustic.sonar import SonarOptions, SonarSpec, simulate_sonar
 from optiacoustic.sonar.gain import DeviceGain

@@ -9,13 +9,17 @@ import sys
 import time
 
 import httpx
+import pytest
 
 from .conftest import REPO
 
 
-def test_oas_workbench_serves_the_default_pair_on_loopback():
+@pytest.mark.parametrize("quiet", [[], ["-q"]], ids=["plain", "quiet"])
+def test_oas_workbench_serves_the_default_pair_on_loopback(quiet):
+    # under --quiet the progress line goes, the address (the command's output, with its token) stays
     env = dict(os.environ, PYTHONPATH=str(REPO / "src"), PYTHONUNBUFFERED="1")
-    cmd = [sys.executable, "-c", "from optiacoustic.cli import main; main()", "workbench", "--no-browser", "--port", "0"]
+    cmd = [sys.executable, "-c", "from optiacoustic.cli import main; main()", *quiet, "workbench", "--no-browser",
+           "--port", "0"]
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     try:
         url, lines, t0 = None, [], time.monotonic()
@@ -27,6 +31,7 @@ def test_oas_workbench_serves_the_default_pair_on_loopback():
             m = re.search(r"(http://127\.0\.0\.1:\d+/)", line)
             url = m.group(1) if m else None
         assert url, "".join(lines)
+        assert ("preparing the pair" in "".join(lines)) == (not quiet), "".join(lines)
         st = httpx.get(url + "api/state", timeout=30).json()
         assert st["source"]["name"] == "thesis_scene1" and "noise-free" not in st["source"]["description"]
         assert "thesis" in st["source"]["description"]  # thesis water

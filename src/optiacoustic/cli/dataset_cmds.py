@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from .common import app, console, out, reports_errors, resolve_input
+from .common import app, console, out, quiet as quiet_all, reports_errors, resolve_input
 
 
 def _progress_bar():
@@ -33,7 +33,7 @@ def dataset_cmd(
     workers: Optional[int] = typer.Option(None, "--workers", min=0,
                                           help="Local Dask worker processes (default: all cores; 0: no Dask)."),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Address of an existing Dask scheduler."),
-    quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bar (as `oas -q dataset`)."),
 ):
     """Render a synchronised sonar + camera sequence with ground truth into Zarr, on Dask; resumable."""
     from ..io.dataset import write_dataset
@@ -52,7 +52,7 @@ def dataset_cmd(
 
     try:
         rep = write_dataset(config, out_path, workers=workers, scheduler=scheduler,
-                            progress=None if quiet else progress)
+                            progress=None if quiet or quiet_all() else progress)
     finally:
         if bar is not None:
             bar.stop()

@@ -9,7 +9,7 @@ from typing import Optional
 import typer
 from rich.table import Table
 
-from .common import Vec3, app, console, out, reports_errors, resolve_scene, resolve_view
+from .common import Vec3, app, console, out, quiet, reports_errors, resolve_scene, resolve_view
 
 
 @app.command("scenes")
@@ -117,7 +117,7 @@ def sonar_cmd(
         options = None  # the profile's image model
     pose = Pose.look_at(e, t)
     ensure_dir(out_dir)
-    with Progress(console=console, transient=True) as progress:
+    with Progress(console=console, transient=True, disable=quiet()) as progress:
         task = progress.add_task("simulating", total=frames)
         for k in range(frames):
             t0 = time.perf_counter()

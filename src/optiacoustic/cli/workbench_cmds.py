@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from .common import Vec3, app, console, out, reports_errors, resolve_input
+from .common import Vec3, app, console, quiet, reports_errors, resolve_input
 
 
 @app.command("workbench")
@@ -65,7 +65,8 @@ def workbench_cmd(
         scene = resolve_scene(source or "thesis_scene1")
         make = lambda k=None: src.simulated_pair(scene, rig, eye=eye, target=target, water=water, seed=seed)  # noqa: E731
     seabed = _navigation_seabed(seabed_altitude, seabed_pitch, seabed_roll, seabed_sigma_z, seabed_sigma_tilt)
-    console.print("preparing the pair ...")
+    if not quiet():
+        console.print("preparing the pair ...")
     pair = make()
     session = Session(pair, seabed=seabed)
     if port == 0:
@@ -75,7 +76,8 @@ def workbench_cmd(
                       "token URL can use the workbench (and see your data)", highlight=False)
 
     def ready(url):
-        out.print(f"optiacoustic workbench: {url}  (Ctrl+C stops it)", soft_wrap=True, highlight=False)
+        # printed under --quiet too: the address (with its token) is what the command gives, not a progress line
+        print(f"optiacoustic workbench: {url}  (Ctrl+C stops it)", flush=True)
 
     serve(session, host=host, port=port, allow_remote=allow_remote, open_browser=not no_browser, on_ready=ready,
           sources={f"{pair.kind}: {pair.name} (as started)": make})

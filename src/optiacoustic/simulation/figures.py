@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .._atomic import savefig
 from ..optical.figures import _plt
 from ..sonar.display import to_display
+
+if TYPE_CHECKING:  # annotations only (the optical frame module is not needed to draw the figure)
+    from ..optical.frame import OpticalFrame
 
 __all__ = ["save_pair_figure"]
 

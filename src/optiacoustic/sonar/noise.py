@@ -19,12 +19,15 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 import numpy as np
 
 from .propagation import absorption_db_per_m
 from .speckle import MU_NO_SEABED
+
+if TYPE_CHECKING:  # for the field's annotation only
+    from .gain import DeviceGain
 
 __all__ = ["NoiseModel"]
 
