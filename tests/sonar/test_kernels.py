@@ -9,6 +9,7 @@ import dataclasses
 import subprocess
 import sys
 
+import numba
 import numpy as np
 import pytest
 from scipy import stats
@@ -17,6 +18,7 @@ from optiacoustic import Pose, scenes
 from optiacoustic.sonar import SonarOptions, SonarSpec, simulate_sonar
 from optiacoustic.sonar import formation as F
 from optiacoustic.sonar import noise as N
+from optiacoustic.sonar._numba_kernels import _invert_poisson
 from optiacoustic.sonar.gain import DeviceGain
 from optiacoustic.sonar.noise import NoiseModel, ScattererNoise
 
@@ -291,6 +293,39 @@ def test_scatterer_speckle_is_the_two_passes_bit_for_bit(have_words, n_r):
                                h_r, h_b, tvg, 0, B, out) == 3
 
 
+_MU_NO_SEABED = N.MU_NO_SEABED
+
+
+@numba.njit(cache=False, error_model="numpy")
+def _poisson_small_row(m_row, p0, scale, u_row, mu_max, n_row, fix):
+    """The float64 inversion of a row's counts (``p0`` ``exp(-mu)`` as ``_exp_neg_row`` left it, times
+    ``scale``, on return): the kernels' operations before i14s, kept here as the reference that
+    ``_poisson_small_row32`` (the kernels' screened float32 counts) must equal."""
+    J = m_row.size
+    fours = np.int32(0)
+    for j in range(J):  # counts 0..3 by comparisons with the first four cumulative probabilities
+        m = min(max(m_row[j], 0.0), 40.0)
+        p = p0[j] * scale[j]
+        p0[j] = p
+        uu = u_row[j]
+        t1 = p * m
+        c1 = p + t1
+        t2 = t1 * (m / 2.0)
+        c2 = c1 + t2
+        c3 = c2 + t2 * (m / 3.0)
+        n = np.int32(uu > p) + np.int32(uu > c1) + np.int32(uu > c2) + np.int32(uu > c3)
+        n_row[j] = n
+        fours += np.int32(n == 4)
+    n_fix = 0
+    for j in range(J if fours > 0 else 0):
+        m = m_row[j]
+        fix[n_fix] = j
+        n_fix += (n_row[j] == 4) & (m > _MU_NO_SEABED) & (m < mu_max)
+    for t in range(n_fix):  # counts above 3: the inversion from the start
+        j = fix[t]
+        n_row[j] = _invert_poisson(u_row[j], p0[j], m_row[j])
+
+
 def _counts_float64(K, m, words, mu_max):
     """``_poisson_small_row``'s counts (the float64 inversion) of one row."""
     J = m.size
@@ -298,7 +333,7 @@ def _counts_float64(K, m, words, mu_max):
     K._exp_neg_row(m, 40.0, p0, scale)
     K._uniform_bits_row(words, u)
     n = np.empty(J, np.int32)
-    K._poisson_small_row(m, p0, scale, u, mu_max, n, np.empty(J, np.int64))
+    _poisson_small_row(m, p0, scale, u, mu_max, n, np.empty(J, np.int64))
     return n
 
 

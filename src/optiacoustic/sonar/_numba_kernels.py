@@ -1024,37 +1024,6 @@ def scatterer_field_words(intensity, gain, back, area, density, mu_max, r0, r1, 
             zi[2 * j + 1] = ui[2 * j + 1] * sc
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _poisson_small_row(m_row, p0, scale, u_row, mu_max, n_row, fix):
-    """The float64 inversion of a row's counts (``p0`` ``exp(-mu)`` as :func:`_exp_neg_row` left it,
-    times ``scale``, on return): what the kernels used before i14s, and the reference that
-    :func:`_poisson_small_row32` (the kernels' screened float32 counts) must equal
-    (tests/sonar/test_kernels.py)."""
-    J = m_row.size
-    fours = np.int32(0)
-    for j in range(J):  # counts 0..3 by comparisons with the first four cumulative probabilities
-        m = min(max(m_row[j], 0.0), 40.0)
-        p = p0[j] * scale[j]
-        p0[j] = p
-        uu = u_row[j]
-        t1 = p * m
-        c1 = p + t1
-        t2 = t1 * (m / 2.0)
-        c2 = c1 + t2
-        c3 = c2 + t2 * (m / 3.0)
-        n = np.int32(uu > p) + np.int32(uu > c1) + np.int32(uu > c2) + np.int32(uu > c3)
-        n_row[j] = n
-        fours += np.int32(n == 4)
-    n_fix = 0
-    for j in range(J if fours > 0 else 0):  # most rows have no count above 3: no scan
-        m = m_row[j]
-        fix[n_fix] = j
-        n_fix += (n_row[j] == 4) & (m > MU_NO_SEABED) & (m < mu_max)
-    for t in range(n_fix):  # counts above 3: the inversion from the start
-        j = fix[t]
-        n_row[j] = _invert_poisson(u_row[j], p0[j], m_row[j])
-
-
 #: Half-width of the band around each cumulative probability in which :func:`_poisson_small_row32`'s
 #: float32 decision is not trusted (relative part, absolute part): its float32 ``P(N <= n)`` are within
 #: ~2e-6 relative of the float64 ones for means up to 30 (``exp`` to a few ulp, the mean's own rounding
@@ -1065,19 +1034,21 @@ _SCREEN_ABS = np.float32(2e-7)
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _poisson_small_row32(a_row, density, m_row, w_row, mu_max, n_row, fix, p32, s32, p0, scale, fm):
-    """:func:`_poisson_small_row`'s counts of a row from the cells' areas ``a_row`` (float32), the
-    count words ``w_row`` (uint32) and ``m_row = density a_row`` (float64), the same counts with most
-    of the work in float32 (issue 14, i14s: twice the lanes of float64, a degree-7 ``exp``):
-    ``exp(-mu)`` as ``P(r) 2^-k`` (``ln 2`` in two parts, ``2^-k`` built as float32 bits in ``s32``,
-    ``P`` in ``p32``), the uniform ``(b + 1/2) 2^-32`` and the first four cumulative probabilities
-    ``c`` in float32. Where the float32 uniform lies within ``_SCREEN_REL c + _SCREEN_ABS`` of a float32
-    ``c`` (about 6e-5 of the cells at means below 1), its comparison could differ from float64's: such a cell, like a
-    count above 3, is counted again from the start in float64 (``exp(-mu)`` by :func:`_exp_neg_row` of those
-    cells' means gathered into ``fm``, into ``p0``, ``scale``; the uniform as :func:`_uniform_bits_row`), by the operations of
-    :func:`_poisson_small_row`. Elsewhere the float32 comparisons agree with float64's, so the counts
-    are :func:`_poisson_small_row`'s (tests/sonar/test_kernels.py checks it with uniforms placed at the
-    boundaries). The integer work (the count of 4s) in a loop of its own: in the float loop it
-    stopped the vectorisation."""
+    """The scatterer field's Poisson counts of a row, from the cells' areas ``a_row`` (float32), the
+    count words ``w_row`` (uint32) and ``m_row = density a_row`` (float64): the counts of the float64
+    inversion (``exp(-mu)`` by :func:`_exp_neg_row`, the uniform ``(b + 1/2) 2^-32``, the first four
+    cumulative probabilities compared, the rest by :func:`_invert_poisson`), with most of the work in
+    float32 (issue 14, i14s: twice the lanes of float64, a degree-7 ``exp``): ``exp(-mu)`` as
+    ``P(r) 2^-k`` (``ln 2`` in two parts, ``2^-k`` built as float32 bits in ``s32``, ``P`` in ``p32``),
+    the uniform and the first four cumulative probabilities ``c`` in float32. Where the float32
+    uniform lies within ``_SCREEN_REL c + _SCREEN_ABS`` of a float32 ``c`` (about 6e-5 of the cells at
+    means below 1), its comparison could differ from float64's: such a cell, like a count above 3, is
+    counted again from the start in float64 (``exp(-mu)`` by :func:`_exp_neg_row` of those cells' means
+    gathered into ``fm``, into ``p0``, ``scale``; the uniform as :func:`_uniform_bits_row`). Elsewhere
+    the float32 comparisons agree with float64's, so the counts are the float64 inversion's
+    (tests/sonar/test_kernels.py holds that inversion, the kernels' before i14s, and checks it with
+    uniforms placed at the boundaries). The integer work (the count of 4s) in a loop of its own: in
+    the float loop it stopped the vectorisation."""
     J = a_row.size
     half = np.float32(0.5)
     one = np.float32(1.0)
@@ -1129,7 +1100,7 @@ def _poisson_small_row32(a_row, density, m_row, w_row, mu_max, n_row, fix, p32, 
     for t in range(n_fix):  # exp(-m) of these cells alone (element by element: the row's numbers)
         fm[t] = m_row[fix[t]]
     _exp_neg_row(fm[:n_fix], 40.0, p0, scale)
-    for t in range(n_fix):  # the inversion from the start in float64, as _poisson_small_row
+    for t in range(n_fix):  # the inversion from the start in float64
         j = fix[t]
         n_row[j] = _invert_poisson(_uniform_bits(w_row[j]), p0[t] * scale[t], m_row[j])
 
