@@ -106,6 +106,35 @@ def test_config_reader_agrees_with_pyyaml_on_valid_files():
     assert parse_config(text) == yaml.safe_load(text)
 
 
+def test_exponent_numbers_are_numbers_as_in_yaml_1_2_and_quoted_ones_stay_text():
+    # YAML 1.1 (PyYAML) reads 1e9 as the text '1e9', and a rig's range_max: 1e9 then failed as "got '1e9'"
+    d = parse_config("a: 1e9\nb: '1e9'\nc: 2E-3\nd: 1.0e+3\ne: -.5e2\nf: 1e\ng: [3e1, 5]\n")
+    assert d == {"a": 1e9, "b": "1e9", "c": 2e-3, "d": 1e3, "e": -50.0, "f": "1e", "g": [30.0, 5]}
+    assert isinstance(d["a"], float) and isinstance(d["g"][1], int)
+
+
+@pytest.mark.parametrize("text, words", [
+    ("R: [[1, 0, 0], [0, 1, 0], [0, 0, 1]]\nt: [0, 0, 0]\ncamera_in_sonar: {position: [0, 0, 0]}\n",
+     "'R'/'t' and 'camera_in_sonar' both place the camera"),
+    ("R: [[1, 0, 0], [0, 1, 0], [0, 0, 1]]\n", "field 't' missing"),
+    ("camera: {width_px: 0, height_px: 400, sensor_mm: [36, 24], focal_mm: 50}\n", "width_px: must be a positive integer"),
+    ("camera: {width_px: '600', height_px: 400, sensor_mm: [36, 24], focal_mm: 50}\n", "width_px: must be a positive"),
+    ("camera: {width_px: 600, height_px: 400, sensor_mm: [36, 24], focal_mm: fifty}\n", "focal_mm: expected a number"),
+])
+def test_rig_file_mistakes_name_the_field(tmp_path, text, words):
+    f = tmp_path / "rig.yaml"
+    f.write_text(text)
+    with pytest.raises(ValueError) as e:
+        Rig.load(f)
+    assert str(f) in str(e.value) and words in str(e.value)
+
+
+def test_rig_file_numbers_in_exponent_notation_load(tmp_path):
+    f = tmp_path / "rig.yaml"
+    f.write_text("sonar: {preset: blueview-p900-90, range_max: 4e1}\n")
+    assert Rig.load(f).sonar.range_max == 40.0
+
+
 # ----------------------------------------------------------------------------- scenes and ray caster
 @pytest.mark.parametrize("size", ["[1.0e+39, 4]", "[4, 2.0e+7]"])
 def test_bodies_too_big_for_float32_are_refused(tmp_path, size):
@@ -142,6 +171,7 @@ def _csv(tmp_path, text, name="view.csv"):
     ("u,v,range,azimuth\n300,200,2.0,12.5\n", "degrees given as radians"),
     ("u,u,range,azimuth\n300,200,2.0,0.1\n", "column 'u' appears twice"),
     ("u,v,range,azimuth\n300,200,2.0,abc\n", "data row 1"),
+    ("\ufeffu,v,range,azimuth\n300,200,2.0,abc\n", "data row 1"),  # a spreadsheet's BOM is not part of 'u'
 ])
 def test_calibration_csv_mistakes(tmp_path, text, words):
     from optiacoustic.geometry.calibrate import load_view

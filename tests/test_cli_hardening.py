@@ -54,6 +54,22 @@ def test_output_file_that_is_a_folder_or_a_device(tmp_path):
                     str(tmp_path), "folder")
 
 
+def test_scene_export_names_a_format_and_outputs_are_checked_before_the_work(tmp_path):
+    # a .txt (or a trailing-slash folder name) got YAML under that name
+    for name in ("s.txt", "newdir/"):
+        _one_line_error(runner.invoke(app, ["scene", "flat_seabed", "--export", str(tmp_path / name)]),
+                        ".yaml, .yml or .json")
+    assert not (tmp_path / "s.txt").exists() and not (tmp_path / "newdir").exists()
+    # calibrate: a --json that cannot be written fails before the solve, so --out is not written either
+    cal = PKG / "examples" / "calibration"
+    (tmp_path / "j").mkdir()
+    views = sorted(str(p) for p in cal.glob("view_*.csv"))
+    r = runner.invoke(app, ["calibrate", *views, "--rig", str(cal / "rig.yaml"), "--out", str(tmp_path / "rig.yaml"),
+                            "--json", str(tmp_path / "j")])
+    _one_line_error(r, str(tmp_path / "j"), "it is a folder")
+    assert not (tmp_path / "rig.yaml").exists()
+
+
 @pytest.mark.skipif(os.geteuid() == 0, reason="root may write anywhere: no permission error to provoke")
 def test_output_without_permission(tmp_path):
     ro = tmp_path / "ro"

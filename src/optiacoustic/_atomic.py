@@ -21,7 +21,7 @@ import tempfile
 from pathlib import Path
 from typing import Iterator
 
-__all__ = ["OutputError", "atomic_path", "jsonable", "ensure_dir", "write_text", "write_bytes", "write_json", "save_npz",
+__all__ = ["OutputError", "atomic_path", "check_destination", "jsonable", "ensure_dir", "write_text", "write_bytes", "write_json", "save_npz",
            "savefig", "imwrite"]
 
 
@@ -37,6 +37,19 @@ def _check_destination(path: Path) -> None:
         raise OutputError(f"cannot write {path}: {parent} is a file, a folder was expected")
     if str(path) in (os.devnull,) or (path.exists() and not path.is_file()):
         raise OutputError(f"cannot write {path}: not a regular file")
+
+
+def check_destination(path: str | os.PathLike) -> Path:
+    """Raise :class:`OutputError` now if file ``path`` could not be written (it is a folder, or a
+    parent is a file): for commands that check their outputs before long work. Returns the path."""
+    path = Path(path)
+    _check_destination(path)
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise OutputError(f"cannot write {path}: {parent} is a file, a folder was expected")
+            break
+    return path
 
 
 @functools.lru_cache(maxsize=1)

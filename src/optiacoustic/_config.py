@@ -11,6 +11,10 @@ same hostile or mistaken inputs with a message naming the file:
   refer to themselves;
 * nesting deeper than :data:`MAX_DEPTH`.
 
+Plain (unquoted) numbers in exponent notation are numbers, as in YAML 1.2 and JSON: ``1e9``
+and ``2E-3`` are floats (PyYAML follows YAML 1.1, which reads them as text unless written
+``1.0e+9``); quoted, they stay text.
+
 YAML goes through libyaml's C parser (``yaml.CSafeLoader``) when PyYAML was built with it,
 else the pure-Python ``SafeLoader``; both are safe loaders (no Python objects).
 """
@@ -18,6 +22,7 @@ else the pure-Python ``SafeLoader``; both are safe loaders (no Python objects).
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 __all__ = ["ConfigError", "MAX_BYTES", "MAX_DEPTH", "MAX_NODES", "load_config", "parse_config"]
@@ -32,6 +37,8 @@ class ConfigError(ValueError):
 
 
 _SCALARS: dict = {}
+# a plain scalar in exponent notation without the dot or the exponent's sign YAML 1.1 requires
+_EXPONENT = re.compile(r"[-+]?(\.[0-9]+|[0-9]+(\.[0-9]*)?)[eE][-+]?[0-9]+")
 _TAGS = {"tag:yaml.org,2002:" + t for t in ("str", "int", "float", "bool", "null", "binary", "timestamp")}
 
 
@@ -49,7 +56,10 @@ def _scalar(event, base):
         tag = base.resolve(yaml.ScalarNode, value, (True, False))
         if tag in ("tag:yaml.org,2002:merge", "tag:yaml.org,2002:value"):
             return value
-        obj = base.construct_object(yaml.ScalarNode(tag, value, style=event.style))
+        if tag == "tag:yaml.org,2002:str" and _EXPONENT.fullmatch(value):
+            obj = float(value)  # YAML 1.2's float (1e9, 2E-3); YAML 1.1 wants 1.0e+9 and reads 1e9 as text
+        else:
+            obj = base.construct_object(yaml.ScalarNode(tag, value, style=event.style))
         if len(_SCALARS) < 100_000:
             _SCALARS[value] = obj
         return obj

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._validate import as_array
+from ._validate import as_array, as_positive
 
 __all__ = ["PinholeCamera", "MAX_IMAGE_SIDE"]
 
@@ -69,9 +69,14 @@ class PinholeCamera:
     def from_sensor(cls, width_px: int = 600, height_px: int = 400, sensor_mm=(36.0, 24.0), focal_mm: float = 50.0,
                     dist=(0.0, 0.0, 0.0, 0.0, 0.0)) -> "PinholeCamera":
         """A camera from its sensor size and lens (the thesis's: 600 x 400 px, 36 x 24 mm, 50 mm)."""
+        for name, v in (("width_px", width_px), ("height_px", height_px)):
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v <= 0:
+                raise ValueError(f"from_sensor: {name}: must be a positive integer, got {v!r}")
         sw, sh = as_array(sensor_mm, "sensor_mm", (2,))
-        if sw <= 0 or sh <= 0 or not np.isfinite(focal_mm) or focal_mm <= 0:
-            raise ValueError(f"from_sensor: sensor_mm and focal_mm must be > 0, got {sensor_mm!r}, {focal_mm!r}")
+        focal = as_positive(focal_mm, "from_sensor: focal_mm")
+        if sw <= 0 or sh <= 0:
+            raise ValueError(f"from_sensor: sensor_mm must be > 0, got {sensor_mm!r}")
+        focal_mm = focal
         return cls(
             fx=focal_mm * width_px / sw,
             fy=focal_mm * height_px / sh,

@@ -87,9 +87,14 @@ class Rig:
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{source}: field 'camera': {exc}") from None
         if "R" in data or "t" in data:
+            if "camera_in_sonar" in data:
+                raise ValueError(f"{source}: fields 'R'/'t' and 'camera_in_sonar' both place the camera; give one")
+            missing = [k for k in ("R", "t") if k not in data]
+            if missing:
+                raise ValueError(f"{source}: field '{missing[0]}' missing (R and t go together)")
             try:
                 return cls(data["R"], data["t"], camera, sonar)
-            except (KeyError, ValueError) as exc:
+            except ValueError as exc:
                 raise ValueError(f"{source}: fields 'R' and 't': {exc}") from None
         ext = data.get("camera_in_sonar", {}) or {}
         if not isinstance(ext, dict) or set(ext) - {"position", "rotation_deg"}:
@@ -111,6 +116,12 @@ class Rig:
             camera_in_sonar:                 # the camera on the rig, in the sonar frame
               position: [-0.25, 0, 0]        # t (m)
               rotation_deg: [0, 0, -2.27]    # about sonar x, y, z, applied to a forward-looking camera
+
+        or ``R`` and ``t`` (the camera-to-sonar rotation and translation) instead of
+        ``camera_in_sonar`` (not both). Every key may be left out, and takes the thesis's
+        value (sec. 4.3): ``sonar`` the BlueView P900-90, ``camera`` 600 x 400 px, 36 x 24 mm,
+        50 mm, ``camera_in_sonar`` position ``[-0.25, 0, 0]`` and rotation ``[0, 0, 0]`` (a
+        forward-looking camera beside the sonar, no vergence). Unknown keys are refused.
         """
         from ._config import load_config
 

@@ -98,6 +98,8 @@ def test_overlay_fan_blends_the_echo_colour():
         ({"marker": "star"}, "marker"),
         ({"radius": 0}, "radius"),
         ({"sonar": np.zeros((3, 3))}, "sonar"),
+        ({"alpha": 2.0}, "alpha"),  # was accepted for marker overlays
+        ({"alpha": -1.0}, "alpha"),
     ],
 )
 def test_overlay_bad_input(kwargs, match):

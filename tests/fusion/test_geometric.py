@@ -53,6 +53,13 @@ def test_two_roots_in_the_aperture_keep_the_one_nearer_the_boresight():
     assert sol.valid and not sol.ambiguous and sol.elevations == pytest.approx(np.deg2rad(-3.0))
 
 
+@pytest.mark.parametrize("fov", [-1.0, 0.0, np.nan, "wide"])
+def test_an_aperture_that_is_not_a_positive_angle_is_refused(fov):
+    # was: every point silently invalid
+    with pytest.raises(ValueError, match="fov_elevation"):
+        plane_elevation(SonarPlane((0.0, 1.0, 0.0), 5.0), [6.0], [0.0], fov_elevation=fov)
+
+
 def test_no_root_gives_nan_and_invalid():
     plane = SonarPlane((0.0, 1.0, 0.0), 5.0)  # a wall 5 m ahead
     sol = plane_elevation(plane, [4.0, 6.0, 6.0], [0.0, 0.0, np.nan], fov_elevation=2 * HALF)

@@ -154,6 +154,70 @@ def test_motion_within_the_azimuth_plane_is_ambiguous_and_falsy():
     assert np.allclose(mm.ranges_2, m.ranges_2) and np.allclose(mm.azimuths_2, m.azimuths_2)
 
 
+def test_radical_form_is_exact_for_general_motion_and_for_heave_where_the_azimuth_planes_coincide():
+    rng = np.random.default_rng(8)
+    P = points(rng, 80)
+    m = ss.measure(P, R_GOOD, T_GOOD)
+    cf = ss.closed_forms(m.ranges_1, m.azimuths_1, m.ranges_2, m.azimuths_2, R_GOOD, T_GOOD)
+    assert np.min(np.linalg.norm(cf.radical - P[:, None], axis=2), axis=1).max() < 1e-8
+    # pure heave: azimuth preserved, so both azimuth planes are the same plane; Z = (r'^2 - r^2 - h^2) / 2h
+    t = np.array([0.0, 0.0, 0.5])
+    m = ss.measure(P, np.eye(3), t)
+    assert np.allclose(m.azimuths_2, m.azimuths_1)
+    z = (m.ranges_2**2 - m.ranges_1**2 - 0.25) / (2 * 0.5)
+    assert np.allclose(z, P[:, 2], atol=1e-12)
+    cf = ss.closed_forms(m.ranges_1, m.azimuths_1, m.ranges_2, m.azimuths_2, np.eye(3), t)
+    assert np.all(np.isnan(cf.b3)) and np.all(np.isnan(cf.planes))
+    # one root ahead of the sonar (the point), the other behind it
+    err = np.linalg.norm(cf.radical - P[:, None], axis=2)
+    near = np.argmin(err, axis=1)
+    assert np.max(err[np.arange(len(P)), near]) < 1e-9
+    assert np.all(cf.radical[np.arange(len(P)), 1 - near, 1] < 0)
+
+
+@pytest.mark.parametrize("sway", [0.0, 1e-9, 1e-6, 1e-2])
+def test_heave_triangulates_every_point_and_a_little_sway_changes_nothing(sway):
+    rng = np.random.default_rng(9)
+    P = points(rng, 100)
+    R, t = np.eye(3), np.array([sway, 0.0, 0.5])
+    m = ss.measure(P, R, t)
+    res = ss.triangulate(m.ranges_1, m.azimuths_1, m.ranges_2, m.azimuths_2, R, t, fov_elevation=FOV)
+    assert res.flags == () and res.valid.all(), res.message
+    assert np.max(np.abs(res.points - P)) < 1e-9
+    # the elevation's first-order std, by hand: only r and r'^2 = r^2 + 2 h r sin(phi) + h^2 carry it;
+    # with a = dr'/dr, b = dr'/dphi the (r, phi) information is [[1 + a^2, a b], [a b, b^2]] / s^2,
+    # so var(phi) = s^2 (1 + a^2) / b^2
+    r, _, ph = spherical_from_sonar(P)
+    a = (r + 0.5 * np.sin(ph)) / m.ranges_2
+    b = 0.5 * r * np.cos(ph) / m.ranges_2
+    expect = SR * np.sqrt(1 + a**2) / b
+    if sway <= 1e-6:
+        assert np.allclose(res.elevation_std, expect, rtol=1e-4)
+    else:  # 1 cm of sway beside 50 cm of heave moves it by < 0.3 % (measured: the formula omits the sway)
+        assert np.allclose(res.elevation_std, expect, rtol=0.01)
+
+
+def test_monte_carlo_under_heave_is_consistent():
+    sr, sa = 0.005, np.deg2rad(0.1)
+    rng = np.random.default_rng(10)
+    P = points(rng, 60, half_el=np.deg2rad(7))
+    R, t = np.eye(3), np.array([0.0, 0.0, 0.4])
+    m = ss.measure(P, R, t)
+    nees = []
+    for _ in range(20):
+        noisy = [x + rng.normal(0, s, x.shape) for x, s in
+                 ((m.ranges_1, sr), (m.azimuths_1, sa), (m.ranges_2, sr), (m.azimuths_2, sa))]
+        res = ss.triangulate(*noisy, R, t, sigma_range=sr, sigma_azimuth=sa, fov_elevation=FOV)
+        v = res.valid
+        assert v.mean() > 0.9 and not res.ambiguous.any()
+        d = res.points - P
+        nees.append(np.einsum("ni,nij,nj->n", d[v], np.linalg.inv(res.covariance[v]), d[v]))
+    nees = np.concatenate(nees)
+    k = nees.size
+    lo, hi = chi2.ppf([0.025, 0.975], 3 * k) / k
+    assert lo < nees.mean() < hi
+
+
 def test_empty_input_is_falsy():
     res = ss.triangulate([], [], [], [], np.eye(3), np.array([0.1, 0, 0.1]))
     assert not res and res.message == "no points"

@@ -33,6 +33,9 @@ def test_match_command_reports_bad_input(tmp_path):
     assert r.exit_code == 2 and "pair.json" in r.output
     r = runner.invoke(app, ["match", str(tmp_path / "p"), "--min-score", "2"])
     assert r.exit_code == 2 and "--min-score" in r.output
+    (tmp_path / "afile").write_text("x")  # was: 'afile: File exists', after the matching
+    r = runner.invoke(app, ["match", str(tmp_path / "p"), "--out", str(tmp_path / "afile")])
+    assert r.exit_code == 2 and "it is a file, a folder was expected" in r.output
 
 
 def test_match_command_with_a_second_pair(tmp_path):

@@ -101,6 +101,44 @@ def test_pair_folders_record_the_beam_model(tmp_path):
     assert read_pair(tmp_path / "pair")[0].beam_model == "aperture"
 
 
+def test_pair_folder_fields_that_are_missing_or_unphysical_are_named(tmp_path):
+    """A pair.json without the rig's R, with an aperture <= 0, a swapped range window or a word for a
+    number, and a depth map of another shape than the image, each get an error naming file and field
+    (they were: a bare 'R', or a match run scored against nonsense)."""
+    import copy
+
+    from optiacoustic.simulation import simulate_rig
+
+    sc = random_scene(323)
+    rig, pose = _rig_for(sc.view.eye, sc.view.target)
+    simulate_rig(sc, rig, pose, seed=323).save(tmp_path / "pair")
+    path = tmp_path / "pair" / "pair.json"
+    good = json.loads(path.read_text())
+    cases = [
+        (lambda m: m["rig"].pop("R"), "field 'rig.R' missing"),
+        (lambda m: m["rig"].__setitem__("R", [1, 2, 3]), "field 'rig': Rig.R"),
+        (lambda m: m["sonar"].__setitem__("fov_elevation_deg", -20), "field 'sonar.fov_elevation_deg'"),
+        (lambda m: m["sonar"].update(range_min=30, range_max=20), "field 'sonar.range_max'"),
+        (lambda m: m["camera"].__setitem__("fx", "abc"), "field 'camera.fx': expected a number"),
+        (lambda m: m.pop("camera"), "field 'camera' missing"),
+    ]
+    for corrupt, message in cases:
+        meta = copy.deepcopy(good)
+        corrupt(meta)
+        path.write_text(json.dumps(meta))
+        with pytest.raises(ValueError, match=message) as err:
+            read_pair(tmp_path / "pair")
+        assert "pair.json" in str(err.value)
+    path.write_text(json.dumps(good))
+    opt = tmp_path / "pair" / "optical.npz"
+    z = dict(np.load(opt))
+    assert read_pair(tmp_path / "pair")[3].shape == z["image"].shape[:2]
+    z["depth"] = z["depth"][:10]
+    np.savez(opt, **z)
+    with pytest.raises(ValueError, match="optical.npz: field 'depth' has shape"):
+        read_pair(tmp_path / "pair")
+
+
 def test_no_seabed_plane_gives_a_falsy_result_with_the_fits_reason(scene_frames):
     """A sonar image with compact echoes and no seabed: the arc search declines and says the plane is missing."""
     _, rig, _, thesis, _ = scene_frames

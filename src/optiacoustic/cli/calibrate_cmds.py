@@ -28,11 +28,14 @@ def calibrate_cmd(
 
     import yaml
 
-    from .._atomic import write_json, write_text
+    from .._atomic import check_destination, write_json, write_text
     from .._config import load_config
     from ..geometry.calibrate import check_view, extrinsics, load_view
     from ..rig import Rig
 
+    for dest in (out_file, json_file):  # before the solve, not after it
+        if dest is not None:
+            check_destination(dest)
     rig_file = resolve_input(rig_file)
     rig = Rig.load(rig_file)
     views = resolve_inputs(views)

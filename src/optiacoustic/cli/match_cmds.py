@@ -38,13 +38,15 @@ def match_cmd(
     """
     import numpy as np
 
-    from .._atomic import write_json
+    from .._atomic import ensure_dir, write_json
     from ..matching import match
     from ..matching.figures import draw_matches
     from ..matching.pairdir import read_pair
 
     if not 0.0 <= min_score <= 1.0:
         raise ValueError(f"--min-score: must be in [0, 1], got {min_score}")
+    if out_dir.exists() and not out_dir.is_dir():  # before the work, not after it
+        ensure_dir(out_dir)
     res, bw = _preset_resolution(pair_dir)
     sonar, image, rig, depth = read_pair(pair_dir, range_resolution=res, beamwidth_azimuth=bw)
     kw = {}
@@ -69,7 +71,7 @@ def match_cmd(
         correct = is_correct(rig, depth, m.pixels, m.ranges, m.azimuths,
                              bin_width=float(np.median(np.diff(sonar.ranges))),
                              beam_width=float(np.median(np.diff(sonar.azimuths))))
-    out_dir.mkdir(parents=True, exist_ok=True)
+    ensure_dir(out_dir)
     fig = draw_matches(out_dir / "matches.png", sonar.image, sonar.ranges, sonar.azimuths, image, m,
                        title=pair_dir.name, correct=correct)
     data = {

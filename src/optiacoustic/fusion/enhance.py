@@ -156,10 +156,10 @@ def overlay(optical_image, sonar, mapping, *, color=(1.0, 0.25, 0.1), alpha: flo
         raise ValueError(f"color: expected RGB values in [0, 1], got {col.tolist()}")
     if marker not in ("circle", "dot", "cross", "x"):
         raise ValueError(f"marker: expected 'circle', 'dot', 'cross' or 'x', got {marker!r}")
+    a = as_positive(alpha, "alpha", allow_zero=True)
+    if a > 1:
+        raise ValueError(f"alpha: expected a value in [0, 1], got {a}")
     if _is_fan(sonar):
-        a = as_positive(alpha, "alpha", allow_zero=True)
-        if a > 1:
-            raise ValueError(f"alpha: expected a value in [0, 1], got {a}")
         echo = map_fan(sonar, mapping, img.shape[:2], max_distance=max_distance, centres=centres)
         w = a * np.clip(np.nan_to_num(echo, nan=0.0), 0.0, 1.0)[..., None]
         return (img * (1 - w) + col[None, None, :] * w).astype(np.float32)

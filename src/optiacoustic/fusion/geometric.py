@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
-from .._validate import as_array
+from .._validate import as_array, as_positive
 from ..frames import Pose, polar_from_fan, sonar_from_spherical
 from ..geometry.projection import cos_sin_roots
 from ..rig import Rig
@@ -182,7 +182,7 @@ def plane_elevation(plane: SonarPlane, ranges, azimuths, *, fov_elevation: float
         r, th = np.broadcast_arrays(r, th)
     except ValueError:
         raise ValueError(f"ranges {r.shape} and azimuths {th.shape} do not broadcast together") from None
-    half = min(float(fov_elevation) / 2, np.pi / 2)
+    half = min(as_positive(fov_elevation, "fov_elevation") / 2, np.pi / 2)
     return _elevation_on_planes(plane.normal, plane.offset, r, th, half)
 
 

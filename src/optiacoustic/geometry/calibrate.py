@@ -211,7 +211,8 @@ def load_view(path) -> CalibrationView:
             raise ValueError(f"{path}: cannot read NPZ: {exc}") from None
     else:
         try:
-            lines = [ln for ln in path.read_text().splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+            lines = [ln for ln in path.read_text(encoding="utf-8-sig").splitlines()  # a spreadsheet's BOM
+                     if ln.strip() and not ln.lstrip().startswith("#")]
         except (OSError, UnicodeDecodeError) as exc:
             raise ValueError(f"{path}: cannot read CSV: {exc}") from None
         if not lines:

@@ -784,6 +784,9 @@ def _triangulate_sonar(d: _Data, idx, R_o, t_o):
     R_s, t_s = sonar_motion(d.rig, R_o, t_o)
     cf = _closed_forms(d.r1[idx], d.th1[idx], d.r2[idx], d.th2[idx], R_s, t_s)
     cands = np.stack([cf.b3, cf.b5, cf.b7, cf.planes[:, 0], cf.planes[:, 1]], 1)
+    # where the azimuth planes coincide (heave): the radical form's two roots
+    none = ~np.any(np.all(np.isfinite(cands), 2), 1)
+    cands[none, 3:5] = cf.radical[none]
     # where none exists (no parallax at all): the zero-elevation point of the arc
     none = ~np.any(np.all(np.isfinite(cands), 2), 1)
     cands[none, 0] = _arc(d, np.zeros(int(none.sum())), idx[none])
@@ -1208,27 +1211,73 @@ def _find_plane(d: _Data, R_o, t_o, lo, rng, thr2):
 
 def _estimate_essential(d, thr_px, conf, iters, p_in, max_it):
     fail = lambda msg, **kw: _failed(d, msg, d.n_o, d.n_s, model="essential", **kw)  # noqa: E731
-    R_o, t_dir, inl, msg = _essential(d, thr_px, conf, iters)
-    if R_o is None:
+    R_E, t_E, inl, msg = _essential(d, thr_px, conf, iters)
+    if R_E is None:
         return fail(msg)
     thr1 = float(_chi2.ppf(p_in, 1))
-    cands, c = _essential_scale(d, R_o, t_dir)
-    pick = _pick_scale(cands, c, lambda sc: _essential_consensus(d, R_o, t_dir, sc), thr1, thr1)
-    if pick is None:
-        return fail("no sonar match gives a scale (no parallax in the sonar views)")
-    j, support, son_inl, _ = pick
-    if d.n_s >= 3 and support < 2:
-        return fail("no two sonar matches agree on the scale")
-    s = float(cands[j])
-    t_o = s * t_dir
-    lo = np.where(inl, 0, -1)
-    ls = np.where(son_inl, 0, -1)
-    ls[j] = 0
-    stages = [_stage(d, "initial", R_o, t_o, np.zeros((0, 3)), lo, ls, 0, np.nan)]
-    R_o, t_o, _, lo, ls, it, cost, prob = _ml_loop(d, "free", R_o, t_o, np.zeros((0, 3)), lo, ls, thr1, max_it)
-    stages.append(_stage(d, "essential", R_o, t_o, np.zeros((0, 3)), lo, ls, it, cost if cost is not None else np.nan))
-    mono = (MonocularSolution(stages[0].R_o, t_dir, np.full(3, np.nan)),)
+    # Starts: the five-point essential matrix, and, where one homography explains (nearly) all its
+    # inliers (a planar scene, or a rotation), each of the homography's decompositions too. On a
+    # plane the essential matrix is not unique: RANSAC's may be another that fits the optical
+    # matches within the noise, and the sonar then agrees with a wrong motion at a local minimum
+    # of the likelihood. Each start is scaled by the sonar and refined; the one with the least
+    # truncated cost over all matches (every match's chi-square, capped at the inlier threshold)
+    # wins.
+    starts = [(R_E, t_E)]
+    plane = _dominant_plane(d, inl, thr_px, conf, iters)
+    if plane is not None:
+        for sol in _decompose(d, *plane):
+            nt = float(np.linalg.norm(sol.t_over_d))
+            if nt > 1e-12:
+                starts.append((sol.R_o, sol.t_over_d / nt))
+    runs = []
+    first_fail = None
+    for R_o, t_dir in starts:
+        cands, c = _essential_scale(d, R_o, t_dir)
+        pick = _pick_scale(cands, c, lambda sc, R_o=R_o, t_dir=t_dir: _essential_consensus(d, R_o, t_dir, sc),
+                           thr1, thr1)
+        if pick is None:
+            first_fail = first_fail or "no sonar match gives a scale (no parallax in the sonar views)"
+            continue
+        j, support, son_inl, _ = pick
+        if d.n_s >= 3 and support < 2:
+            first_fail = first_fail or "no two sonar matches agree on the scale"
+            continue
+        lo = np.where(inl, 0, -1)
+        ls = np.where(son_inl, 0, -1)
+        ls[j] = 0
+        t_o = float(cands[j]) * t_dir
+        initial = _stage(d, "initial", R_o, t_o, np.zeros((0, 3)), lo, ls, 0, np.nan)
+        info = {}
+        state = _ml_loop(d, "free", R_o, t_o, np.zeros((0, 3)), lo, ls, thr1, max_it, info=info)
+        co, cs = info["chi2"] if "chi2" in info else _chi2_all(d, "free", state[0], state[1], np.zeros((0, 3)))
+        score = float(np.minimum(co, thr1).sum() + np.minimum(cs, thr1).sum())
+        runs.append((score, state, initial, (R_o, t_dir), cands, j, support))
+    if not runs:
+        return fail(first_fail)
+    score, state, initial, (R_m, t_m), cands, j, support = min(runs, key=lambda r: r[0])
+    R_o, t_o, _, lo, ls, it, cost, prob = state
+    stages = [initial, _stage(d, "essential", R_o, t_o, np.zeros((0, 3)), lo, ls, it,
+                              cost if cost is not None else np.nan)]
+    mono = (MonocularSolution(R_m, t_m, np.full(3, np.nan)),)
     return _finish(d, "essential", R_o, t_o, np.zeros((0, 3)), lo, ls, stages, mono, cands, j, (support,), prob)
+
+
+def _dominant_plane(d: _Data, inl_e, thr_px, conf, iters):
+    """``(H, inliers)`` (a mask over all optical matches) when one homography explains at least
+    80 % of the essential matrix's inliers ``inl_e``: a planar scene (or a rotation about the
+    camera centre), where the essential matrix is not unique; else None.
+
+    The homography's transfer error carries both images' noise in two axes (``sqrt(2) sigma``
+    per axis) where the essential matrix's Sampson distance is one axis: its threshold is the
+    essential's times 1.43 (3 sigma -> the 99 % radius of that 2-D error, 4.29 sigma). This only
+    decides whether the homography's motions are tried as well; the likelihood chooses."""
+    idx = np.flatnonzero(inl_e)
+    H, inl_h, _ = _homography(_subset(d, idx), 1.43 * thr_px, conf, iters)
+    if H is None or int(np.sum(inl_h)) < max(4, 0.8 * idx.size):
+        return None
+    mask = np.zeros(d.n_o, bool)
+    mask[idx[inl_h]] = True
+    return H, mask
 
 
 def _finish(d, model, R_o, t_o, pm, lo, ls, stages, mono, cands, j, supports, prob=None):

@@ -9,7 +9,9 @@ A point ``P`` (sonar frame of view 1) is measured as ``(r, theta)`` in view 1 an
   azimuth planes and the radical plane of the two range spheres (with (b3) corrected to
   ``(r'^2 - r^2 - |t_s|^2) / 2``), its refinements (B.5) and (B.7), and a fourth form that
   intersects the two azimuth planes with the range sphere ``|P| = r`` and keeps both roots,
-  which stays exact where (B.3) is singular (pure rotation, motion within the azimuth plane);
+  which stays exact where (B.3) is singular (pure rotation, motion within the azimuth plane),
+  and a fifth that intersects view 1's azimuth plane, the radical plane and the range sphere,
+  which stays exact where the two azimuth planes coincide (pure heave);
 * :func:`triangulate` starts from the best of them and refines every point by maximum
   likelihood (``scipy.optimize.least_squares``), with per-point covariances, the elevation's
   standard deviation, and flags: ``degenerate`` (the elevation is not known better than the
@@ -138,6 +140,12 @@ class ClosedForms:
         (m); NaN where the two azimuth planes coincide.
     condition : ndarray, shape (N,)
         Condition number of (B.3)'s matrix with unit rows (inf when singular).
+    radical : ndarray, shape (N, 2, 3)
+        The two intersections of the line where view 1's azimuth plane meets the radical
+        plane of the two range spheres with the sphere ``|P| = r`` (m): uses ``r, theta, r'``,
+        not ``theta'``, and stays exact where the two azimuth planes coincide (pure heave, for
+        one); NaN for pure rotation, or where the second sonar centre lies on the normal of
+        view 1's azimuth plane through the first.
     """
 
     b3: np.ndarray
@@ -145,6 +153,7 @@ class ClosedForms:
     b7: np.ndarray
     planes: np.ndarray
     condition: np.ndarray
+    radical: np.ndarray = None  # type: ignore[assignment]
 
 
 def _inputs(ranges_1, azimuths_1, ranges_2, azimuths_2):
@@ -227,22 +236,32 @@ def _closed_forms(r1, th1, r2, th2, R_s, t_s) -> ClosedForms:
     if ok3.any():
         P5[ok3] = _lstsq(A5[ok3], b5[ok3])
         P7[ok3] = _lstsq(A7[ok3], b7[ok3])
-    # two azimuth planes and the range sphere: P = P0 + lambda d, |P| = r
-    d = np.cross(A[:, 0], A[:, 1])
+    # two azimuth planes and the range sphere |P| = r
+    planes = _line_sphere(A[:, [0, 1]], b[:, [0, 1]], r1)
+    # the azimuth plane of view 1, the radical plane and the range sphere (no theta'): pure heave
+    radical = _line_sphere(A[:, [0, 2]], b[:, [0, 2]], r1)
+    return ClosedForms(P3, P5, P7, planes, cond, radical)
+
+
+def _line_sphere(A2, b2, r):
+    """The two points ``(N, 2, 3)`` where the line of two planes ``A2 P = b2`` (``(N, 2, 3)``, ``(N, 2)``)
+    meets the sphere ``|P| = r``: ``P0 +- lambda d`` with ``P0`` the line's point nearest the centre;
+    NaN where the planes are parallel (``|a x a'| <= 1e-9 |a| |a'|``)."""
+    n = A2.shape[0]
+    d = np.cross(A2[:, 0], A2[:, 1])
     nd = np.linalg.norm(d, axis=1)
-    okp = nd > 1e-9
-    planes = np.full((n, 2, 3), np.nan)
-    if okp.any():
-        d_u = d[okp] / nd[okp, None]
-        A2 = A[okp, :2]
-        b2 = b[okp, :2]
+    ok = nd > 1e-9 * np.linalg.norm(A2[:, 0], axis=1) * np.linalg.norm(A2[:, 1], axis=1)
+    out = np.full((n, 2, 3), np.nan)
+    if ok.any():
+        d_u = d[ok] / nd[ok, None]
+        Ak, bk = A2[ok], b2[ok]
         # minimum-norm solution of the two plane equations (it is orthogonal to d)
-        P0 = np.einsum("nij,ni->nj", A2, np.linalg.solve(A2 @ np.swapaxes(A2, 1, 2), b2[..., None])[..., 0])
-        lam2 = r1[okp] ** 2 - np.einsum("ni,ni->n", P0, P0)
+        P0 = np.einsum("nij,ni->nj", Ak, np.linalg.solve(Ak @ np.swapaxes(Ak, 1, 2), bk[..., None])[..., 0])
+        lam2 = r[ok] ** 2 - np.einsum("ni,ni->n", P0, P0)
         lam = np.sqrt(np.maximum(lam2, 0.0))  # tangent when noise pushes the line off the sphere
-        planes[okp, 0] = P0 + lam[:, None] * d_u
-        planes[okp, 1] = P0 - lam[:, None] * d_u
-    return ClosedForms(P3, P5, P7, planes, cond)
+        out[ok, 0] = P0 + lam[:, None] * d_u
+        out[ok, 1] = P0 - lam[:, None] * d_u
+    return out
 
 
 # --------------------------------------------------------------------------- ML refinement
@@ -389,9 +408,9 @@ def triangulate(
     fov_elevation : float, optional
         Elevation aperture (rad); selects among roots and sets the ``degenerate`` threshold.
         Default: pi (no aperture).
-    method : {"ml", "b3", "b5", "b7", "planes"}
+    method : {"ml", "b3", "b5", "b7", "planes", "radical"}
         ``"ml"`` refines the best closed form by maximum likelihood; the others return
-        that closed form (for ``"planes"``, the root of better fit).
+        that closed form (for ``"planes"`` and ``"radical"``, the root of better fit).
 
     Returns
     -------
@@ -403,30 +422,56 @@ def triangulate(
     sr = as_positive(sigma_range, "sigma_range")
     sa = as_positive(sigma_azimuth, "sigma_azimuth")
     fov = np.pi if fov_elevation is None else as_positive(fov_elevation, "fov_elevation")
-    if method not in ("ml", "b3", "b5", "b7", "planes"):
-        raise ValueError(f"method: expected one of 'ml', 'b3', 'b5', 'b7', 'planes', got {method!r}")
+    if method not in ("ml", "b3", "b5", "b7", "planes", "radical"):
+        raise ValueError(f"method: expected one of 'ml', 'b3', 'b5', 'b7', 'planes', 'radical', got {method!r}")
     n = r1.shape[0]
     scale = float(np.median(r1)) if n else 1.0
     flags = motion_flags(R_s, t_s, scale)
     cf = _closed_forms(r1, th1, r2, th2, R_s, t_s)
     # candidates: each closed form; a root must be ahead of the sonar and inside the aperture
-    cands = np.stack([cf.b3, cf.b5, cf.b7, cf.planes[:, 0], cf.planes[:, 1]], 1)  # (N, 5, 3)
-    c2 = np.stack([_chi2_of(cands[:, k], r1, th1, r2, th2, R_s, t_s, sr, sa)[0] for k in range(5)], 1)
+    cands = np.stack([cf.b3, cf.b5, cf.b7, cf.planes[:, 0], cf.planes[:, 1], cf.radical[:, 0], cf.radical[:, 1]],
+                     1)  # (N, 7, 3)
+    c2 = np.stack([_chi2_of(cands[:, k], r1, th1, r2, th2, R_s, t_s, sr, sa)[0] for k in range(cands.shape[1])], 1)
     with np.errstate(invalid="ignore"):
         _, _, ph_c = spherical_from_sonar(cands)
         inside = (np.abs(ph_c) <= fov / 2 + 1e-9) & (cands[..., 1] > 0)
     c2 = np.where(inside, c2, np.inf)
-    pick = {"b3": [0], "b5": [1], "b7": [2], "planes": [3, 4], "ml": [0, 1, 2, 3, 4]}[method]
+    pick = {"b3": [0], "b5": [1], "b7": [2], "planes": [3, 4], "radical": [5, 6], "ml": [0, 1, 2, 3, 4, 5, 6]}[method]
     sub = c2[:, pick]
     best = np.array(pick)[np.argmin(sub, 1)]
     P = cands[np.arange(n), best]
     found = np.isfinite(sub.min(1)) if n else np.zeros(0, bool)
     P = np.where(found[:, None], P, np.nan)
-    if method == "ml" and found.any():
-        r, th, ph = spherical_from_sonar(P[found])
-        x = _refine(np.stack([r, th, ph], -1), r1[found], th1[found], r2[found], th2[found], R_s, t_s, sr, sa)
+    # a different root that fits as well, inside the aperture: of each two-root form, the root
+    # farther from the solution (for the planes form, the mirror image of motion in the azimuth
+    # plane) is a second solution if, refined by ML, it stays a different point inside the
+    # aperture that fits as well (a root on the slope of the same minimum, as the mirror of a
+    # point near zero elevation under heave, slides back to it)
+    thr = float(_chi2.ppf(0.99, 1))
+    _, _, el_0 = spherical_from_sonar(P)
+    idx, ks = [], []
+    for k0 in (3, 5):
+        with np.errstate(invalid="ignore"):
+            da = np.abs(ph_c[:, k0] - el_0)
+            db = np.abs(ph_c[:, k0 + 1] - el_0)
+            k_far = np.where(np.nan_to_num(da, nan=-1.0) >= np.nan_to_num(db, nan=-1.0), k0, k0 + 1)
+            c_far = c2[np.arange(n), k_far]
+            d_far = np.where(k_far == k0, da, db)
+            test = np.flatnonzero(found & np.isfinite(c_far) & (c_far < thr) & (d_far > 1e-6))
+        idx.append(test)
+        ks.append(k_far[test])
+    i_alt, k_alt = np.concatenate(idx), np.concatenate(ks)
+    # the solutions (method "ml") and those roots refined in one problem (one solver's overhead)
+    own = np.flatnonzero(found) if method == "ml" else np.zeros(0, int)
+    rows = np.concatenate([own, i_alt])
+    if rows.size:
+        starts = np.concatenate([P[own], cands[i_alt, k_alt]])
+        x = _refine(np.stack(spherical_from_sonar(starts), -1), r1[rows], th1[rows], r2[rows], th2[rows],
+                    R_s, t_s, sr, sa)
         x[:, 2] = np.clip(x[:, 2], -np.pi / 2, np.pi / 2)
-        P[found] = sonar_from_spherical(x[:, 0], x[:, 1], x[:, 2])
+        Pr = sonar_from_spherical(x[:, 0], x[:, 1], x[:, 2])
+        P[own] = Pr[: own.size]
+        P_alt, x_alt = Pr[own.size:], x[own.size:]
     chi = np.full(n, np.inf)
     cov = np.full((n, 3, 3), np.nan)
     el_std = np.full(n, np.inf)
@@ -444,17 +489,13 @@ def triangulate(
         el_std[found] = np.where(inv_ok, np.sqrt(np.abs(cov_x[:, 2, 2])), np.inf)
         cov[found] = D @ cov_x @ np.swapaxes(D, 1, 2)
     degenerate = ~found | ~(el_std <= fov / 2)
-    # a different root that fits as well, inside the aperture
-    thr = float(_chi2.ppf(0.99, 1))
     _, _, el_p = spherical_from_sonar(P)
-    # the planes root farther from the solution: the mirror image for motion in the azimuth plane
-    with np.errstate(invalid="ignore"):
-        d3 = np.abs(ph_c[:, 3] - el_p)
-        d4 = np.abs(ph_c[:, 4] - el_p)
-        k_far = np.where(np.nan_to_num(d3, nan=-1.0) >= np.nan_to_num(d4, nan=-1.0), 3, 4)
-        c_far = c2[np.arange(n), k_far]
-        d_far = np.where(k_far == 3, d3, d4)
-        alt = np.isfinite(c_far) & (c_far < thr) & (d_far > 1e-6)
+    alt = np.zeros(n, bool)
+    if i_alt.size:
+        i = i_alt
+        cf_i, _ = _chi2_of(P_alt, r1[i], th1[i], r2[i], th2[i], R_s, t_s, sr, sa)
+        ok_i = (np.abs(x_alt[:, 2]) <= fov / 2 + 1e-9) & (P_alt[:, 1] > 0) & (cf_i < thr)
+        np.logical_or.at(alt, i, ok_i & (np.abs(x_alt[:, 2] - el_p[i]) > 1e-5))
     ambiguous = found & alt
     bad = degenerate | ambiguous
     n_bad = int(bad.sum())

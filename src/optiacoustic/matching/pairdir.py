@@ -80,28 +80,65 @@ def read_pair(folder, *, range_resolution: float | None = None, beamwidth_azimut
         raise ValueError(f"{meta_path}: missing (a pair folder written by 'oas render' holds it)")
     try:
         meta = json.loads(meta_path.read_text())
-        rig_m, cam_m, son_m = meta["rig"], meta["camera"], meta["sonar"]
-        camera = PinholeCamera(fx=float(cam_m["fx"]), fy=float(cam_m["fy"]), cx=float(cam_m["cx"]),
-                               cy=float(cam_m["cy"]), width=int(cam_m["width"]), height=int(cam_m["height"]),
+    except (ValueError, OSError) as exc:
+        raise ValueError(f"{meta_path}: not JSON: {exc}") from None
+
+    def field(path):
+        node = meta
+        for part in path.split("."):
+            if not isinstance(node, dict) or part not in node:
+                raise ValueError(f"{meta_path}: field '{path}' missing")
+            node = node[part]
+        return node
+
+    def number(path, check=None, what=""):
+        v = field(path)
+        try:
+            x = float(v)
+        except (TypeError, ValueError):
+            raise ValueError(f"{meta_path}: field '{path}': expected a number, got {v!r}") from None
+        if not np.isfinite(x) or (check is not None and not check(x)):
+            raise ValueError(f"{meta_path}: field '{path}': expected {what or 'a finite number'}, got {v!r}")
+        return x
+
+    try:
+        cam_m = field("camera")
+        camera = PinholeCamera(fx=number("camera.fx"), fy=number("camera.fy"), cx=number("camera.cx"),
+                               cy=number("camera.cy"), width=int(number("camera.width")),
+                               height=int(number("camera.height")),
                                dist=tuple(float(v) for v in cam_m.get("dist", [0.0] * 5)))
-    except (ValueError, KeyError, TypeError) as exc:
-        raise ValueError(f"{meta_path}: malformed: {exc!r}") from None
+    except (KeyError, TypeError, AttributeError) as exc:
+        raise ValueError(f"{meta_path}: field 'camera' malformed: {exc!r}") from None
+    except ValueError as exc:
+        raise ValueError(exc if str(exc).startswith(str(meta_path)) else f"{meta_path}: field 'camera': {exc}") from None
     s = _load_npz(folder / "sonar.npz", ("image", "ranges", "azimuths"))
     o = _load_npz(folder / "optical.npz", ("image",))
     ranges, az = s["ranges"].astype(float), s["azimuths"].astype(float)
+    fov_az = number("sonar.fov_azimuth_deg", lambda x: 0 < x <= 360, "an angle in (0, 360] deg")
+    fov_el = number("sonar.fov_elevation_deg", lambda x: 0 < x <= 180, "an angle in (0, 180] deg")
+    r_min = number("sonar.range_min", lambda x: x >= 0, "a range >= 0 m")
+    r_max = number("sonar.range_max", lambda x: x > r_min, f"a range > sonar.range_min ({r_min:g} m)")
+    son_m = field("sonar")
     try:
         spec = PairSonarSpec(
-            fov_azimuth=float(np.deg2rad(son_m["fov_azimuth_deg"])),
-            fov_elevation=float(np.deg2rad(son_m["fov_elevation_deg"])),
-            range_min=float(son_m["range_min"]), range_max=float(son_m["range_max"]),
+            fov_azimuth=float(np.deg2rad(fov_az)), fov_elevation=float(np.deg2rad(fov_el)),
+            range_min=r_min, range_max=r_max,
             range_resolution=float(range_resolution or np.median(np.diff(ranges))),
             beamwidth_azimuth=float(beamwidth_azimuth or np.median(np.diff(az))),
             name=str(son_m.get("preset", "")))
-    except (KeyError, TypeError, ValueError) as exc:
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise ValueError(f"{meta_path}: field 'sonar' malformed: {exc!r}") from None
     beam_model = son_m.get("beam_model", "thesis")
     if beam_model not in ("thesis", "aperture"):
         raise ValueError(f"{meta_path}: field 'sonar.beam_model': expected 'thesis' or 'aperture', got {beam_model!r}")
     sonar = PairSonarFrame(s["image"].astype(np.float32), ranges, az, spec, beam_model=beam_model)
-    rig = Rig(np.asarray(rig_m["R"], float), np.asarray(rig_m["t"], float), camera, spec)
-    return sonar, o["image"], rig, o.get("depth")
+    R_m, t_m = field("rig.R"), field("rig.t")
+    try:
+        rig = Rig(np.asarray(R_m, float), np.asarray(t_m, float), camera, spec)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{meta_path}: field 'rig': {exc}") from None
+    depth = o.get("depth")
+    shape = np.shape(o["image"])[:2]
+    if depth is not None and np.shape(depth) != shape:
+        raise ValueError(f"{folder / 'optical.npz'}: field 'depth' has shape {np.shape(depth)}, the image {shape}")
+    return sonar, o["image"], rig, depth

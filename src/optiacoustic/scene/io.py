@@ -235,6 +235,9 @@ def scene_to_dict(scene, base_dir: str | None = None) -> dict:
 
 def save_scene(scene, path) -> None:
     path = Path(path)
+    if path.suffix.lower() not in (".yaml", ".yml", ".json"):
+        raise SceneError(f"cannot export the scene to {path}: expected a .yaml, .yml or .json file name "
+                         f"(the format follows the suffix)")
     data = scene_to_dict(scene, str(path.parent))
     ensure_dir(path.parent)  # mesh paths like "../rock.obj" resolve only through an existing folder
     try:  # what is written must load again: check before writing, not when a user next reads it
