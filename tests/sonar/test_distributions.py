@@ -488,7 +488,7 @@ def test_amplitudes_from_image_errors(tmp_path):
         amplitudes_from_image(npy, roi=(0, 0, 13, 5))  # outside
     zeros = tmp_path / "z.npy"
     np.save(zeros, np.zeros((4, 4)))
-    with pytest.raises(ValueError, match="no non-zero"):
+    with pytest.raises(ValueError, match="z.npy: no finite non-zero"):
         amplitudes_from_image(zeros)
     cube = tmp_path / "c.npy"
     np.save(cube, np.ones((4, 4, 3)))

@@ -41,3 +41,12 @@ def test_sonar_command_renders_with_a_profile(tmp_path):
     assert json.loads((tmp_path / "frame.json").read_text())["profile"] == "aris-1200-telephoto"
     r = runner.invoke(app, ["sonar", "flat_seabed", "--profile", "no-such-device", "--out", str(tmp_path)])
     assert r.exit_code == 2 and "unknown sensor profile" in r.output
+
+
+def test_sensor_fit_region_outside_the_window_or_reversed_is_named_before_the_fit(tmp_path):
+    # was: '0 speckle cells ... (nan, read before the seabed's onset at nan m)' after the work
+    for region, words in ((("30", "40"), "outside the frames' range window 3.298-23.39 m"),
+                          (("10", "5"), "r_min < r_max"), (("nan", "nan"), "expected finite ranges")):
+        r = runner.invoke(app, ["sensor-fit", str(ARIS), "--region", *region, "--out", str(tmp_path / "p.yaml")])
+        assert r.exit_code == 2 and words in r.output and "Traceback" not in r.output, r.output
+        assert not (tmp_path / "p.yaml").exists()

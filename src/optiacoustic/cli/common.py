@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import os
 from pathlib import Path
 
 import typer
@@ -54,7 +55,9 @@ app = _App(
     context_settings=_CONTEXT,
 )
 console = Console(stderr=True)
-out = Console()
+# no markup: what commands print holds user paths and values, where '[red]' or '[/x]' is text
+# (with markup a '[/x]' in a path raised rich.errors.MarkupError after the work was done)
+out = Console(markup=False)
 
 Vec3 = tuple[float, float, float]
 
@@ -176,6 +179,29 @@ def resolve_input(path) -> Path:
         if packaged.exists():
             return packaged
     return p
+
+
+def check_output(path, option: str, *inputs) -> None:
+    """Before the work: refuse an output file that is one of the inputs (it would be overwritten)
+    or that cannot be written (a folder, a parent that is a file)."""
+    if path is None:
+        return
+    from .._atomic import check_destination
+
+    p = Path(path)
+    for inp in inputs:
+        if inp is None:
+            continue
+        q = Path(inp)
+        same = p.resolve() == q.resolve()
+        if not same and p.exists() and q.exists():
+            try:
+                same = os.path.samefile(p, q)
+            except OSError:
+                same = False
+        if same:
+            raise ValueError(f"{option} {p}: is the input {q}; refusing to overwrite it (name another file)")
+    check_destination(p)
 
 
 def resolve_inputs(paths) -> list[Path]:

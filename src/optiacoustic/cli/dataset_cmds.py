@@ -79,10 +79,13 @@ def export_cmd(
     ground_truth: bool = typer.Option(True, "--ground-truth/--no-ground-truth", help="Ground-truth topics."),
 ):
     """Write a dataset as ROS 2 messages (ProjectedSonarImage, Image, CameraInfo, TF) into an MCAP file."""
-    from ..io.mcap_writer import write_mcap
+    from ..io.mcap_writer import StartTimeError, write_mcap
 
-    p = write_mcap(dataset, mcap, sonar_dtype=sonar_dtype, full_scale=full_scale, sonar_encoding=sonar_encoding,
-                   camera_encoding=camera_encoding, start_time=start_time, ground_truth=ground_truth)
+    try:
+        p = write_mcap(dataset, mcap, sonar_dtype=sonar_dtype, full_scale=full_scale, sonar_encoding=sonar_encoding,
+                       camera_encoding=camera_encoding, start_time=start_time, ground_truth=ground_truth)
+    except StartTimeError as exc:  # the library names its argument; here the user typed the option
+        raise ValueError(f"--start-time: {exc.reason}") from None
     out.print(f"wrote {p} ({p.stat().st_size / 1e6:.1f} MB)", highlight=False)
 
 

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from rich.markup import escape
+
 from .common import _Command, app, out, progress, reports_errors
 
 
@@ -41,7 +43,7 @@ def experiment(
     target = out_dir / name if out_dir.name != name else out_dir
     with progress(f"experiment {name}"):
         res = experiments.run(name, target, quick=quick, seed=seed)
-    out.print(f"[bold]{name}[/]: {res.summary}")
+    out.print(f"[bold]{escape(name)}[/]: {escape(str(res.summary))}", markup=True)
     for f, cap in res.figures:
         out.print(f"  {f}  - {cap}")
     out.print(f"  {target / 'results.json'}")

@@ -17,8 +17,6 @@ def info(
     topic: Optional[str] = typer.Option(None, "--topic", help="Bag topic to describe (default: every topic, and the sonar topic if there is one)."),
 ):
     """List the format, topics, frame counts and device settings of a log."""
-    from rich.markup import escape
-
     from ..io.sonar import sniff
 
     fmt = sniff(path)
@@ -32,10 +30,10 @@ def info(
     reader = open_bag(path)
     try:
         topics = bag_topics(reader)
-        out.print(f"{escape(str(path))}: ROS bag, {len(topics)} topics, {sum(n for _, n in topics.values())} messages",
+        out.print(f"{path}: ROS bag, {len(topics)} topics, {sum(n for _, n in topics.values())} messages",
                   highlight=False)
         for t, (m, n) in sorted(topics.items()):
-            out.print(f"  {escape(t)}  {m}  {n} msgs", highlight=False)
+            out.print(f"  {t}  {m}  {n} msgs", highlight=False)
     finally:
         reader.close()
     if topic is not None or any(m.endswith("ProjectedSonarImage") for m, _ in topics.values()):
@@ -43,12 +41,10 @@ def info(
 
 
 def _print_sonar(path, topic):
-    from rich.markup import escape
-
     from ..io import open_sonar
 
     with open_sonar(path, topic=topic) as seq:
         d = seq.info()
     d.pop("topics", None)
     for k, v in d.items():
-        out.print(f"  {k}: {escape(str(v))}", highlight=False)
+        out.print(f"  {k}: {v}", highlight=False)

@@ -8,7 +8,7 @@ from typing import Optional
 import typer
 
 from .._atomic import write_json
-from .common import app, out, reports_errors
+from .common import app, check_output, out, reports_errors
 
 
 def _jsonable(params: dict) -> dict:
@@ -31,7 +31,6 @@ def _is_sonar_log(path: Path) -> bool:
 def _fit_log(path, *, topic, frames, range_min, range_max, azimuth_min_deg, azimuth_max_deg, mask, reading,
              detrend, dither, seed, out_json):
     import numpy as np
-    from rich.markup import escape
     from rich.table import Table
 
     from ..io import open_sonar
@@ -58,8 +57,8 @@ def _fit_log(path, *, topic, frames, range_min, range_max, azimuth_min_deg, azim
     region = (f"ranges {rng_win[0]:g}-{rng_win[1]:g} m" if rng_win else "all ranges") + ", " + (
         f"azimuths {np.rad2deg(az_win[0]):g} to {np.rad2deg(az_win[1]):g} deg" if az_win else "all beams") + (
         f", mask {mask}" if mask is not None else "")
-    out.print(escape(f"{res.n_samples} amplitudes from {res.n_frames} frame(s) of {path} ({region})"), highlight=False)
-    out.print(escape(f"linearised: {res.linearisation}; dithered: {res.dithered}; range-detrended: {res.detrended}"),
+    out.print(f"{res.n_samples} amplitudes from {res.n_frames} frame(s) of {path} ({region})", highlight=False)
+    out.print(f"linearised: {res.linearisation}; dithered: {res.dithered}; range-detrended: {res.detrended}",
               highlight=False)
     table = Table(title="Goodness of fit", title_justify="left")
     for col in ("model", "KS D", "p-value", "log-likelihood", "AIC", "fitted", "flags"):
@@ -69,7 +68,7 @@ def _fit_log(path, *, topic, frames, range_min, range_max, azimuth_min_deg, azim
                       f"{f.log_likelihood:.1f}", f"{f.aic:.1f}", f.dist.describe(), "; ".join(res.flags[f.model]) or "-")
     out.print(table)
     for note in res.notes:
-        out.print(escape(f"note: {note}"), highlight=False)
+        out.print(f"note: {note}", highlight=False)
     out.print("* lowest AIC. KS p-values with parameters fitted to the same samples are optimistic (Lilliefors).",
               highlight=False)
     if out_json is not None:
@@ -116,7 +115,6 @@ def noise_fit(
     out_json: Optional[Path] = typer.Option(None, "--out", help="Write the numbers to this JSON file."),
 ):
     """Fit Rayleigh, Weibull, Rayleigh-mixture and K amplitude models and compare them (Table 2.3)."""
-    from rich.markup import escape
     from rich.table import Table
 
     from .._atomic import write_json
@@ -124,6 +122,7 @@ def noise_fit(
 
     if (bottom is None) == (input_file is None):
         raise ValueError("give exactly one of --bottom TYPE or --input FILE")
+    check_output(out_json, "--out", input_file)
     if input_file is not None and (model is not None):
         raise ValueError("--model only applies to --bottom (it picks the model the samples are drawn from)")
     if bottom is not None and roi is not None:
@@ -160,7 +159,7 @@ def noise_fit(
     fits = D.compare_models(samples)
     best = min(fits, key=lambda f: f.aic).model
 
-    out.print(escape(title), highlight=False)
+    out.print(title, highlight=False)
     scores = Table(title="Goodness of fit (thesis Table 2.3 style)", title_justify="left")
     scores.add_column("model")
     for col in ("KS D", "p-value", "log-likelihood", "AIC"):

@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from .common import app, out, reports_errors
+from .common import app, check_output, out, reports_errors
 
 
 def _parse_frames(text: Optional[str], n: int) -> list[int]:
@@ -45,6 +45,8 @@ def sensor_fit_cmd(
     from ..io import open_sonar
     from ..sonar.profile import fit_profile
 
+    if use_profile is None:  # before the fit (a minute or more), not after it
+        check_output(out_path, "--out", log)
     seq = open_sonar(log, topic=topic)
     n = len(seq)
     if n == 0:

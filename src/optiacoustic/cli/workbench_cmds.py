@@ -42,6 +42,8 @@ def workbench_cmd(
                                             "pitch and roll standard deviation (deg)."),
 ):
     """Serve the opti-acoustic workbench: epipolar-guided matching, reconstruction, calibration, fusion."""
+    from rich.markup import escape
+
     from ..rig import Rig
     from ..workbench import Session
     from ..workbench import sources as src
@@ -72,7 +74,7 @@ def workbench_cmd(
     if port == 0:
         port = free_port(host)
     if not is_loopback(host):
-        console.print(f"[bold yellow]warning:[/] serving on {host}: anyone who can reach this address and has the "
+        console.print(f"[bold yellow]warning:[/] serving on {escape(host)}: anyone who can reach this address and has the "
                       "token URL can use the workbench (and see your data)", highlight=False)
 
     def ready(url):

@@ -45,6 +45,17 @@ class FrameSequence(Sequence):
     def _read(self, i: int):  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def _frame(self, k: int):
+        """``_read(k)``, with a ``ValueError`` of the frame's own checks (a :class:`SonarSpec` the
+        header's values do not describe: one beam, bearings past 90 deg, say) turned into a
+        :class:`ReadError` naming file, topic and frame, so that ``errors="skip"`` can skip it."""
+        try:
+            return self._read(k)
+        except ReadError:
+            raise
+        except ValueError as exc:
+            raise ReadError(self.path, str(exc), topic=self.topic, frame=k) from None
+
     def __getitem__(self, i):
         if isinstance(i, slice):
             return [self[k] for k in range(*i.indices(len(self)))]
@@ -55,12 +66,12 @@ class FrameSequence(Sequence):
         k = k + n if k < 0 else k
         if not 0 <= k < n:
             raise IndexError(f"{self.path}: frame {i} out of range ({n} frames)")
-        return self._read(k)
+        return self._frame(k)
 
     def __iter__(self):
         for k in range(len(self)):
             try:
-                yield self._read(k)
+                yield self._frame(k)
             except ReadError as exc:
                 if self.errors == "raise":
                     raise

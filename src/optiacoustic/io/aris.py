@@ -167,6 +167,12 @@ class ArisReader(FrameSequence):
         period = int(h["SamplePeriod"])
         if not 1 <= period <= 1000:
             raise fail(f"SamplePeriod {period} us is outside 1-1000", "SamplePeriod")
+        delay = int(h["SampleStartDelay"])
+        start, end = delay * 1e-6 * c / 2, (delay + period * (self.n_samples - 0.5)) * 1e-6 * c / 2
+        if not (period / 2 <= delay and end <= _MAX_RANGE_M):
+            raise fail(f"SampleStartDelay {delay} us puts the window at {start:.3g}-{end:.3g} m: it must start at least "
+                       f"half a sample period ({period / 2:g} us) after the ping and end within {_MAX_RANGE_M:g} m",
+                       "SampleStartDelay")
         if h["ReorderedSamples"] == 0:
             raise fail("ReorderedSamples is 0: samples in device order (a live stream, not a file); "
                        "reordering is not supported", "ReorderedSamples")
@@ -204,7 +210,7 @@ class ArisReader(FrameSequence):
         if self._tail:
             d["damaged_tail"] = f"last frame truncated: {self._tail} of {self.frame_size} bytes"
         try:
-            f = self._read(0)
+            f = self._frame(0)
             d.update({k: v for k, v in f.meta.items() if k not in ("byte_offset", "format")})
             d["range_window_m"] = (float(f.ranges[0]), float(f.ranges[-1]))
             d["spec"] = f.spec.summary()
@@ -216,6 +222,8 @@ class ArisReader(FrameSequence):
         self.file.close()
 
 
+# a sanity bound on the window's far end, well beyond any ARIS model's longest window (tens of metres)
+_MAX_RANGE_M = 300.0
 # nominal frequencies (Hz) of (system type, high-frequency flag), from Sound Metrics datasheets
 _FREQ = {(0, 1): 1.8e6, (0, 0): 1.1e6, (1, 1): 3.0e6, (1, 0): 1.8e6, (2, 1): 1.2e6, (2, 0): 0.7e6}
 

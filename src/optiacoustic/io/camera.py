@@ -132,7 +132,7 @@ class BagCamera(FrameSequence):
         if topic is None:
             if len(images) != 1:
                 self.reader.close()
-                raise ReadError(self.path, f"pass topic= one of the image topics {sorted(images)}" if images
+                raise ReadError(self.path, f"several image topics: choose one with topic= (--camera-topic on the command line): {sorted(images)}" if images
                                 else "no sensor_msgs/Image or CompressedImage topic in the bag")
             topic = images[0]
         if topic not in topics:

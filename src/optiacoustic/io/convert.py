@@ -60,11 +60,13 @@ def convert_log(path, out, *, topic: str | None = None, camera=None, camera_topi
     n = len(frames)
     if n == 0:
         raise DatasetError(f"{path}: has no sonar frame")
-    first = frames[0]
+    k0, first = _first_readable(frames, errors)
     spec = first.spec
     shape = (spec.n_bins, spec.n_beams)
     ranges, azimuths = np.asarray(spec.ranges, float), np.asarray(spec.azimuths, float)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    from .._atomic import ensure_dir
+
+    ensure_dir(out.parent)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.stem}.tmp-", dir=out.parent)) / out.name
     try:
         root = zarr.open_group(str(tmp), mode="w", zarr_format=3)
@@ -78,12 +80,12 @@ def convert_log(path, out, *, topic: str | None = None, camera=None, camera_topi
                               dimension_names=("frame",))
         times = np.full(n, np.nan)
         skipped = []
-        for k, f in _readable_frames(frames, first, errors, skipped):
+        for k, f in _readable_frames(frames, first, k0, errors, skipped):
             if f.image.shape != shape:
                 raise DatasetError(f"{path}: frame {k} is {f.image.shape[0]} bins x {f.image.shape[1]} beams, "
-                                   f"frame 0 is {shape[0]} x {shape[1]}; one dataset holds one sonar geometry")
+                                   f"frame {k0} is {shape[0]} x {shape[1]}; one dataset holds one sonar geometry")
             if not (np.allclose(f.spec.ranges, ranges) and np.allclose(f.spec.azimuths, azimuths)):
-                raise DatasetError(f"{path}: frame {k} has other ranges or beam azimuths than frame 0 "
+                raise DatasetError(f"{path}: frame {k} has other ranges or beam azimuths than frame {k0} "
                                    "(the range window changed); one dataset holds one sonar geometry")
             img[k] = f.image
             raw[k] = f.raw
@@ -117,7 +119,7 @@ def _convert_camera(root, path, topic, errors: str) -> int:
     n = len(frames)
     if n == 0:
         raise DatasetError(f"{path}: has no camera frame")
-    first = frames[0]
+    k0, first = _first_readable(frames, errors)
     shape = first.image.shape
     g = root.create_group("camera")
     img = g.create_array("image", shape=(n,) + shape, chunks=(1,) + shape, dtype="float32", fill_value=np.nan,
@@ -126,9 +128,9 @@ def _convert_camera(root, path, topic, errors: str) -> int:
     times = np.full(n, np.nan)
     written = 0
     skipped = []
-    for k, f in _readable_frames(frames, first, errors, skipped):
+    for k, f in _readable_frames(frames, first, k0, errors, skipped):
         if f.image.shape != shape:
-            raise DatasetError(f"{path}: camera frame {k} is {f.image.shape}, frame 0 is {shape}")
+            raise DatasetError(f"{path}: camera frame {k} is {f.image.shape}, frame {k0} is {shape}")
         img[k] = f.image
         done[k] = True
         times[k] = f.time
@@ -142,13 +144,28 @@ def _convert_camera(root, path, topic, errors: str) -> int:
     return written
 
 
-def _readable_frames(frames, first, errors: str, skipped: list):
-    """Yield ``(k, frame)`` for every frame of a log; a damaged one raises, or is appended to ``skipped``."""
+def _first_readable(frames, errors: str):
+    """``(k, frame)``: frame 0, or with ``errors="skip"`` the first frame that reads (it sets the
+    dataset's geometry); raises the first frame's error when none does."""
+    from .errors import ReadError
+
+    first_error = None
+    for k in range(len(frames) if errors == "skip" else 1):
+        try:
+            return k, frames[k]
+        except ReadError as exc:
+            first_error = first_error or exc
+    raise first_error
+
+
+def _readable_frames(frames, first, k0: int, errors: str, skipped: list):
+    """Yield ``(k, frame)`` for every frame of a log (``first`` is frame ``k0``, already read); a
+    damaged one raises, or is appended to ``skipped``."""
     from .errors import ReadError
 
     for k in range(len(frames)):
         try:
-            f = first if k == 0 else frames[k]
+            f = first if k == k0 else frames[k]
         except ReadError:
             if errors == "raise":
                 raise

@@ -23,6 +23,11 @@ docs/formats/oculus.md):
 - at ``imageOffset``: ``nRanges`` rows, each (when the send-gain flag is set) a 4-byte
   gain followed by ``nBeams`` samples (liboculus reads the gain as a float32).
 
+A ``gammaCorrection`` byte of 0 (not a gamma) is read as 255, no correction: the 8-bit
+samples are then amplitudes (exponent 2), whatever ``reading`` says. A ``frequency`` or
+``speedOfSoundUsed`` outside a plausible range keeps :class:`SonarSpec`'s default, listed in the
+spec's ``unverified``.
+
 A file is a stream of such messages (one ping per message); other message types are
 skipped by their ``payloadSize``. Range line ``i`` is centred at
 ``(i + 0.5) * rangeResolution``. Bearings are taken as positive to starboard and
@@ -149,8 +154,10 @@ class OculusReader(FrameSequence):
                        f"{length}", offset=pos)
         nb, nr = int(p["nBeams"]), int(p["nRanges"])
         off = lambda name: pos + p.dtype.fields[name][1]  # noqa: E731
-        if nb < 1 or nr < 1:
-            raise fail(f"nBeams = {nb}, nRanges = {nr}: both must be >= 1", offset=off("nRanges"))
+        if nr < 1:
+            raise fail(f"nRanges = {nr}: must be >= 1", offset=off("nRanges"))
+        if nb < 2:  # a fan's beam spacing needs two bearings
+            raise fail(f"nBeams = {nb}: an imaging sonar's ping has at least 2 beams", offset=off("nBeams"))
         ds = int(p["dataSize"])
         if ds not in _SAMPLE_TYPES:
             raise fail(f"unsupported dataSize {ds} ({(ds + 1) * 8}-bit samples); supported: 8, 16, 32-bit",
@@ -205,7 +212,7 @@ class OculusReader(FrameSequence):
         if self.index_error is not None:
             d["damaged_tail"] = str(self.index_error)
         try:
-            f = self._read(0)
+            f = self._frame(0)
             d.update({k: v for k, v in f.meta.items() if k not in ("gains", "encoding_params", "format")})
             d["format"] = f"Oculus SimplePingResult v{f.meta['version']} stream"
             d["spec"] = f.spec.summary()
@@ -224,10 +231,17 @@ def _spec(bearings_cdeg: tuple, n_ranges: int, res: float, frequency: float, sou
               name="oculus", source="Oculus SimplePingResult",
               beamwidth_azimuth=float(np.mean(np.diff(az))),
               unverified=("beamwidth_azimuth (mean bearing spacing)", "fov_elevation (not in the ping)"))
+    # a value the ping does not give plausibly keeps SonarSpec's default, and says so
     if np.isfinite(frequency) and 1e3 < frequency < 1e8:
         kw["frequency"] = frequency
+    else:
+        kw["unverified"] += (f"frequency (the ping's {frequency!r} Hz is not plausible: "
+                             f"{SonarSpec.frequency / 1e3:g} kHz assumed)",)
     if np.isfinite(sound_speed) and 1000 < sound_speed < 2000:
         kw["sound_speed"] = sound_speed
+    else:
+        kw["unverified"] += (f"sound_speed (the ping's speedOfSoundUsed {sound_speed!r} m/s is not plausible: "
+                             f"{SonarSpec.sound_speed:g} m/s assumed)",)
     spec = SonarSpec(**kw).with_beam_table(az)
     # the beam width: the mean bearing spacing is what the table says; the physical width is not in the ping
     return spec

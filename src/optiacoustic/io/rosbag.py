@@ -102,7 +102,8 @@ class BagSonarReader(FrameSequence):
         if self.msgtype in (IMAGE, COMPRESSED) and spec is None:
             self.close()
             raise ReadError(self.path, f"{self.msgtype} polar images carry no beam or range geometry: pass "
-                                       "spec=SonarSpec(...) with the device's beams and ranges", topic=self.topic)
+                                       "spec=SonarSpec(...) with the device's beams and ranges (Python API; the "
+                                       "command line reads ProjectedSonarImage topics)", topic=self.topic)
         if encoding is not None:
             units._get(encoding)
         self.spec, self.encoding, self.encoding_params = spec, encoding, encoding_params
@@ -132,9 +133,10 @@ class BagSonarReader(FrameSequence):
             return psi[0]
         self.close()
         if not psi:
-            raise ReadError(self.path, f"no {PROJECTED_SONAR_IMAGE} topic; pass topic= for a polar Image topic. "
+            raise ReadError(self.path, f"no {PROJECTED_SONAR_IMAGE} topic; pass topic= (--topic) for a polar Image topic. "
                                        f"Topics: {listing}")
-        raise ReadError(self.path, f"several sonar topics, pass topic= one of {sorted(psi)}")
+        raise ReadError(self.path, f"several sonar topics: choose one with topic= (--topic on the command line): "
+                                   f"{sorted(psi)}")
 
     def __len__(self):
         return self._count

@@ -9,7 +9,7 @@ import numpy as np
 
 from .spec import SonarSpec
 
-__all__ = ["FanImage", "polar_to_fan", "fan_geometry", "to_display", "save_png"]
+__all__ = ["FanImage", "polar_to_fan", "fan_geometry", "fan_shape", "to_display", "save_png"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -38,15 +38,14 @@ class FanImage:
         return x, y
 
 
-@functools.lru_cache(maxsize=32)
-def fan_geometry(spec: SonarSpec, width: int):
-    """Precomputed remap tables for a spec and output width (cached).
+# peak memory of one fan image through fan_geometry, polar_to_fan, to_display and a colormap
+# (measured: about 100 bytes per fan pixel on ARIS and Oculus logs), an upper estimate for check_memory
+FAN_BYTES_PER_PIXEL = 128
+MAX_FAN_SIDE = 32767  # px: OpenCV's limit for cv2.remap and its image writers (as camera.MAX_IMAGE_SIDE)
 
-    Returns ``(map_col, map_row, mask, extent, pixel_size)``: for each fan pixel, the
-    fractional beam (column) and bin (row) of the polar image to sample.
-    """
-    if not isinstance(width, (int, np.integer)) or width < 16:
-        raise ValueError(f"fan width: expected an integer >= 16 pixels, got {width!r}")
+
+def _fan_layout(spec: SonarSpec, width: int):
+    """``(half, extent, pixel_size, height)`` of the fan image ``width`` px wide (nothing allocated)."""
     half = spec.fov_azimuth / 2
     x_max = spec.range_max * np.sin(half)
     y_min = min(0.0, spec.range_min * np.cos(half))
@@ -54,6 +53,45 @@ def fan_geometry(spec: SonarSpec, width: int):
     px = 2 * x_max / width
     height = int(np.ceil((spec.range_max - y_min) / px))
     extent = (-x_max, x_max, spec.range_max - height * px, spec.range_max)
+    return half, extent, px, height
+
+
+def fan_shape(spec: SonarSpec, width, *, name: str = "fan width") -> tuple[int, int]:
+    """``(height, width)`` of the fan image of ``spec`` at ``width`` px, checked before anything is allocated.
+
+    Raises a ``ValueError`` naming ``name`` (e.g. ``"--width"``) and the value when ``width`` is not an
+    integer >= 16, when a side of the image would exceed OpenCV's 32767 px (``cv2.remap`` and the
+    image writers stop there), or when the machine lacks the memory to build and show it.
+    """
+    from .._validate import check_memory
+
+    if isinstance(width, (bool, np.bool_)) or not isinstance(width, (int, np.integer)) or width < 16:
+        raise ValueError(f"{name}: expected an integer >= 16 pixels, got {width!r}")
+    width = int(width)
+    if width > MAX_FAN_SIDE:
+        raise ValueError(f"{name}: at most {MAX_FAN_SIDE} pixels (OpenCV's limit for an image side), got {width}")
+    height = _fan_layout(spec, width)[3]
+    if height > MAX_FAN_SIDE:
+        most = int(MAX_FAN_SIDE * width / height)
+        while most > 16 and _fan_layout(spec, most)[3] > MAX_FAN_SIDE:
+            most -= 1
+        raise ValueError(f"{name}: {width} px gives a fan image {height} px tall for this sonar's "
+                         f"{np.rad2deg(spec.fov_azimuth):.4g} deg x {spec.range_max:.4g} m fan; at most "
+                         f"{MAX_FAN_SIDE} px a side, so at most {most} px wide")
+    check_memory(FAN_BYTES_PER_PIXEL * float(width) * height, f"a {width} x {height} px fan image ({name} {width})")
+    return height, width
+
+
+@functools.lru_cache(maxsize=32)
+def fan_geometry(spec: SonarSpec, width: int):
+    """Precomputed remap tables for a spec and output width (cached).
+
+    Returns ``(map_col, map_row, mask, extent, pixel_size)``: for each fan pixel, the
+    fractional beam (column) and bin (row) of the polar image to sample. ``width`` is
+    checked by :func:`fan_shape` first.
+    """
+    fan_shape(spec, width)
+    half, extent, px, height = _fan_layout(spec, int(width))
     u = np.arange(width)
     v = np.arange(height)
     x = extent[0] + (u + 0.5) * px
@@ -99,7 +137,10 @@ def polar_to_fan(image: np.ndarray, spec: SonarSpec, *, width: int = 800) -> Fan
     img = np.asarray(image)
     if img.shape != (spec.n_bins, spec.n_beams):
         raise ValueError(f"image: expected shape (n_bins, n_beams) = {(spec.n_bins, spec.n_beams)}, got {img.shape}")
-    col, row, mask, extent, px = fan_geometry(spec, int(width))
+    if isinstance(width, (float, np.floating)) and float(width).is_integer():
+        width = int(width)  # 800.0 is 800; 800.5 is refused by fan_shape rather than truncated
+    col, row, mask, extent, px = fan_geometry(spec, width)
+    width = int(width)
     src = np.ascontiguousarray(img, dtype=np.float32)
     from ._kernels import chunked_run, kernels, use_numba
 
@@ -126,6 +167,19 @@ def to_display(image: np.ndarray, *, mode: str = "db", dynamic_range_db: float =
     ``mode="db"``: ``10 log10(I / reference)`` over ``dynamic_range_db`` (reference: the
     ``percentile`` of the positive values). ``mode="gamma"``: ``(I / reference) ** gamma``.
     """
+    from .._validate import as_positive
+
+    if mode == "db":
+        dynamic_range_db = as_positive(dynamic_range_db, "to_display: dynamic_range_db")
+    elif mode == "gamma":
+        gamma = as_positive(gamma, "to_display: gamma")
+    else:
+        raise ValueError(f"to_display: mode must be 'db' or 'gamma', got {mode!r}")
+    if reference is None and not (isinstance(percentile, (int, float, np.integer, np.floating))
+                                  and not isinstance(percentile, bool) and 0 <= percentile <= 100):
+        raise ValueError(f"to_display: percentile: expected a number in [0, 100], got {percentile!r}")
+    if reference is not None:  # 0 (an empty image's percentile) is clamped below; NaN would show all black
+        reference = _finite_reference(reference)
     img = np.asarray(image, float)
     pos = img[img > 0]
     if reference is None:
@@ -138,6 +192,16 @@ def to_display(image: np.ndarray, *, mode: str = "db", dynamic_range_db: float =
     if mode == "gamma":
         return np.clip(np.maximum(img, 0) / reference, 0, 1) ** gamma
     raise ValueError(f"to_display: mode must be 'db' or 'gamma', got {mode!r}")
+
+
+def _finite_reference(reference) -> float:
+    try:
+        v = float(reference)
+    except (TypeError, ValueError):
+        raise ValueError(f"to_display: reference: expected a number, got {reference!r}") from None
+    if not np.isfinite(v):
+        raise ValueError(f"to_display: reference: must be finite, got {v!r}")
+    return v
 
 
 def save_png(path, image01: np.ndarray, *, cmap: str = "copper", mask=None) -> None:

@@ -950,25 +950,25 @@ def amplitudes_from_image(path, roi: Sequence[int] | None = None) -> np.ndarray:
     """
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"path: no such file {str(path)!r}")
+        raise FileNotFoundError(f"{path}: no such file")
     if path.suffix.lower() == ".npy":
         try:
             img = np.load(path, allow_pickle=False)
         except (ValueError, OSError) as exc:
-            raise ValueError(f"path: cannot read {str(path)!r} as a .npy array ({exc})") from None
+            raise ValueError(f"{path}: cannot read as a .npy array ({exc})") from None
     else:
         import cv2
 
         img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH)
         if img is None:
-            raise ValueError(f"path: OpenCV cannot read {str(path)!r} as an image")
+            raise ValueError(f"{path}: OpenCV cannot read it as an image")
     img = np.asarray(img)
     if img.dtype.kind not in "fiub":
         what = "complex (I/Q?) values: save the amplitude np.abs(x)" if img.dtype.kind == "c" else f"dtype {img.dtype}"
-        raise ValueError(f"path: {str(path)!r} holds {what}; expected real linear amplitudes")
+        raise ValueError(f"{path}: holds {what}; expected real linear amplitudes")
     img = img.astype(float)
     if img.ndim != 2:
-        raise ValueError(f"path: expected a 2-D amplitude image (H, W), got shape {img.shape}")
+        raise ValueError(f"{path}: expected a 2-D amplitude image (H, W), got shape {img.shape}")
     if roi is not None:
         box = as_array(roi, "roi", (4,))
         if np.any(box != np.round(box)):
@@ -982,11 +982,12 @@ def amplitudes_from_image(path, roi: Sequence[int] | None = None) -> np.ndarray:
             )
         img = img[y0:y1, x0:x1]
     if np.any(np.isinf(img)):
-        raise ValueError("path: the image holds infinite values")
+        raise ValueError(f"{path}: the image holds infinite values")
     vals = img[np.isfinite(img)]
     if np.any(vals < 0):
-        raise ValueError(f"path: amplitudes must be >= 0, found min {vals.min():.3g}")
+        raise ValueError(f"{path}: amplitudes must be >= 0, found min {vals.min():.3g}")
     vals = vals[vals > 0]
     if vals.size == 0:
-        raise ValueError(f"roi: no non-zero amplitude in the selected region of {str(path)!r}")
+        where = f"in roi {tuple(int(v) for v in box)} of" if roi is not None else "in"
+        raise ValueError(f"{path}: no finite non-zero amplitude {where} the image")
     return vals / np.sqrt(np.mean(vals * vals))

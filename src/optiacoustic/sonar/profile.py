@@ -475,6 +475,9 @@ def _fit_geometry(stats, spec, alpha, azimuths=None, pulse_bins=None):
         if best is None or sol.cost < best.cost:
             best = sol
     cheap[0] = False
+    if best is None:  # every start was refused (a window or a profile that no seabed explains)
+        raise ValueError(f"the seabed's geometry cannot be fitted: no start of the fit is feasible for the window "
+                         f"{spec.range_min:.3g}-{spec.range_max:.3g} m and the frames' echo profile")
     # typical scales of the parameters: with x_scale="jac" the polish crawls along the
     # valley where height, pitch and width trade off
     x_typ = np.array([0.01, 0.01, 0.01, 0.02, 1.0, 0.05, 1.0, 1.0])
@@ -690,6 +693,13 @@ def fit_profile(frames, *, region=None, encoding: str | None = None, device: str
             r_lo, r_hi = (float(v) for v in region)
         except (TypeError, ValueError):
             raise ValueError(f"fit_profile: region must be a bool mask {(n_bins, n_beams)} or (r_min, r_max), got {region!r}") from None
+        w_lo, w_hi = float(f0.ranges[0]), float(f0.ranges[-1])
+        if not (np.isfinite(r_lo) and np.isfinite(r_hi) and r_lo < r_hi):
+            raise ValueError(f"fit_profile: region (r_min, r_max) = ({r_lo:g}, {r_hi:g}) m: expected finite ranges "
+                             f"with r_min < r_max")
+        if r_hi < w_lo or r_lo > w_hi:
+            raise ValueError(f"fit_profile: region {r_lo:g}-{r_hi:g} m lies outside the frames' range window "
+                             f"{w_lo:.4g}-{w_hi:.4g} m")
         region = np.broadcast_to(((f0.ranges >= r_lo) & (f0.ranges <= r_hi))[:, None], (n_bins, n_beams)).copy()
     elif region is not None and region.shape != (n_bins, n_beams):
         raise ValueError(f"fit_profile: region mask shape {region.shape}, expected {(n_bins, n_beams)}")
