@@ -109,3 +109,21 @@ def test_convert_skip_damaged_takes_the_geometry_from_the_first_readable_frame(t
     assert not done[0] and done[1:].all()
     good = open_sonar(aris_sample)[1]
     assert (g["sonar/raw"][1] == good.raw).all()
+
+
+def test_a_truncated_last_frame_is_reported_and_times_has_one_value_per_frame(tmp_path, aris_sample, oculus_sample):
+    size, n = _aris_frame_bytes(aris_sample)
+    cut = tmp_path / "cut.aris"
+    cut.write_bytes(aris_sample.read_bytes()[: ARIS_FRAME0 + 2 * size + size // 3])
+    seq = open_sonar(cut)
+    assert len(seq) == 3 and "damaged_tail" in seq.info()
+    t = seq.times()  # was: 2 values for 3 frames
+    assert t.shape == (3,) and (t[:2] == open_sonar(aris_sample).times()[:2]).all() and math.isnan(t[2])
+    # Oculus: two pings, the second cut short (was: 'frames: 2' and no word of the damage)
+    ping = oculus_sample.read_bytes()
+    two = tmp_path / "two.raw"
+    two.write_bytes(ping + ping[: len(ping) // 2])
+    seq = open_sonar(two)
+    assert len(seq) == 2 and seq.info()["damaged_tail"] == f"last ping truncated: {len(ping) // 2} of {len(ping)} bytes"
+    with pytest.raises(ReadError, match="frame 1"):
+        seq[1]

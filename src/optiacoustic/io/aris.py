@@ -196,8 +196,9 @@ class ArisReader(FrameSequence):
                                   source=str(self.path), index=i, meta=meta)
 
     def times(self) -> np.ndarray:
-        """``FrameTime`` of every whole frame (s), from the frame headers only (NaN where zero)."""
-        out = np.full(self._n_full, np.nan)
+        """``FrameTime`` of every frame (s), from the frame headers only (NaN where zero, and for a
+        truncated last frame: one time per frame, as ``len``)."""
+        out = np.full(len(self), np.nan)
         for i in range(self._n_full):
             t = int(np.frombuffer(self.file.view(self.frame_offset(i) + 4, 8, "FrameTime", i), "<u8")[0])
             out[i] = t * 1e-6 if t else np.nan

@@ -211,6 +211,12 @@ class OculusReader(FrameSequence):
         d.update(other_messages=self.other_messages)
         if self.index_error is not None:
             d["damaged_tail"] = str(self.index_error)
+        else:  # a last ping cut short (its header says more bytes than the file holds), as ARIS reports
+            pos, n = self._offsets[-1]
+            h = np.frombuffer(self.file.view(pos, _HEADER.itemsize, "message header"), _HEADER)[0]
+            want = _HEADER.itemsize + int(h["payloadSize"])
+            if n < want:
+                d["damaged_tail"] = f"last ping truncated: {n} of {want} bytes"
         try:
             f = self._frame(0)
             d.update({k: v for k, v in f.meta.items() if k not in ("gains", "encoding_params", "format")})
