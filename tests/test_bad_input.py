@@ -136,7 +136,7 @@ def test_rig_file_numbers_in_exponent_notation_load(tmp_path):
 
 
 # ----------------------------------------------------------------------------- scenes and ray caster
-@pytest.mark.parametrize("size", ["[1.0e+39, 4]", "[4, 2.0e+7]"])
+@pytest.mark.parametrize("size", ["[1.0e+39, 4]", "[4, 2.0e+7]", "[3.0e+4, 4]"])  # 1.5e4 m: float32 resolves 2 mm
 def test_bodies_too_big_for_float32_are_refused(tmp_path, size):
     from optiacoustic.raycast import RayCaster
 
@@ -332,3 +332,12 @@ def test_azimuth_helper_limits():
     assert as_azimuths([0.1, -3.0], "a").shape == (2,)
     with pytest.raises(ValueError, match=r"a: .* got 4 at index \(1,\)"):
         as_azimuths([0.1, 4.0], "a")
+
+
+def test_a_long_lens_renders_instead_of_allocating_petabytes():
+    # focal 1e9 mm: the forward-scatter kernels' reduction grew past the image and cv2.resize asked for 1e16 bytes
+    from optiacoustic import PinholeCamera, simulate_optical
+
+    cam = PinholeCamera.from_sensor(50, 30, (36, 24), 1e9)
+    out = simulate_optical(scenes.get("thesis_scene1"), cam, Pose.look_at((-0.25, -6, 2), (0, 0, 0), body="camera"))
+    assert out.image.shape == (30, 50, 3) and np.isfinite(out.image).all()

@@ -185,3 +185,30 @@ def test_intersect_each_hands_over_each_chunk_as_intersect_raw_casts_it(caster, 
     ball = (got["g"] == 1) & (miss_dist < 0.5 * R)  # away from the silhouette, where the facets are steep
     assert ball.sum() > 100
     assert np.max(np.abs(got["t"][ball] - sphere_hit(o, d)[ball])) < 5e-4 * R / 0.2  # the tessellated ball, as above
+
+
+def test_a_scene_far_from_the_origin_renders_as_near_it_or_is_refused():
+    """Scene and sensors moved together by (T, T, 0) render the same frames (float32 geometry) up to
+    MAX_COORDINATE; beyond it the caster refuses rather than render shadow acne and drifted depth."""
+    import dataclasses
+
+    from optiacoustic import PinholeCamera, Pose, Scene, SonarSpec, scenes, simulate_optical, simulate_sonar
+    from optiacoustic.raycast import MAX_COORDINATE
+    from optiacoustic.scene import SceneError
+
+    sc = scenes.get("thesis_scene1")
+    spec = SonarSpec.preset("blueview-p900-90")
+    cam = PinholeCamera.from_sensor(300, 200, (36, 24), 50)
+    s_pose = Pose.look_at((0, -6, 2), (0, 0, 0))
+    c_pose = Pose.look_at((-0.25, -6, 2), (0, 0, 0), body="camera")
+    f0, o0 = simulate_sonar(sc, spec, s_pose, noise=False), simulate_optical(sc, cam, c_pose)
+    for off, tol in ((4e3, (2e-3, 5e-4)), (3 * MAX_COORDINATE, None)):
+        T = Pose(np.eye(3), np.array([off, off, 0.0]))
+        moved = Scene([dataclasses.replace(b, pose=T @ b.pose) for b in sc])
+        if tol is None:
+            with pytest.raises(SceneError, match="local coordinates"):
+                simulate_sonar(moved, spec, T @ s_pose, noise=False)
+            continue
+        f1, o1 = simulate_sonar(moved, spec, T @ s_pose, noise=False), simulate_optical(moved, cam, T @ c_pose)
+        assert np.abs(f1.intensity - f0.intensity).sum() / f0.intensity.sum() < tol[0]  # measured 6.9e-4
+        assert np.abs(o1.image - o0.image).sum() / o0.image.sum() < tol[1]  # measured 9.6e-5

@@ -441,7 +441,9 @@ def forward_scatter(source: np.ndarray, depth: np.ndarray, camera: PinholeCamera
     n_layers = len(ranges)
     sigmas = B * ranges * _SIGMA_PER_BR * px_per_rad
     # one reduced grid for all layers, as coarse as the narrowest kernel allows
-    q = max(1, int(np.floor(sigmas.min() / 2.0)))
+    # (a reduction beyond the image's side is one cell either way: capped, or a long lens's
+    # kernels of millions of px made cv2.resize allocate q^2 px, 1e16 bytes at 1e9 mm)
+    q = min(max(1, int(np.floor(sigmas.min() / 2.0))), max(H, W))
     h, w = -(-H // q), -(-W // q)
     # box sums of each layer's share of the light, all layers at once: a pixel gives
     # (1 - f) of its light to layer k and f to layer k + 1
@@ -508,7 +510,7 @@ def _gaussian(img: np.ndarray, sigma: float) -> np.ndarray:
     if sigma <= 4.0:
         return cv2.GaussianBlur(img, (0, 0), sigma, borderType=cv2.BORDER_CONSTANT)
     H, W = img.shape[:2]
-    q = int(np.floor(sigma / 2.0))
+    q = min(int(np.floor(sigma / 2.0)), max(H, W))  # beyond the image's side: one cell either way
     h, w = -(-H // q), -(-W // q)
     pad = np.zeros((h * q, w * q, 3), np.float32)
     pad[:H, :W] = img
