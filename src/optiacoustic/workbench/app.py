@@ -157,6 +157,7 @@ def create_app(session: Session, *, token: Optional[str] = None,
     api = FastAPI(title="optiacoustic workbench", docs_url=None, redoc_url=None, openapi_url=None)
     S = session
     cache: dict = {}
+    api.state.cache = cache  # results by state version (read by tests: it must stay bounded)
 
     Coord = confloat(ge=-1e6, le=1e6, allow_inf_nan=False)
 
@@ -173,9 +174,10 @@ def create_app(session: Session, *, token: Optional[str] = None,
         sonar: Optional[Point] = None
 
     class SigmasIn(BaseModel):
-        pixel: confloat(gt=0, le=1e3, allow_inf_nan=False)
-        range: confloat(gt=0, le=10, allow_inf_nan=False)
-        azimuth_deg: confloat(gt=0, le=45, allow_inf_nan=False)
+        # lower bounds: 1e-300 passed gt=0 and made every reconstruction divide by zero (a 500)
+        pixel: confloat(ge=1e-4, le=1e3, allow_inf_nan=False)
+        range: confloat(ge=1e-6, le=10, allow_inf_nan=False)
+        azimuth_deg: confloat(ge=1e-4, le=45, allow_inf_nan=False)
 
     class SourceIn(BaseModel):
         name: str = Field(max_length=200)
@@ -299,11 +301,18 @@ def create_app(session: Session, *, token: Optional[str] = None,
         return {"version": S.version}
 
     # ------------------------------------------------------------------ reconstruction, 3D
+    def _drop_old(kind):
+        """Forget ``kind``'s results of earlier versions (each edit made one: 2.3 MB per edit, never freed)."""
+        for k in list(cache):
+            if k[0] == kind and k[-1] != S.version:
+                cache.pop(k, None)
+
     def _recon():
         with S.lock:
             key = ("recon", S.version)
             arrays = S.arrays()
             if key not in cache:
+                _drop_old("recon")
                 cache[key] = compute.reconstruct(S.rig, *arrays, S.sigmas)
             return cache[key], S.rig, arrays
 
@@ -329,9 +338,18 @@ def create_app(session: Session, *, token: Optional[str] = None,
             S.replace_all([])
         return {"index": i, "version": S.version}
 
+    def _checked(c):
+        """A CSV of corners or matches, checked as clicks are: inside the image, the fan and its ranges."""
+        from ..geometry.calibrate import check_view
+
+        view = exports.parse_view_csv(c.text, c.name)
+        with S.lock:
+            check_view(view, S.rig.camera, S.pair.spec, name=c.name or "the CSV")
+        return view
+
     @api.post("/api/calibration/import")
     def import_view(c: CsvIn):
-        i = S.add_view(exports.parse_view_csv(c.text, c.name))
+        i = S.add_view(_checked(c))
         return {"index": i, "n": int(S.views[i].n), "version": S.version}
 
     @api.delete("/api/calibration/views/{i}")
@@ -362,6 +380,7 @@ def create_app(session: Session, *, token: Optional[str] = None,
             rig, fan_small, (px, r, th) = S.rig, S.fan_small, S.arrays()
         if hit is None:  # seconds of work: outside the lock, so that curves keep coming
             echo, msg = compute.fusion_layer(mapping, rig, fan_small, r, th, px)
+            _drop_old("fusion")
             hit = cache[key] = (png(rgba_layer(echo)), msg)
         data, msg = hit
         resp = Response(data, media_type="image/png")
@@ -381,7 +400,7 @@ def create_app(session: Session, *, token: Optional[str] = None,
     def import_csv(c: CsvIn):
         from .session import Match
 
-        view = exports.parse_view_csv(c.text, c.name)
+        view = _checked(c)
         S.replace_all([Match(float(u), float(v), float(r), float(a))
                        for (u, v), r, a in zip(view.pixels, view.ranges, view.azimuths)])
         return {"n": int(view.n), "version": S.version}
