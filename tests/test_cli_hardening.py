@@ -191,3 +191,22 @@ def test_packaged_examples_work_from_any_folder(tmp_path, monkeypatch):
     assert abs(d["t"][0] + 0.25) < 0.02 and abs(d["t"][1] - 0.02) < 0.02
     r = runner.invoke(app, ["examples"])
     assert r.exit_code == 0 and "examples/rig_thesis.yaml" in r.output
+
+
+def test_sonar_frames_of_neighbouring_seeds_do_not_repeat_and_match_a_dataset_s(tmp_path):
+    # was seed + k: frame 1 of --seed 5 was frame 0 of --seed 6
+    import numpy as np
+
+    from optiacoustic import Pose, SonarSpec, scenes, simulate_sonar
+    from optiacoustic.simulation.sequence import frame_seed
+
+    base = ["sonar", "flat_seabed", "--preset", "didson-300-hf", "--eye", "0", "-4", "1.5", "--target", "0", "0", "0",
+            "--no-figures"]
+    for s in (5, 6):
+        assert runner.invoke(app, base + ["--seed", str(s), "--frames", "2", "--out", str(tmp_path / str(s))]).exit_code == 0
+    a = np.load(tmp_path / "5" / "frame_0001.npz")["image"]
+    b = np.load(tmp_path / "6" / "frame_0000.npz")["image"]
+    assert not np.array_equal(a, b)
+    ref = simulate_sonar(scenes.get("flat_seabed"), SonarSpec.preset("didson-300-hf"), Pose.look_at((0, -4, 1.5), (0, 0, 0)),
+                         seed=frame_seed(5, "sonar", 1))
+    assert np.array_equal(a, ref.image)

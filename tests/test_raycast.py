@@ -212,3 +212,16 @@ def test_a_scene_far_from_the_origin_renders_as_near_it_or_is_refused():
         f1, o1 = simulate_sonar(moved, spec, T @ s_pose, noise=False), simulate_optical(moved, cam, T @ c_pose)
         assert np.abs(f1.intensity - f0.intensity).sum() / f0.intensity.sum() < tol[0]  # measured 6.9e-4
         assert np.abs(o1.image - o0.image).sum() / o0.image.sum() < tol[1]  # measured 9.6e-5
+
+
+def test_a_sonar_inside_a_closed_body_is_refused_as_a_camera_is():
+    # was: an all-zero frame (inside a sphere) or its inner walls (inside a box), rc 0
+    from optiacoustic import SonarSpec, scenes, simulate_sonar
+
+    sc = scenes.get("thesis_scene1")
+    spec = SonarSpec.preset("blueview-p900-90")
+    with pytest.raises(ValueError, match="the sonar at .* is inside body 'sphere_white'"):
+        simulate_sonar(sc, spec, Pose.look_at((0.5, -0.8, 0.45), (0, 0, 0)), noise=False)
+    caster = RayCaster(sc)
+    assert caster.enclosing_body((0.5, -0.8, 0.45)) == sc.body_names().index("sphere_white")
+    assert caster.enclosing_body((0, -6, 2)) == -1 and caster.enclosing_body((0, 0, -1)) == -1  # under the seabed plane

@@ -28,6 +28,12 @@ _MISS_DIST = np.float32(1e30)
 MAX_COORDINATE = 1e4
 
 
+# the probe rays of RayCaster.enclosing_body: the axes and the diagonals
+_PROBE_DIRS = np.concatenate([np.vstack([np.eye(3), -np.eye(3)]),
+                              np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) / np.sqrt(3)])
+_PROBE_DIRS32 = np.ascontiguousarray(_PROBE_DIRS, np.float32)
+
+
 def widen_hits(tfar32: np.ndarray, normal32: np.ndarray, miss: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Embree's float32 output as the public float64 arrays: distance (inf on a miss) and unit
     normal (NaN on a miss); ``miss`` is ``geometry id < 0``."""
@@ -409,6 +415,24 @@ class RayCaster:
         """
         dists = np.full(len(origins32), _MISS_DIST, np.float32)
         self._run_chunks(origins32, directions32, dists, "INTERSECT", True)
+
+    def enclosing_body(self, point) -> int:
+        """Id of a closed body that contains ``point`` (m, world), else -1.
+
+        Fourteen probe rays (axes and diagonals): the point is inside a body when at least ten
+        of them hit the back of one of its faces (a few may first meet a body it rests on,
+        such as the seabed under a box). An open surface (a plane) never encloses a point.
+        """
+        p = as_array(point, "point", (3,)).astype(np.float32)
+        o32 = np.ascontiguousarray(np.broadcast_to(p, _PROBE_DIRS32.shape))
+        _, body, _, _, _, ng = self.intersect_raw(o32, _PROBE_DIRS32, split=False)  # 14 rays: ~20 us
+        hit = body >= 0
+        # the back of a face: the ray runs along its geometric normal
+        back = hit & (np.einsum("ij,ij->i", _PROBE_DIRS32, np.where(hit[:, None], ng, 0.0)) > 0)
+        if back.sum() < 10:
+            return -1
+        ids, counts = np.unique(body[back], return_counts=True)
+        return int(ids[np.argmax(counts)]) if counts.max() >= 10 else -1
 
     def occluded(self, origins, directions, max_distance) -> np.ndarray:
         """True where something lies along the ray closer than ``max_distance`` (shadow rays)."""

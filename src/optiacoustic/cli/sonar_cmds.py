@@ -78,7 +78,8 @@ def sonar_cmd(
     eye: Optional[Vec3] = typer.Option(None, "--eye", help="Sonar position X Y Z (m); default: the scene's view."),
     target: Optional[Vec3] = typer.Option(None, "--target", help="Point the sonar looks at X Y Z (m)."),
     out_dir: Path = typer.Option(Path("out/sonar"), "--out", help="Output folder."),
-    seed: int = typer.Option(0, "--seed", min=0, help="Noise seed."),
+    seed: int = typer.Option(0, "--seed", min=0, help="Noise seed (frame k draws from its own stream, as frame k of a "
+                                                      "dataset with this seed)."),
     no_noise: bool = typer.Option(False, "--no-noise", help="Image without noise and reverberation."),
     elevation_samples: Optional[int] = typer.Option(None, "--elevation-samples", min=1, help="Rays per beam across the elevation aperture."),
     spreading: bool = typer.Option(False, "--spreading", help="Simulate spreading and absorption instead of ideal TVG."),
@@ -116,13 +117,16 @@ def sonar_cmd(
             profile = SensorProfile.preset(profile_path)
         options = None  # the profile's image model
     pose = Pose.look_at(e, t)
+    from ..simulation.sequence import frame_seed
+
     ensure_dir(out_dir)
     with Progress(console=console, transient=True, disable=quiet()) as progress:
         task = progress.add_task("simulating", total=frames)
         for k in range(frames):
             t0 = time.perf_counter()
-            frame = simulate_sonar(scene, spec, pose, noise=False if no_noise else None, seed=seed + k, options=options,
-                                   profile=profile)
+            # frame k's own stream, as a dataset's (was seed + k: frame 1 of --seed 5 was frame 0 of --seed 6)
+            frame = simulate_sonar(scene, spec, pose, noise=False if no_noise else None, seed=frame_seed(seed, "sonar", k),
+                                   options=options, profile=profile)
             dt = time.perf_counter() - t0
             stem = "frame" if frames == 1 else f"frame_{k:04d}"
             frame.save_npz(out_dir / f"{stem}.npz")

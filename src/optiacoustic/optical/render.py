@@ -522,26 +522,6 @@ def _gaussian(img: np.ndarray, sigma: float) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- geometry checks
-_PROBE_DIRS = np.concatenate([np.vstack([np.eye(3), -np.eye(3)]),
-                              np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) / np.sqrt(3)])
-
-
-def _enclosing_body(caster, point) -> int:
-    """Id of a closed body that contains ``point``, else -1.
-
-    Fourteen probe rays (axes and diagonals): the point is inside a body when at least ten
-    of them hit the back of one of its faces (a few may first meet a body it rests on,
-    such as the seabed under a box). An open surface (a plane) never encloses a point.
-    """
-    h = caster.cast(np.asarray(point, float), _PROBE_DIRS)
-    hit = h.body >= 0
-    back = hit & (np.einsum("ij,ij->i", _PROBE_DIRS, np.where(hit[:, None], h.normal, 0.0)) > 0)
-    if back.sum() < 10:
-        return -1
-    ids, counts = np.unique(h.body[back], return_counts=True)
-    return int(ids[np.argmax(counts)]) if counts.max() >= 10 else -1
-
-
 @functools.lru_cache(maxsize=1)
 def _side_pool():
     """One worker thread for the backscatter veil, computed while the main thread shades."""
@@ -606,11 +586,11 @@ def _direct_light(caster, p, nrm, rho_pi, lights, c, G, shadows: bool):
 
 def _check_not_inside(caster, names, pose: Pose, lights) -> None:
     """ValueError naming the body when the camera or a light sits inside a closed body."""
-    inside = _enclosing_body(caster, pose.t)
+    inside = caster.enclosing_body(pose.t)
     if inside >= 0:
         raise ValueError(f"pose: the camera at {np.round(pose.t, 3).tolist()} is inside body '{names[inside]}'")
     for i, lt in enumerate(lights):
-        inside = _enclosing_body(caster, lt.position)
+        inside = caster.enclosing_body(lt.position)
         if inside >= 0:
             raise ValueError(f"lights[{i}]: the light at {np.round(lt.position, 3).tolist()} (world) is inside "
                              f"body '{names[inside]}'")

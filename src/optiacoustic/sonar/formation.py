@@ -432,6 +432,10 @@ def simulate_sonar(
                  f"a {spec.n_bins} x {spec.n_beams} sonar frame with {spec.elevation_samples} elevation samples "
                  "(SonarSpec.n_bins x n_beams x elevation_samples)")
     caster = caster_for(scene)
+    inside = caster.enclosing_body(pose.t)
+    if inside >= 0:  # it would image the body's inner walls, or nothing (as the camera, refused)
+        raise ValueError(f"pose: the sonar at {np.round(pose.t, 3).tolist()} is inside body "
+                         f"'{scene.body_names()[inside]}'")
     bottom_types = _bottom_types(scene)
     draws = None
     draw_args = (noise.draw, (spec.n_bins, spec.n_beams), list(bottom_types), as_rng(seed)) if noise is not False else None
