@@ -51,3 +51,31 @@ def test_the_reconstruction_cache_keeps_one_version(client, session):
         assert client.put("/api/matches/0", json={"camera": {"u": 300 + k, "v": 200}}).status_code == 200
         assert client.get("/api/reconstruction").status_code == 200
     assert sum(1 for key in cache if key[0] == "recon") == 1
+
+
+def test_non_numbers_and_non_finite_numbers_are_named_not_coerced(client):
+    import json
+
+    before = client.get("/api/state").json()
+    for raw, field in ((b'{"camera":{"u":NaN,"v":200},"sonar":{"u":512,"v":362}}', "camera.u"),
+                       (json.dumps({"camera": {"u": True, "v": 200}, "sonar": {"u": 512, "v": 362}}).encode(), "camera.u"),
+                       (json.dumps({"camera": {"u": 300, "v": "200"}, "sonar": {"u": 512, "v": 362}}).encode(), "camera.v")):
+        r = client.post("/api/matches", content=raw, headers={"content-type": "application/json"})
+        assert r.status_code == 422 and r.json()["error"].startswith(field), r.json()
+    r = client.post("/api/settings", json={"pixel": "1", "range": 0.1, "azimuth_deg": True})
+    assert r.status_code == 422 and "pixel" in r.json()["error"] and "azimuth_deg" in r.json()["error"]
+    assert client.get("/api/state").json() == before
+
+
+def test_a_frame_the_source_does_not_have_is_refused(session):
+    # the CLI's "as started" source of a one-frame pair took any frame (it was 200, frame 0)
+    from fastapi.testclient import TestClient
+
+    from optiacoustic.workbench import create_app
+
+    pair = session.pair
+    name = f"simulated: {pair.name} (as started)"
+    with TestClient(create_app(session, sources={name: lambda *frame: pair}), base_url="http://127.0.0.1") as c:
+        r = c.post("/api/source", json={"name": name, "frame": 999999})
+        assert r.status_code == 400 and "has 1 frame(s); there is no frame 999999" in r.json()["error"]
+        assert c.post("/api/source", json={"name": name, "frame": 0}).status_code == 200

@@ -159,7 +159,7 @@ def create_app(session: Session, *, token: Optional[str] = None,
     cache: dict = {}
     api.state.cache = cache  # results by state version (read by tests: it must stay bounded)
 
-    Coord = confloat(ge=-1e6, le=1e6, allow_inf_nan=False)
+    Coord = confloat(ge=-1e6, le=1e6, allow_inf_nan=False, strict=True)  # no true or "300" taken as numbers
 
     class Point(BaseModel):
         u: Coord
@@ -175,9 +175,9 @@ def create_app(session: Session, *, token: Optional[str] = None,
 
     class SigmasIn(BaseModel):
         # lower bounds: 1e-300 passed gt=0 and made every reconstruction divide by zero (a 500)
-        pixel: confloat(ge=1e-4, le=1e3, allow_inf_nan=False)
-        range: confloat(ge=1e-6, le=10, allow_inf_nan=False)
-        azimuth_deg: confloat(ge=1e-4, le=45, allow_inf_nan=False)
+        pixel: confloat(ge=1e-4, le=1e3, allow_inf_nan=False, strict=True)
+        range: confloat(ge=1e-6, le=10, allow_inf_nan=False, strict=True)
+        azimuth_deg: confloat(ge=1e-4, le=45, allow_inf_nan=False, strict=True)
 
     class SourceIn(BaseModel):
         name: str = Field(max_length=200)
@@ -190,6 +190,20 @@ def create_app(session: Session, *, token: Optional[str] = None,
     @api.exception_handler(ValueError)
     async def _value_error(request: Request, exc: ValueError):
         return JSONResponse({"error": str(exc)}, status_code=400)
+
+    from fastapi.exceptions import RequestValidationError
+
+    @api.exception_handler(RequestValidationError)
+    async def _invalid(request: Request, exc: RequestValidationError):
+        # one message naming each field and the value sent (FastAPI's own 422 echoes the input, and
+        # a NaN or Infinity in it cannot be rendered as JSON: it became a 400 naming nothing)
+        parts = []
+        for e in exc.errors():
+            loc = ".".join(str(x) for x in e.get("loc", ())[1:]) or "body"
+            got = e.get("input")
+            shown = repr(got) if isinstance(got, (int, float, str, bool)) or got is None else type(got).__name__
+            parts.append(f"{loc}: {e.get('msg', 'invalid')} (got {shown})")
+        return JSONResponse({"error": "; ".join(parts) or "invalid request"}, status_code=422)
 
     @api.exception_handler(KeyError)
     async def _key_error(request: Request, exc: KeyError):
@@ -436,6 +450,8 @@ def create_app(session: Session, *, token: Optional[str] = None,
             pair = simulated_pair(scenes.get(s.name), S.pair.rig)
         else:
             raise ValueError(f"source {s.name!r}: expected one of {sorted(extra_sources) + scenes.names()}")
+        if s.frame is not None and not 0 <= s.frame < pair.n_frames:  # (a source that ignores the frame asked)
+            raise ValueError(f"source {s.name!r} has {pair.n_frames} frame(s); there is no frame {s.frame}")
         S.set_pair(pair, same_source=s.name == current["key"] and s.frame is not None)
         current["key"] = s.name
         cache.clear()
