@@ -17,6 +17,14 @@ __all__ = ["PinholeCamera", "MAX_IMAGE_SIDE"]
 MAX_IMAGE_SIDE = 32767  # px: OpenCV (remap, imwrite) limit
 
 
+def _check_side(v, name: str) -> None:
+    """An image side: a whole number of pixels from 1 to :data:`MAX_IMAGE_SIDE` (a ValueError naming ``name``)."""
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < 1:
+        raise ValueError(f"{name}: must be a positive integer, got {v!r}")
+    if v > MAX_IMAGE_SIDE:  # OpenCV's remap and image writers stop at 32767 px a side
+        raise ValueError(f"{name}: at most {MAX_IMAGE_SIDE} px, got {v}")
+
+
 @dataclass(frozen=True)
 class PinholeCamera:
     """A pinhole camera.
@@ -51,11 +59,7 @@ class PinholeCamera:
             if not isinstance(v, (int, float, np.floating, np.integer)) or not np.isfinite(v):
                 raise ValueError(f"PinholeCamera.{name}: must be finite, got {v!r}")
         for name in ("width", "height"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-                raise ValueError(f"PinholeCamera.{name}: must be a positive integer, got {v!r}")
-            if v > MAX_IMAGE_SIDE:  # OpenCV's remap and image writers stop at 32767 px a side
-                raise ValueError(f"PinholeCamera.{name}: at most {MAX_IMAGE_SIDE} px, got {v}")
+            _check_side(getattr(self, name), f"PinholeCamera.{name}")
         d = tuple(float(x) for x in np.asarray(self.dist, float).reshape(-1))
         if len(d) != 5 or not all(np.isfinite(d)):
             raise ValueError(f"PinholeCamera.dist: expected 5 finite numbers (k1, k2, p1, p2, k3), got {self.dist!r}")
@@ -69,14 +73,13 @@ class PinholeCamera:
     def from_sensor(cls, width_px: int = 600, height_px: int = 400, sensor_mm=(36.0, 24.0), focal_mm: float = 50.0,
                     dist=(0.0, 0.0, 0.0, 0.0, 0.0)) -> "PinholeCamera":
         """A camera from its sensor size and lens (the thesis's: 600 x 400 px, 36 x 24 mm, 50 mm)."""
-        for name, v in (("width_px", width_px), ("height_px", height_px)):
-            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v <= 0:
-                raise ValueError(f"from_sensor: {name}: must be a positive integer, got {v!r}")
+        # checked before they are divided (else a width of 0 was blamed on fx)
+        _check_side(width_px, "from_sensor: width_px")
+        _check_side(height_px, "from_sensor: height_px")
         sw, sh = as_array(sensor_mm, "sensor_mm", (2,))
-        focal = as_positive(focal_mm, "from_sensor: focal_mm")
+        focal_mm = as_positive(focal_mm, "from_sensor: focal_mm")
         if sw <= 0 or sh <= 0:
             raise ValueError(f"from_sensor: sensor_mm must be > 0, got {sensor_mm!r}")
-        focal_mm = focal
         return cls(
             fx=focal_mm * width_px / sw,
             fy=focal_mm * height_px / sh,

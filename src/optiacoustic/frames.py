@@ -31,6 +31,7 @@ __all__ = [
     "euler_xyz_from_rotation",
     "orthonormalize",
     "is_rotation",
+    "are_rotations",
     "skew",
     "sonar_from_spherical",
     "spherical_from_sonar",
@@ -115,6 +116,15 @@ def orthonormalize(R) -> np.ndarray:
 
 
 _EYE3 = np.eye(3)
+
+
+def are_rotations(R, tol: float = 1e-6) -> np.ndarray:
+    """:func:`is_rotation` of each ``(..., 3, 3)`` matrix at once: a bool array ``(...)``."""
+    R = np.asarray(R, float)
+    ok = np.isfinite(R).all(axis=(-2, -1))
+    Rf = np.where(ok[..., None, None], R, _EYE3)
+    ortho = (np.abs(np.einsum("...ji,...jk->...ik", Rf, Rf) - _EYE3) <= tol + 1e-5 * _EYE3).all(axis=(-2, -1))
+    return ok & ortho & (np.abs(np.linalg.det(Rf) - 1.0) < tol)
 
 
 def is_rotation(R, tol: float = 1e-6) -> bool:

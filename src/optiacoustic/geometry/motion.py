@@ -1227,8 +1227,11 @@ def _estimate_essential(d, thr_px, conf, iters, p_in, max_it):
     if plane is not None:
         for sol in _decompose(d, *plane):
             nt = float(np.linalg.norm(sol.t_over_d))
-            if nt > 1e-12:
-                starts.append((sol.R_o, sol.t_over_d / nt))
+            t_dir = sol.t_over_d / nt if nt > 1e-12 else None
+            # RANSAC's essential matrix is often one of these: the same start is refined once
+            if t_dir is not None and not any(np.abs(R - sol.R_o).max() < 1e-5 and t @ t_dir > 1 - 1e-9
+                                             for R, t in starts):
+                starts.append((sol.R_o, t_dir))
     runs = []
     first_fail = None
     for R_o, t_dir in starts:

@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import OutputError
+from ..frames import are_rotations, is_rotation
 
 __all__ = ["write_mcap", "StartTimeError", "SONAR_TOPICS", "CAMERA_TOPICS", "R_SONAR_FROM_ACOUSTIC", "DEVICE_ENCODINGS"]
 
@@ -305,12 +306,6 @@ class _Source:
         return v
 
 
-def _rotation_ok(R: np.ndarray) -> np.ndarray:
-    """Whether each ``(..., 3, 3)`` is a rotation (orthonormal, det +1) to 1e-6."""
-    err = np.abs(np.einsum("...ij,...kj->...ik", R, R) - np.eye(3)).max(axis=(-2, -1))
-    return (err < 1e-6) & (np.linalg.det(R) > 0)
-
-
 def _rig(ds: _Source):
     """``(R_sonar_from_camera, t_camera_in_sonar)`` of the metadata; None for a measured dataset without one."""
     if "rig" not in ds.meta and ds.measured:
@@ -324,7 +319,7 @@ def _rig(ds: _Source):
     if R.shape != (3, 3) or t.shape != (3,) or not (np.isfinite(R).all() and np.isfinite(t).all()):
         raise ds.error(f"metadata field 'rig': expected a finite 3 x 3 R_sonar_from_camera and a 3-vector "
                        f"t_camera_in_sonar, got shapes {R.shape} and {t.shape}")
-    if not _rotation_ok(R):
+    if not is_rotation(R):
         raise ds.error("metadata field 'rig.R_sonar_from_camera' is not a rotation matrix")
     return R, t
 
@@ -352,7 +347,7 @@ def _poses_known(ds: _Source, sensor: str, poses: np.ndarray, frames: np.ndarray
     known = np.isfinite(P).all(axis=(1, 2))
     unknown = np.isnan(P).all(axis=(1, 2)) if ds.measured else np.zeros(len(frames), bool)
     bad = ~(known | unknown)
-    rigid = _rotation_ok(P[known, :3, :3]) & np.all(np.abs(P[known, 3] - [0, 0, 0, 1]) < 1e-9, axis=1)
+    rigid = are_rotations(P[known, :3, :3]) & np.all(np.abs(P[known, 3] - [0, 0, 0, 1]) < 1e-9, axis=1)
     bad[np.flatnonzero(known)[~rigid]] = True
     if bad.any():
         k = int(frames[np.flatnonzero(bad)[0]])

@@ -189,9 +189,7 @@ def to_display(image: np.ndarray, *, mode: str = "db", dynamic_range_db: float =
         with np.errstate(divide="ignore"):
             db = 10 * np.log10(np.maximum(img, 1e-30) / reference)
         return np.clip(1.0 + db / dynamic_range_db, 0.0, 1.0)
-    if mode == "gamma":
-        return np.clip(np.maximum(img, 0) / reference, 0, 1) ** gamma
-    raise ValueError(f"to_display: mode must be 'db' or 'gamma', got {mode!r}")
+    return np.clip(np.maximum(img, 0) / reference, 0, 1) ** gamma  # mode "gamma" (checked above)
 
 
 def _finite_reference(reference) -> float:
