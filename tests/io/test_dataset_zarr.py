@@ -143,6 +143,10 @@ def test_rerun_skips_and_other_config_is_refused(reference, tmp_path):
     ({"rates": {"sonar": -5}}, "rates.sonar"),
     ({"rates": {"sonar": 0, "camera": 0}}, "rates"),
     ({"duration": 0}, "duration"),
+    ({"duration": float("inf")}, "duration"),
+    ({"start": float("nan")}, "start"),
+    ({"trajectory": {"kind": "orbit", "height": float("nan")}}, "trajectory.height"),
+    ({"start": 1e300}, "start"),  # float64 times 0.5 s apart would all round to one time
     ({"colour": "red"}, "colour"),
     ({"trajectory": {"kind": "waypoints", "points": [{"time": 0, "position": [0, 0, 1]},
                                                      {"time": 1, "position": [1, 0, 1], "target": [0, 0, 0]}]}},
@@ -161,7 +165,12 @@ def test_unknown_scene_water_and_short_trajectory(tmp_path):
     for change, msg in (({"scene": "atlantis"}, "field 'scene'"), ({"water": "soup"}, "field 'water'"),
                         ({"trajectory": {"kind": "waypoints", "points": [
                             {"time": 0, "position": [0, -6, 2], "target": [0, 0, 0]},
-                            {"time": 1, "position": [1, -6, 2], "target": [0, 0, 0]}]}}, "field 'duration'")):
+                            {"time": 1, "position": [1, -6, 2], "target": [0, 0, 0]}]}},
+                         r"fields 'start' and 'duration': the sonar's frame times 0\.\.[0-9.]+ s lie outside the "
+                         r"trajectory's 0\.\.1 s"),
+                        ({"duration": 1e7}, r"fields 'duration' and 'rates.sonar': 1e\+07 s at [0-9.]+ Hz is "
+                         r"[0-9.e+]+ sonar frames; at most 1e\+07 per sensor"),
+                        ({"start": -3.0}, "fields 'start' and 'duration'")):
         with pytest.raises(ValueError, match=msg):
             Sequence({**SMALL, **change})
 

@@ -100,10 +100,20 @@ def test_matches_move_delete_undo(client, session):
     assert client.delete("/api/matches/0").status_code == 200
     assert len(client.get("/api/state").json()["matches"]) == 5
     assert client.delete("/api/matches/9").status_code == 404
+    # a move to where the match already is (or with nothing to move) changes nothing: no version, no undo step
+    v = client.get("/api/state").json()["version"]
+    m1 = client.get("/api/state").json()["matches"][1]
+    assert client.put("/api/matches/1", json={}).json()["version"] == v
+    assert client.put("/api/matches/1", json={"camera": dict(zip("uv", m1["camera"]))}).json()["version"] == v
     client.post("/api/undo")
     client.post("/api/undo")
     st = client.get("/api/state").json()
     assert len(st["matches"]) == 6 and np.allclose(st["matches"][2]["camera"], px[2])
+    assert client.post("/api/matches/clear").json()["version"] > st["version"]
+    v = client.get("/api/state").json()["version"]
+    assert client.post("/api/matches/clear").json()["version"] == v  # clearing no matches: no change
+    client.post("/api/undo")
+    assert len(client.get("/api/state").json()["matches"]) == 6  # the one undo step is the real clear
 
 
 def test_reconstruction_of_exact_matches_is_the_truth_and_noise_shows_in_sigmas(client, session):
@@ -303,3 +313,12 @@ def test_suggest_matches_reports_unloadable_trees(client, session, monkeypatch):
     assert r.status_code == 500
     assert r.json()["error"] == "/x/match_candidate_trees.txt.gz: cannot read the ranking model: truncated"
     assert session.matches == []
+
+
+def test_every_error_has_the_one_error_body(client):
+    """Unknown routes, wrong methods and missing static files answer {"error": ...} as every other failure."""
+    for r, code in ((client.get("/api/nothing-here"), 404), (client.delete("/api/state"), 405),
+                    (client.get("/static/nothing.js"), 404), (client.delete("/api/matches/99"), 404),
+                    (client.put("/api/matches/0", json={"camera": {"u": "x", "v": 1}}), 422)):
+        assert r.status_code == code and set(r.json()) == {"error"} and r.json()["error"], (code, r.text)
+    assert "allow" in {k.lower() for k in client.delete("/api/state").headers}  # 405 keeps its Allow header

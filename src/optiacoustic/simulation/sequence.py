@@ -38,7 +38,8 @@ BUILTIN_RIGS = {
     },
 }
 
-_STRICT = ConfigDict(extra="forbid", frozen=True)
+_STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)  # every number finite: NaN and inf named by field
+MAX_FRAMES = 10_000_000  # per sensor: a run this long is a mistyped duration or rate (~50 TB at 5 MB a pair)
 Vec3 = tuple[float, float, float]
 
 
@@ -210,6 +211,20 @@ def load_config(source, *, base_dir=None) -> tuple[SequenceConfig, Path]:
         raise ValueError(_fmt_error(exc, name)) from None
 
 
+def _schedule_times(c: SequenceConfig, sensor: str) -> np.ndarray:
+    """Frame times of ``sensor`` under ``c``, refusing more than :data:`MAX_FRAMES` frames and a ``start``
+    so large that float64 times could not keep the frames apart (they would all fall on one time)."""
+    rate = getattr(c.rates, sensor)
+    n = c.duration * rate
+    if n > MAX_FRAMES:
+        raise ValueError(f"fields 'duration' and 'rates.{sensor}': {c.duration:g} s at {rate:g} Hz is {n:.3g} "
+                         f"{sensor} frames; at most {MAX_FRAMES:g} per sensor")
+    if rate > 0 and np.spacing(abs(c.start) + c.duration) * rate > 1e-3:
+        raise ValueError(f"field 'start': {c.start:g} s is too large for float64 times to hold frames "
+                         f"{1 / rate:g} s apart (rounding {np.spacing(abs(c.start) + c.duration):g} s)")
+    return frame_times(rate, c.duration, c.start)
+
+
 def frame_seed(seed: int, sensor: str, index: int) -> np.random.Generator:
     """The noise generator of frame ``index`` of ``sensor``: a function of these three alone."""
     return np.random.default_rng(np.random.SeedSequence([int(seed), SENSORS.index(sensor), int(index)]))
@@ -287,11 +302,15 @@ class Sequence:
         t_rig[:3, :3], t_rig[:3, 3] = rig.R, rig.t
         sched = {}
         for sensor in SENSORS:
-            times = frame_times(getattr(c.rates, sensor), c.duration, c.start)
+            times = _schedule_times(c, sensor)
             try:
                 T = self.trajectory.matrices(times) if len(times) else np.zeros((0, 4, 4))
             except ValueError as exc:
-                raise ValueError(f"field 'duration': the {sensor}'s frames at {times[0]:g}..{times[-1]:g} s: {exc}") from None
+                msg = str(exc)
+                if msg.startswith("times:"):  # the frames fall outside the trajectory's time span
+                    msg = msg.removeprefix("times:").strip().replace(" lies ", " lie ", 1)
+                    raise ValueError(f"fields 'start' and 'duration': the {sensor}'s frame times {msg}") from None
+                raise ValueError(f"field 'trajectory': at the {sensor}'s frames: {msg}") from None
             # the rig moves as one body: camera_to_world = sonar_to_world @ camera_to_sonar
             sched[sensor] = SensorSchedule(times, T if sensor == "sonar" else T @ t_rig)
         self.sonar, self.camera = sched["sonar"], sched["camera"]

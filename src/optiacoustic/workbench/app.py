@@ -205,6 +205,14 @@ def create_app(session: Session, *, token: Optional[str] = None,
             parts.append(f"{loc}: {e.get('msg', 'invalid')} (got {shown})")
         return JSONResponse({"error": "; ".join(parts) or "invalid request"}, status_code=422)
 
+    from starlette.exceptions import HTTPException as StarletteHTTPException
+
+    @api.exception_handler(StarletteHTTPException)
+    async def _http_error(request: Request, exc: StarletteHTTPException):
+        # unknown routes (404), wrong methods (405) and our own HTTPExceptions: the one {"error": ...}
+        # body every other failure has (FastAPI's default is {"detail": ...})
+        return JSONResponse({"error": str(exc.detail)}, status_code=exc.status_code, headers=exc.headers)
+
     @api.exception_handler(KeyError)
     async def _key_error(request: Request, exc: KeyError):
         return JSONResponse({"error": str(exc.args[0] if exc.args else exc)}, status_code=404)

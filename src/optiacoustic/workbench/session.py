@@ -117,6 +117,8 @@ class Session:
             new = self.match_from_display(cam, son)
             if sonar_px is None:
                 new = replace(new, range=old.range, azimuth=old.azimuth)  # keep the exact measurement
+            if new == old:  # nothing moved: no undo step, no new version (clients would refetch for nothing)
+                return
             self._push()
             self.matches[i] = new
 
@@ -130,6 +132,8 @@ class Session:
         with self.lock:
             if len(matches) > MAX_MATCHES:
                 raise ValueError(f"at most {MAX_MATCHES} matches, got {len(matches)}")
+            if list(matches) == self.matches:  # e.g. clearing no matches: no undo step, no new version
+                return
             self._push()
             self.matches = list(matches)
 
