@@ -76,6 +76,44 @@ def test_sampson_distance_measures_pixels():
     assert rel[0.1] < 0.01 and 5 < rel[1.0] / rel[0.1] < 20
 
 
+@pytest.mark.parametrize("offset", [[0.0, 0.0, 0.2], [0.0, 0.0, -0.35], [0.0, 0.0, 0.0]])
+def test_sampson_distance_of_a_double_line_is_the_distance_to_the_line(offset):
+    """A camera in every azimuth plane (straight above or below the sonar, or at its centre) makes every
+    conic the double line (a.q)^2 = 0: true matches are at 0 px and a pixel 5 px off is 5 px off (first-order
+    Sampson halves it and, on the line, divides round-off by round-off). The line is from the rig, not the conic."""
+    cam = PinholeCamera.from_sensor()
+    rig = Rig(R_SONAR_FROM_CAMERA_FORWARD, offset, cam)
+    rng = np.random.default_rng(18)
+    P = np.c_[rng.uniform(-0.5, 0.5, (40, 2)), rng.uniform(2, 8, 40)]
+    p = pr.project(rig, P)
+    C = ep.conic(rig, p.ranges, p.azimuths)
+    assert set(ep.conic_type(C)) == {"double line"}
+    assert np.max(ep.sampson_distance(C, p.pixels)) < 1e-6
+    # the azimuth plane's image: the plane's normal (cos th, -sin th, 0) in sonar axes, through the camera centre
+    n_cam = np.stack([np.cos(p.azimuths), -np.sin(p.azimuths), np.zeros(len(P))], -1) @ rig.R  # R^T n, (N, 3)
+    line = n_cam @ np.linalg.inv(cam.K)  # pixels m with line . m = 0
+    step = rng.uniform(0.5, 20.0, len(P))[:, None] * rng.normal(size=(len(P), 2))
+    off = p.pixels + step
+    m = np.c_[off, np.ones(len(P))]
+    truth = np.abs(np.einsum("ij,ij->i", line, m)) / np.linalg.norm(line[:, :2], axis=1)
+    np.testing.assert_allclose(ep.sampson_distance(C, off), truth, rtol=1e-9, atol=1e-9)
+
+
+def test_sampson_distance_unchanged_for_conics_that_are_not_double_lines():
+    """Near a double line (camera 1 mm off the sonar's vertical) the conics are thin line pairs of rank 2:
+    the first-order formula stands, as for every other rig."""
+    for seed, t in ((0, [1e-3, 0.0, 0.2]), (1, None), (2, None)):
+        rig = random_rig(seed) if t is None else Rig(R_SONAR_FROM_CAMERA_FORWARD, t, PinholeCamera.from_sensor())
+        p = pr.project(rig, random_points(seed))
+        C = ep.conic(rig, p.ranges, p.azimuths)
+        off = p.pixels + np.random.default_rng(seed).normal(size=p.pixels.shape) * 3
+        m = np.c_[off, np.ones(len(off))]
+        Cm = np.einsum("nij,nj->ni", C, m)
+        first_order = np.abs(np.einsum("ni,ni->n", m, Cm)) / (2 * np.linalg.norm(Cm[:, :2], axis=1))
+        # the same to round-off (m^T C m cancels terms ~1e6 times larger; C enters through its symmetric part)
+        np.testing.assert_allclose(ep.sampson_distance(C, off), first_order, rtol=1e-7)
+
+
 def test_conic_reduces_to_thesis_U():
     """With K = I our C is the thesis's U (4.13) divided by cos^2(theta) (it uses tan theta)."""
     rng = np.random.default_rng(1)

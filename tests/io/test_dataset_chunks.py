@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 import zarr
-from zarr.codecs import BloscCodec, ZstdCodec
+from zarr.codecs import BloscCodec, Crc32cCodec, ZstdCodec
 
 from optiacoustic.io._chunks import ChunkWriter
 
@@ -19,6 +19,8 @@ COMPRESSORS = {
     "blosc lz4 shuffle": lambda: [BloscCodec(cname="lz4", clevel=5, shuffle="shuffle")],
     "blosc lz4 noshuffle": lambda: [BloscCodec(cname="lz4", clevel=5, shuffle="noshuffle")],
     "blosc zstd bitshuffle": lambda: [BloscCodec(cname="zstd", clevel=3, shuffle="bitshuffle")],
+    "blosc lz4 shuffle + crc32c": lambda: [BloscCodec(cname="lz4", clevel=5, shuffle="shuffle"), Crc32cCodec()],
+    "crc32c alone": lambda: [Crc32cCodec()],
 }
 
 

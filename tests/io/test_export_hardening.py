@@ -111,7 +111,7 @@ def test_frames_not_done_are_skipped_not_refused(data, tmp_path):
 # ----------------------------------------------------------------------------- 2. corrupt chunks and metadata
 @pytest.mark.parametrize("array, key, frame", [("sonar/image", "c.2.0.0", 2), ("sonar/elevation_max", "c.1.0.0", 1),
                                                ("camera/normal", "c.1.0.0.0", 1)])
-@pytest.mark.parametrize("damage", ["random", "truncated", "extended", "version"])
+@pytest.mark.parametrize("damage", ["random", "truncated", "extended", "version", "bit"])
 def test_corrupt_chunk_is_refused_naming_array_and_frame(data, tmp_path, array, key, frame, damage):
     chunk = data / array / key
     raw = chunk.read_bytes()
@@ -121,11 +121,39 @@ def test_corrupt_chunk_is_refused_naming_array_and_frame(data, tmp_path, array, 
         chunk.write_bytes(raw[:len(raw) // 2])
     elif damage == "extended":
         chunk.write_bytes(raw + b"\0" * 8)
-    else:  # the header's sizes are right, its format version is not: the decoder's own error
+    elif damage == "version":  # the header's sizes are right, its format version is not
         chunk.write_bytes(b"\x7f" + raw[1:])
+    else:  # one bit of the compressed data: Blosc alone decoded it to other numbers without a word
+        a = bytearray(raw)
+        a[len(a) // 2] ^= 0x10
+        chunk.write_bytes(bytes(a))
     out = tmp_path / "e" / "x.mcap"
-    words = ("cannot be read (error during blosc decompression",) if damage == "version" else ("is damaged",)
+    words = ("is damaged (its CRC-32C checksum does not match its bytes)",) if damage in ("version", "bit") \
+        else ("is damaged",)
     _assert_refused(*_export(data, out), out, data, f"array {array}, frame {frame}", key, *words)
+
+
+def test_chunks_of_a_dataset_carry_a_crc32c_that_zarr_and_xarray_check(data):
+    """Every per-frame array is Blosc then CRC-32C; one flipped bit is an error for Zarr and xarray too."""
+    import zarr
+
+    from optiacoustic.io import open_dataset
+
+    root = zarr.open_group(str(data), mode="r")
+    for sensor in ("sonar", "camera"):  # every array: frames, flags, times, poses, coordinates
+        for name, arr in root[sensor].arrays():
+            codecs = [type(c).__name__ for c in arr.metadata.codecs]
+            assert codecs[-1] == "Crc32cCodec", (sensor, name, codecs)
+    before = np.asarray(root["sonar/image"][1])
+    chunk = data / "sonar" / "image" / "c.1.0.0"
+    a = bytearray(chunk.read_bytes())
+    a[len(a) // 2] ^= 0x01
+    chunk.write_bytes(bytes(a))
+    with pytest.raises(ValueError, match="checksum"):
+        root["sonar/image"][1]
+    with pytest.raises(ValueError, match="checksum"):
+        open_dataset(data)["sonar"]["image"][1].values
+    assert np.isfinite(before).any()
 
 
 _FUZZ = """
@@ -174,7 +202,16 @@ def test_fuzzed_chunks_never_crash_the_export(data, tmp_path):
 def test_corrupt_flag_chunk_names_the_frame(data, tmp_path):
     (data / "sonar" / "done" / "c.1").write_bytes(b"xyz")
     out = tmp_path / "e" / "x.mcap"
-    _assert_refused(*_export(data, out), out, data, "array sonar/done, frame 1", "cannot be read")
+    _assert_refused(*_export(data, out), out, data, "array sonar/done, frame 1", "is damaged (its CRC-32C checksum")
+
+
+def test_damaged_flag_chunk_stops_a_resume_naming_the_array(data, tmp_path):
+    """Resuming a dataset whose done flag is damaged: an error naming the array, not a guess at the frame."""
+    from optiacoustic.io.dataset import DatasetError
+
+    (data / "sonar" / "done" / "c.1").write_bytes(b"\x01\0\0\0\0")
+    with pytest.raises(DatasetError, match=r"array sonar/done cannot be read \(Stored and computed checksum"):
+        write_dataset(CFG, data, workers=0)
 
 
 @pytest.mark.parametrize("where", ["zarr.json", "sonar/zarr.json", "sonar/image/zarr.json", "camera/time/zarr.json"])

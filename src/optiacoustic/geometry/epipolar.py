@@ -169,7 +169,13 @@ def sampson_distance(conics, pixels) -> np.ndarray:
     """First-order geometric distance (pixels) of ideal pixels from conics.
 
     ``|m^T C m| / (2 |(C m)_{1:2}|)``: the distance to the conic of the point where its
-    linearisation at ``m`` vanishes. Exact to first order in the distance.
+    linearisation at ``m`` vanishes. Exact to first order in the distance. A double line
+    (``C = s l l^T``, rank 1: the camera centre lies in the azimuth plane, e.g. a camera
+    mounted straight above or below the sonar) has no first-order term on the line, and the
+    formula would halve the distance off it (``s (l.m)^2 / (2 |s| |l.m| |l_12|)``) and divide
+    round-off by round-off on it: its distance is taken exactly, ``|l . m| / |l_{1:2}|``
+    (rank 1 when the adjugate of the balanced conic, ``S C S / |S C S|`` with
+    ``S = diag(s, s, 1)``, is below ``1e-10``). ``C`` enters through its symmetric part.
 
     Parameters
     ----------
@@ -180,10 +186,12 @@ def sampson_distance(conics, pixels) -> np.ndarray:
     Returns
     -------
     ndarray, shape (...)
-        NaN where the gradient vanishes (a double line, or the conic's centre).
+        NaN where the gradient vanishes off a double line (the centre of a conic, the
+        crossing of a line pair), and for a zero matrix.
     """
     C = as_array(conics, "conics", ("...", 3, 3))
     uv = as_array(pixels, "pixels", ("...", 2))
+    C = 0.5 * (C + np.swapaxes(C, -1, -2))
     m = np.concatenate([uv, np.ones(uv.shape[:-1] + (1,))], -1)
     try:
         Cm = np.einsum("...ij,...j->...i", C, m)
@@ -192,7 +200,33 @@ def sampson_distance(conics, pixels) -> np.ndarray:
     val = np.einsum("...i,...i->...", m, Cm)
     grad = 2 * np.linalg.norm(Cm[..., :2], axis=-1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.where(grad > 0, np.abs(val) / grad, np.nan)
+        d = np.where(grad > 0, np.abs(val) / grad, np.nan)
+        line = _double_line(C)  # (..., 3) pixel line of each rank-1 conic, NaN for the others
+        ln = np.linalg.norm(line[..., :2], axis=-1)
+        d_line = np.abs(np.einsum("...i,...i->...", line, m)) / ln
+        return np.where(np.isfinite(d_line), d_line, d)
+
+
+def _double_line(C: np.ndarray) -> np.ndarray:
+    """The line ``l`` (pixel homogeneous, ``(..., 3)``) of each conic that is a double line ``s l l^T``;
+    NaN for the others. Rank 1 is read on the balanced conic (:func:`_balanced`: unit norm, the
+    quadratic block and ``c33`` comparable), whose adjugate (all 2 x 2 minors, ``~ sigma_1 sigma_2``)
+    vanishes exactly for rank 1; the line is its largest column, mapped back by ``S``."""
+    norm = np.linalg.norm(C, axis=(-2, -1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        Cb = _balanced(np.where(norm[..., None, None] > 0, C, np.nan))
+        A = np.linalg.norm(C[..., :2, :2], axis=(-2, -1))
+        c33 = np.abs(C[..., 2, 2])
+        s = np.sqrt(np.where((A > 0) & (c33 > 0), c33 / A, 1.0))  # _balanced's S = diag(s, s, 1)
+    minors = [Cb[..., i1, j1] * Cb[..., i2, j2] - Cb[..., i1, j2] * Cb[..., i2, j1]
+              for i1, i2 in ((0, 1), (0, 2), (1, 2)) for j1, j2 in ((0, 1), (0, 2), (1, 2))]
+    adj = np.sqrt(sum(x * x for x in minors))
+    cols = np.linalg.norm(Cb, axis=-2)  # (..., 3) norm of each column
+    j = np.argmax(np.nan_to_num(cols, nan=-1.0), axis=-1)
+    lb = np.take_along_axis(Cb, j[..., None, None], axis=-1)[..., 0]  # the largest column: ~ l_b (balanced)
+    line = lb / np.stack([s, s, np.ones_like(s)], -1)  # Cb = S C S / k = sigma u u^T: C ~ (S^-1 u)(S^-1 u)^T
+    rank1 = np.isfinite(adj) & (adj <= 1e-10)
+    return np.where(rank1[..., None], line, np.nan)
 
 
 def _sample_runs(params: np.ndarray, evaluate, n_bisect: int = 40) -> list[list[np.ndarray]]:

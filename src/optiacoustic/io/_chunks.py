@@ -11,7 +11,8 @@ and writes the file under the array's own chunk key (Zarr's ``chunk_key_encoding
 atomically through :func:`optiacoustic._atomic.write_file_in_folder`. The bytes on disk are those Zarr writes
 (tested against Zarr's writer); the metadata stays Zarr's. Arrays with any other store or
 codec chain get no ChunkWriter (:meth:`ChunkWriter.for_array` returns None) and are
-written through Zarr.
+written through Zarr. A trailing ``crc32c`` codec appends the CRC-32C of the encoded bytes
+(little-endian, 4 bytes; ``google_crc32c``, the library Zarr's codec calls), as Zarr does.
 """
 
 from __future__ import annotations
@@ -32,12 +33,13 @@ class ChunkWriter:
     Build one with :meth:`for_array`; call :meth:`write` with frame index and value.
     """
 
-    def __init__(self, folder: str, encode_key, frame_shape: tuple, dtype: np.dtype, compressor):
+    def __init__(self, folder: str, encode_key, frame_shape: tuple, dtype: np.dtype, compressor, crc32c: bool = False):
         self.folder = folder
         self._key = encode_key
         self.frame_shape = frame_shape
         self.dtype = dtype
         self._compressor = compressor
+        self._crc32c = crc32c
         self._zeros = (0,) * len(frame_shape)
 
     @classmethod
@@ -45,9 +47,10 @@ class ChunkWriter:
         """A writer for ``arr`` (a ``zarr.Array``), or None if it is not a case this class handles.
 
         Handled: Zarr format 3, a local store, chunks of one frame spanning the rest of the
-        shape, codecs ``bytes`` (little-endian) optionally followed by ``blosc``.
+        shape, codecs ``bytes`` (little-endian) optionally followed by ``blosc``, then optionally
+        by ``crc32c``.
         """
-        from zarr.codecs import BloscCodec, BytesCodec
+        from zarr.codecs import BloscCodec, BytesCodec, Crc32cCodec
         from zarr.storage import LocalStore
 
         md = arr.metadata
@@ -59,6 +62,9 @@ class ChunkWriter:
         codecs = tuple(md.codecs)
         if not codecs or not isinstance(codecs[0], BytesCodec) or str(getattr(codecs[0].endian, "value", "little")) != "little":
             return None
+        crc32c = len(codecs) >= 2 and isinstance(codecs[-1], Crc32cCodec)
+        if crc32c:
+            codecs = codecs[:-1]
         compressor = None
         if len(codecs) == 2 and isinstance(codecs[1], BloscCodec):
             import numcodecs
@@ -74,7 +80,7 @@ class ChunkWriter:
         if dtype.kind not in "biuf":
             return None
         folder = str(Path(arr.store.root) / arr.path)
-        return cls(folder, md.chunk_key_encoding.encode_chunk_key, shape[1:], dtype, compressor)
+        return cls(folder, md.chunk_key_encoding.encode_chunk_key, shape[1:], dtype, compressor, crc32c)
 
     def write(self, k: int, value) -> None:
         """Write ``value`` (``frame_shape``, cast to the array's dtype) as chunk ``k``, atomically."""
@@ -84,4 +90,8 @@ class ChunkWriter:
         if a.shape != self.frame_shape:
             raise ValueError(f"{self.folder}: frame {k} has shape {a.shape}, the array's frames are {self.frame_shape}")
         data = self._compressor.encode(a) if self._compressor is not None else a.tobytes()
+        if self._crc32c:
+            import google_crc32c
+
+            data = bytes(data) + int(google_crc32c.value(data)).to_bytes(4, "little")
         write_file_in_folder(os.path.join(self.folder, self._key((int(k),) + self._zeros)), data)

@@ -50,7 +50,7 @@ def convert_log(path, out, *, topic: str | None = None, camera=None, camera_topi
 
     from .. import __version__
     from ..sonar.frame import spec_to_dict
-    from .dataset import FORMAT, FORMAT_VERSION, DatasetError, _compressors, _jsonable
+    from .dataset import FORMAT, FORMAT_VERSION, DatasetError, _checksum, _compressors, _jsonable
     from .sonar import open_sonar
 
     out = Path(out)
@@ -77,7 +77,7 @@ def convert_log(path, out, *, topic: str | None = None, camera=None, camera_topi
         raw = g.create_array("raw", shape=(n,) + shape, chunks=(1,) + shape, dtype=first.raw.dtype.newbyteorder("<"),
                              fill_value=0, compressors=_compressors(), dimension_names=dims)
         done = g.create_array("done", shape=(n,), chunks=(1,), dtype="bool", fill_value=False,
-                              dimension_names=("frame",))
+                              compressors=_checksum(), dimension_names=("frame",))
         times = np.full(n, np.nan)
         skipped = []
         for k, f in _readable_frames(frames, first, k0, errors, skipped):
@@ -91,11 +91,14 @@ def convert_log(path, out, *, topic: str | None = None, camera=None, camera_topi
             raw[k] = f.raw
             done[k] = True
             times[k] = f.time
-        g.create_array("time", data=times, dimension_names=("frame",), attributes={"units": "s since the Unix epoch"})
+        g.create_array("time", data=times, dimension_names=("frame",), attributes={"units": "s since the Unix epoch"},
+                       compressors=_compressors())
         g.create_array("pose", data=np.full((n, 4, 4), np.nan), dimension_names=("frame", "pose_row", "pose_col"),
-                       attributes={"description": "unknown for a measured log (NaN)"})
-        g.create_array("ranges", data=ranges, dimension_names=("bin",), attributes={"units": "m"})
-        g.create_array("azimuths", data=azimuths, dimension_names=("beam",), attributes={"units": "rad"})
+                       attributes={"description": "unknown for a measured log (NaN)"}, compressors=_compressors())
+        g.create_array("ranges", data=ranges, dimension_names=("bin",), attributes={"units": "m"},
+                       compressors=_compressors())
+        g.create_array("azimuths", data=azimuths, dimension_names=("beam",), attributes={"units": "rad"},
+                       compressors=_compressors())
         n_cam = 0
         if camera is not None or camera_topic is not None:
             n_cam = _convert_camera(root, camera if camera is not None else path, camera_topic, errors)
@@ -113,7 +116,7 @@ def convert_log(path, out, *, topic: str | None = None, camera=None, camera_topi
 def _convert_camera(root, path, topic, errors: str) -> int:
     """The ``camera`` group from a camera log: image (linear RGB float32), time, pose (NaN), K, done."""
     from .camera import open_camera
-    from .dataset import DatasetError, _compressors
+    from .dataset import DatasetError, _checksum, _compressors
 
     frames = open_camera(path, topic=topic)
     n = len(frames)
@@ -124,7 +127,8 @@ def _convert_camera(root, path, topic, errors: str) -> int:
     g = root.create_group("camera")
     img = g.create_array("image", shape=(n,) + shape, chunks=(1,) + shape, dtype="float32", fill_value=np.nan,
                          compressors=_compressors(), dimension_names=("frame", "row", "col", "channel"))
-    done = g.create_array("done", shape=(n,), chunks=(1,), dtype="bool", fill_value=False, dimension_names=("frame",))
+    done = g.create_array("done", shape=(n,), chunks=(1,), dtype="bool", fill_value=False, compressors=_checksum(),
+                          dimension_names=("frame",))
     times = np.full(n, np.nan)
     written = 0
     skipped = []
@@ -135,11 +139,13 @@ def _convert_camera(root, path, topic, errors: str) -> int:
         done[k] = True
         times[k] = f.time
         written += 1
-    g.create_array("time", data=times, dimension_names=("frame",), attributes={"units": "s since the Unix epoch"})
+    g.create_array("time", data=times, dimension_names=("frame",), attributes={"units": "s since the Unix epoch"},
+                   compressors=_compressors())
     g.create_array("pose", data=np.full((n, 4, 4), np.nan), dimension_names=("frame", "pose_row", "pose_col"),
-                   attributes={"description": "unknown for a measured log (NaN)"})
+                   attributes={"description": "unknown for a measured log (NaN)"}, compressors=_compressors())
     if first.camera is not None:
-        g.create_array("K", data=np.asarray(first.camera.K, float), dimension_names=("k_row", "k_col"))
+        g.create_array("K", data=np.asarray(first.camera.K, float), dimension_names=("k_row", "k_col"),
+                       compressors=_compressors())
     g.attrs["skipped_frames"] = skipped  # damaged camera frames are reported, never dropped silently
     return written
 

@@ -99,13 +99,18 @@ def _metadata(seq) -> dict:
 
 
 def _compressors(shuffle: str = "shuffle"):
-    """Blosc LZ4 with byte shuffle: per pair as small as zstd level 3 and the fastest to write.
+    """Blosc LZ4 with byte shuffle, then a CRC-32C of the compressed chunk (Zarr v3's ``crc32c`` codec).
 
-    Chosen from benchmarks/bench_dataset_codecs.py on the real frame arrays (docs/benchmarks.md).
+    Blosc LZ4: per pair as small as zstd level 3 and the fastest to write, chosen from
+    benchmarks/bench_dataset_codecs.py on the real frame arrays (docs/benchmarks.md). Blosc keeps
+    no checksum of its own: a flipped bit in a chunk decoded silently to wrong numbers, and a
+    damaged header could make c-blosc read past the chunk. With the CRC (4 bytes a chunk, checked
+    by Zarr, xarray and our exporter before Blosc sees the bytes) any damage is an error naming the
+    chunk. Stores written before it (no ``crc32c`` in their codecs) read as before.
     """
-    from zarr.codecs import BloscCodec
+    from zarr.codecs import BloscCodec, Crc32cCodec
 
-    return [BloscCodec(cname="lz4", clevel=5, shuffle=shuffle)]
+    return [BloscCodec(cname="lz4", clevel=5, shuffle=shuffle), Crc32cCodec()]
 
 
 # Ground-truth arrays made of runs of equal values (body ids, elevation spans that are NaN
@@ -115,6 +120,13 @@ def _compressors(shuffle: str = "shuffle"):
 # compress better with it.
 _NO_SHUFFLE = {("sonar", "body"), ("sonar", "elevation_min"), ("sonar", "elevation_max"), ("sonar", "shadow"),
                ("camera", "body")}
+
+
+def _checksum():
+    """The CRC-32C alone (arrays of one byte a frame, the ``done`` flags: nothing to compress)."""
+    from zarr.codecs import Crc32cCodec
+
+    return [Crc32cCodec()]
 
 
 def _frame_compressors(sensor: str, name: str):
@@ -140,21 +152,24 @@ def _create(path: Path, seq, ground_truth: bool):
             g.create_array(name, shape=(n,) + shape, chunks=(1,) + shape, dtype=dtype, fill_value=fill,
                            compressors=_frame_compressors(sensor, name), dimension_names=("frame",) + dims,
                            chunk_key_encoding=_CHUNK_KEYS)
-        g.create_array("time", data=sched.times.astype("float64"), chunks=(max(n, 1),),
+        g.create_array("time", data=sched.times.astype("float64"), chunks=(max(n, 1),), compressors=_compressors(),
                        dimension_names=("frame",), attributes={"units": "s"})
-        g.create_array("pose", data=sched.poses.astype("float64"), chunks=(max(n, 1), 4, 4),
+        g.create_array("pose", data=sched.poses.astype("float64"), chunks=(max(n, 1), 4, 4), compressors=_compressors(),
                        dimension_names=("frame", "pose_row", "pose_col"),
                        attributes={"description": f"{sensor} to world, P_world = T[:3,:3] P_{sensor} + T[:3,3]"})
         g.create_array("done", shape=(n,), chunks=(1,), dtype="bool", fill_value=False, dimension_names=("frame",),
-                       compressors=None, chunk_key_encoding=_CHUNK_KEYS,  # one byte per frame: nothing to compress
+                       compressors=_checksum(), chunk_key_encoding=_CHUNK_KEYS,  # one byte a frame: its CRC alone
                        attributes={"description": "frame k is complete (written after all its arrays)"})
         if sensor == "sonar":
             g.create_array("ranges", data=seq.rig.sonar.ranges.astype("float64"), dimension_names=("bin",),
+                           compressors=_compressors(),
                            attributes={"units": "m", "description": "range-bin centres"})
             g.create_array("azimuths", data=seq.rig.sonar.azimuths.astype("float64"), dimension_names=("beam",),
+                           compressors=_compressors(),
                            attributes={"units": "rad", "description": "beam centres, positive to starboard"})
         else:
-            g.create_array("K", data=seq.rig.camera.K.astype("float64"), dimension_names=("k_row", "k_col"))
+            g.create_array("K", data=seq.rig.camera.K.astype("float64"), dimension_names=("k_row", "k_col"),
+                           compressors=_compressors())
     meta = _metadata(seq)
     meta["layout_complete"] = True
     root.attrs[_ATTR] = meta  # last: a store without it is an interrupted creation
@@ -484,7 +499,12 @@ def write_dataset(config, out, *, workers: int | None = None, scheduler: str | N
         n = len(seq.schedule(sensor))
         if not n:
             continue
-        done = root[sensor]["done"][:] if resumed else np.zeros(n, bool)
+        try:
+            done = root[sensor]["done"][:] if resumed else np.zeros(n, bool)
+        except ValueError as exc:  # a damaged flag chunk (its CRC, or its bytes): name it, do not guess
+            raise DatasetError(f"{path}: array {sensor}/done cannot be read ({' '.join(str(exc).split())[:200]}); "
+                               "the dataset is damaged: remove it or the damaged flag's chunk to render that "
+                               "frame again") from None
         skipped[sensor] = int(done.sum())
         todo += [(float(seq.schedule(sensor).times[k]), sensor, int(k)) for k in np.flatnonzero(~done)]
     todo.sort()  # in time order, sensors interleaved

@@ -228,13 +228,17 @@ class _Source:
         return arr.metadata.encode_chunk_key((k // grid[0],) + (0,) * (len(grid) - 1))
 
     @staticmethod
-    def _blosc_nbytes(arr) -> int | None:
-        """Decoded bytes of a chunk where the codecs are ``bytes`` then ``blosc`` alone (ours); else None."""
-        from zarr.codecs import BloscCodec, BytesCodec
+    def _blosc_nbytes(arr) -> tuple[int, int] | None:
+        """``(decoded bytes, trailer bytes)`` of a chunk where the codecs are ``bytes`` then ``blosc``, then
+        optionally ``crc32c`` (its 4-byte trailer; ours since the checksum); else None."""
+        from zarr.codecs import BloscCodec, BytesCodec, Crc32cCodec
 
         codecs = tuple(getattr(arr.metadata, "codecs", ()))
+        trailer = 4 if len(codecs) == 3 and isinstance(codecs[2], Crc32cCodec) else 0
+        if trailer:
+            codecs = codecs[:2]
         if len(codecs) == 2 and isinstance(codecs[0], BytesCodec) and isinstance(codecs[1], BloscCodec):
-            return int(np.prod(_Source._grid(arr))) * np.dtype(arr.dtype).itemsize
+            return int(np.prod(_Source._grid(arr))) * np.dtype(arr.dtype).itemsize, trailer
         return None
 
     def check_chunks(self, arr, frames=None, missing_ok: bool = False) -> None:
@@ -254,7 +258,8 @@ class _Source:
         counts = [range(-(-s // c)) for s, c in zip(arr.shape, grid)]
         rows = counts[0] if frames is None or not counts else sorted({int(k) // grid[0] for k in frames})
         folder = self.src / arr.path
-        nbytes = self._blosc_nbytes(arr)
+        blosc = self._blosc_nbytes(arr)
+        nbytes, trailer = blosc if blosc is not None else (None, 0)
         for idx in itertools.product(rows, *counts[1:]) if counts else [()]:
             key = arr.metadata.encode_chunk_key(idx)
             path = folder / key
@@ -267,12 +272,13 @@ class _Source:
             if nbytes is not None:
                 with open(path, "rb") as f:
                     head = f.read(16)
-                    size = f.seek(0, 2)
+                    size = f.seek(0, 2) - trailer  # the Blosc chunk's bytes, less the CRC after them
                 problem = None
-                if len(head) < 16:
-                    problem = f"{size} bytes, too short for a Blosc chunk"
+                if len(head) < 16 or size < 16:
+                    problem = f"{size + trailer} bytes, too short for a Blosc chunk" + (" and its CRC" if trailer else "")
                 elif int.from_bytes(head[12:16], "little") != size:
-                    problem = f"its Blosc header says {int.from_bytes(head[12:16], 'little')} bytes, the file has {size}"
+                    problem = (f"its Blosc header says {int.from_bytes(head[12:16], 'little')} bytes, the file has {size}"
+                               + (" before its CRC" if trailer else ""))
                 elif int.from_bytes(head[4:8], "little") != nbytes:
                     problem = (f"its Blosc header says {int.from_bytes(head[4:8], 'little')} bytes decoded, "
                                f"a chunk holds {nbytes}")
@@ -290,6 +296,8 @@ class _Source:
                 for j in range(0, arr.shape[0], self._grid(arr)[0]):  # name the frame: read chunk by chunk
                     self.read(arr, j)
             where = f"array {arr.path}" if k is None else f"array {arr.path}, frame {k} (chunk {self.chunk_key(arr, k)})"
+            if "checksum do not match" in str(exc):  # Zarr's crc32c codec: the bytes changed after writing
+                raise self.error(f"{where} is damaged (its CRC-32C checksum does not match its bytes)") from None
             raise self.error(f"{where} cannot be read ({_reason(exc)})") from None
 
     def meta_field(self, dotted: str, number: bool = False):
