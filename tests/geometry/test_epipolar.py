@@ -406,3 +406,23 @@ def test_validation():
         ep.sonar_to_optical_curves(rig, 5.0, 0.0, n_samples=1)
     with pytest.raises(ValueError, match="max_range"):
         ep.optical_to_sonar_curves(rig, [300.0, 200.0], max_range=-3.0)
+
+
+def test_bad_tolerances_and_sample_counts_are_refused_by_name():
+    C = np.diag([1.0, 2.0, -1.0])  # an ellipse
+    assert ep.conic_type(C) == "ellipse"
+    for bad in (-1, np.nan, 1.5, True, "1e-9"):
+        with pytest.raises(ValueError, match="rtol: expected a relative tolerance in"):
+            ep.conic_type(C, rtol=bad)
+    rig = thesis_rig()
+    for bad in (1, 10**12, 2.5):
+        with pytest.raises(ValueError, match=r"n_samples: expected an integer in \[2, 100000\]"):
+            ep.sonar_to_optical_curves(rig, [5.0], [0.1], n_samples=bad)
+        with pytest.raises(ValueError, match=r"n_samples: expected an integer in \[2, 100000\]"):
+            ep.optical_to_sonar_curves(rig, [[300.0, 200.0]], n_samples=bad)
+
+
+def test_a_point_with_a_nan_coordinate_has_no_pixel():
+    p = pr.to_pixels(thesis_rig(), [[np.nan, 0.0, 1.0], [0.1, 0.0, 2.0], [0.0, 0.0, np.nan]])
+    assert np.isnan(p.pixels[[0, 2]]).all() and np.isfinite(p.pixels[1]).all()
+    assert not p.in_image[[0, 2]].any() and p.in_image[1]

@@ -91,6 +91,8 @@ def conic(rig: Rig, ranges, azimuths) -> np.ndarray:
     """
     _check_rig(rig)
     r = as_array(ranges, "ranges")
+    if np.any(r < 0):  # the conic holds r^2 only: a negative range would pass as |r|
+        raise ValueError(f"ranges: must be >= 0 m (a range is a distance), got {float(np.min(r))!r}")
     th = as_azimuths(azimuths, "azimuths", limit=2 * np.pi)
     r, th = _bc(("ranges", r), ("azimuths", th))
     a, b = _plane_terms(rig, th)
@@ -139,6 +141,8 @@ def conic_type(conics, *, rtol: float = 1e-12) -> np.ndarray:
     ndarray of str, shape (...)
         One of :data:`CONIC_TYPES` per conic.
     """
+    if isinstance(rtol, bool) or not isinstance(rtol, (int, float, np.floating, np.integer)) or not 0 <= rtol < 1:
+        raise ValueError(f"rtol: expected a relative tolerance in [0, 1), got {rtol!r}")
     C = as_array(conics, "conics", ("...", 3, 3))
     if not np.allclose(C, np.swapaxes(C, -1, -2), rtol=1e-9, atol=1e-12 * np.abs(C).max(initial=0.0)):
         raise ValueError("conics: expected symmetric 3x3 matrices")
@@ -293,9 +297,12 @@ def _sample_runs(params: np.ndarray, evaluate, n_bisect: int = 40) -> list[list[
     return out
 
 
+MAX_CURVE_SAMPLES = 100_000  # per curve: a curve across an 8k image needs a few thousand
+
+
 def _n_samples(n) -> int:
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
-        raise ValueError(f"n_samples: expected an integer >= 2, got {n!r}")
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 2 <= n <= MAX_CURVE_SAMPLES:
+        raise ValueError(f"n_samples: expected an integer in [2, {MAX_CURVE_SAMPLES}], got {n!r}")
     return int(n)
 
 

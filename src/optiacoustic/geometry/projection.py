@@ -174,6 +174,7 @@ def to_pixels(rig: Rig, points_camera) -> PixelProjection:
     cam = _check_rig(rig).camera
     p = as_array(points_camera, "points_camera", ("...", 3), finite=False)
     uv = cam.project(p)
+    uv[~np.isfinite(p).all(-1)] = np.nan  # a point with any NaN coordinate has no pixel (as documented)
     with np.errstate(invalid="ignore"):
         front = p[..., 2] > 0
     return PixelProjection(uv, front, front & cam.in_image(uv))

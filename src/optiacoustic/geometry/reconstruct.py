@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array, broadcast_points, as_positive
+from .._validate import as_array, as_azimuths, as_positive, broadcast_points
 from ..rig import Rig
 from .projection import _bc, _check_rig, normalized_coordinates
 
@@ -111,10 +111,21 @@ def _sigmas(sigma_pixel, sigma_range, sigma_azimuth) -> tuple[float, float, floa
 
 
 def _inputs(rig, pixels, **named):
-    """Normalised pixel coordinates and measurements, broadcast and flattened."""
+    """Normalised pixel coordinates and measurements, broadcast and flattened.
+
+    ``ranges`` must be >= 0 (a negative one would be used as ``|r|`` by every form but the range
+    solution's); ``azimuths`` in radians within ``+-pi`` (:func:`as_azimuths`: degrees gave
+    "valid" points metres off, or NaN without a word)."""
     _check_rig(rig)
     x, y = normalized_coordinates(rig, pixels)
-    arrs = [("pixels", x), ("pixels", y)] + [(k, as_array(v, k)) for k, v in named.items()]
+    arrs = [("pixels", x), ("pixels", y)]
+    for k, v in named.items():
+        a = as_azimuths(v, k) if k == "azimuths" else as_array(v, k)
+        if k == "ranges" and np.any(a < 0):
+            i = np.unravel_index(int(np.argmax(a < 0)), a.shape) if a.ndim else ()
+            raise ValueError(f"ranges: must be >= 0 m (a range is a distance), got {float(a[i])!r}"
+                             + (f" at index {tuple(int(j) for j in i) if len(i) > 1 else int(i[0])}" if a.ndim else ""))
+        arrs.append((k, a))
     out = _bc(*arrs)
     shape = out[0].shape
     return shape, [np.ascontiguousarray(a).reshape(-1) for a in out]
@@ -207,9 +218,6 @@ def range_solution(rig: Rig, pixels, ranges, *, clip_elevation: bool = False) ->
         crossing is behind the camera (status 2).
     """
     shape, (x, y, r) = _inputs(rig, pixels, ranges=ranges)
-    if np.any(r < 0):
-        i = int(np.argmax(r < 0))
-        raise ValueError(f"ranges: must be >= 0 m (a range is a distance), got {float(r[i])!r} at index {i}")
     z, status, amb = _range_depth(rig, x, y, r)
     return _finish(shape, x, y, z, status, amb, rig, clip_elevation, "range solution")
 
