@@ -146,3 +146,61 @@ def test_oas_calibrate_on_the_shipped_example(tmp_path):
     assert yaml.safe_load(out.read_text())["sonar"] == "blueview-p900-90"
     r = CliRunner().invoke(app, ["calibrate", files[0], "--rig", str(EXAMPLE / "rig.yaml")])
     assert r.exit_code == 2 and "two views" in r.output
+
+
+@pytest.mark.parametrize("kw, match", [
+    (dict(n_views=0), r"n_views: .*got 0"),
+    (dict(n_views=-1), r"n_views: .*got -1"),
+    (dict(n_views=1.5), r"n_views: .*got 1\.5"),
+    (dict(n_views=True), r"n_views: .*got True"),
+    (dict(grid_shape=(0, 5)), r"grid_shape: .*\(0, 5\)"),
+    (dict(grid_shape=(7,)), r"grid_shape: .*\(7,\)"),
+    (dict(grid_shape=(7.5, 5)), r"grid_shape: .*7\.5"),
+    (dict(spacing=0.0), r"spacing: .*0\.0"),
+    (dict(spacing=float("nan")), r"spacing: .*nan"),
+    (dict(distance=(3.0, 1.5)), r"distance: .*\[3\.0, 1\.5\]"),
+    (dict(distance=(-1.0, 2.0)), r"distance: .*-1\.0"),
+    (dict(distance=2.0), r"distance: expected shape \(2,\)"),
+    (dict(tilt_deg=-5.0), r"tilt_deg: .*-5\.0"),
+    (dict(tilt_deg=120.0), r"tilt_deg: .*120"),
+    (dict(sigma_pixel=-1.0), r"sigma_pixel: .*-1\.0"),
+    (dict(sigma_range=-0.01), r"sigma_range: .*-0\.01"),
+    (dict(sigma_azimuth=float("inf")), r"sigma_azimuth: .*inf"),
+    (dict(rig="rig"), r"rig: .*str"),
+])
+def test_simulate_views_rejects_bad_arguments_by_name(kw, match):
+    args = dict(rig=RIG, n_views=1)
+    args.update(kw)
+    with pytest.raises(ValueError, match=match):
+        C.simulate_views(**args)
+
+
+def test_simulate_views_edge_values_are_honoured():
+    # one distance (near == far): every grid centre lies at that range from the sonar; noise 0 is exact
+    views, truth = C.simulate_views(RIG, 2, distance=(2.0, 2.0), tilt_deg=0.0, grid_shape=(3, 2), seed=6)
+    for v, P_o in zip(views, truth):
+        assert v.n == 6
+        P_s = RIG.sonar_from_camera(P_o)
+        assert np.linalg.norm(P_s.mean(0)) == pytest.approx(2.0, rel=1e-12)
+        # no tilt: the grid faces the sonar, its corners 0.1 m apart
+        assert np.linalg.norm(P_o[1] - P_o[0]) == pytest.approx(0.1, rel=1e-12)
+
+
+@pytest.mark.parametrize("R0, what", [
+    (np.zeros((3, 3)), "det = 0"),
+    (np.ones((3, 3)), "det = 0"),
+    (np.diag([1.0, 1.0, -1.0]) @ RIG.R, "det = -1"),
+    (2 * RIG.R, "det = 8"),
+])
+def test_initial_rotation_must_be_close_to_a_rotation(R0, what):
+    views, _ = C.simulate_views(RIG, 2, seed=4)
+    with pytest.raises(ValueError, match=r"initial R: not close to a rotation .*" + what):
+        C.extrinsics(CAM, views, initial=(R0, RIG.t), sonar=SPEC)
+
+
+def test_a_rounded_initial_rotation_is_accepted():
+    # a mounting drawing's rotation, rounded to 3 decimals: close to a rotation, orthonormalised
+    views, _ = C.simulate_views(RIG, 3, seed=4)
+    res = C.extrinsics(CAM, views, initial=(np.round(RIG.R, 3), RIG.t + 0.01), sonar=SPEC)
+    assert res
+    np.testing.assert_allclose(errors(res), 0.0, atol=1e-6)

@@ -376,3 +376,20 @@ def test_conic_refuses_a_negative_range():
     rig = random_rig(3)
     with pytest.raises(ValueError, match=r"ranges: must be >= 0 m .*got -5"):
         ep.conic(rig, [5.0, -5.0], [0.1, 0.1])
+
+
+def test_covariance_of_a_singular_fisher_matrix_is_nan_not_rounding():
+    """The adjugate inverse of a rank-2 Fisher matrix is rounding noise (even negative variances): NaN instead;
+    a well-conditioned one is the plain inverse."""
+    rng = np.random.default_rng(4)
+    J = rng.normal(size=(50, 4, 3))
+    A = np.einsum("nki,nkj->nij", J, J)
+    np.testing.assert_allclose(rc._cov3(A), np.linalg.inv(A), rtol=1e-9, atol=1e-12)
+    Js = J.copy()
+    Js[:, :, 2] = Js[:, :, 0] + 2 * Js[:, :, 1]  # rank 2: one direction unmeasured
+    As = np.einsum("nki,nkj->nij", Js, Js)
+    assert np.isnan(rc._cov3(As)).all()
+    A_bad = A.copy()
+    A_bad[3, 1, 1] = np.inf
+    out = rc._cov3(A_bad)
+    assert np.isnan(out[3]).all() and np.isfinite(np.delete(out, 3, axis=0)).all()

@@ -483,7 +483,8 @@ def extrinsics(
     sonar : SonarSpec, optional
         Its elevation aperture keeps the corners inside the fan in the closed form.
     initial : (R (3, 3), t (3,)), optional
-        A start instead of the closed form (e.g. the mounting drawing).
+        A start instead of the closed form (e.g. the mounting drawing). ``R`` must be a
+        rotation to within 0.01 (``max |R^T R - I|``, ``det > 0``); it is then orthonormalised.
 
     Returns
     -------
@@ -530,8 +531,16 @@ def extrinsics(
             R0, t0 = initial
         except (TypeError, ValueError):
             raise ValueError("initial: expected a pair (R (3, 3), t (3,))") from None
-        R0 = orthonormalize(as_array(R0, "initial R", (3, 3)))
+        R0 = as_array(R0, "initial R", (3, 3))
         t0 = as_array(t0, "initial t", (3,))
+        # a start may be rounded (a mounting drawing), not arbitrary: orthonormalising would turn
+        # a zero matrix into the identity and a reflection into some rotation without a word
+        dev = float(np.max(np.abs(R0.T @ R0 - np.eye(3))))
+        det = float(np.linalg.det(R0))
+        if not (dev <= 0.01 and det > 0):
+            raise ValueError(f"initial R: not close to a rotation (max |R^T R - I| = {dev:.3g}, det = {det:.3g}; "
+                             f"expected R_sonar_from_camera, orthonormal with det +1): {np.round(R0, 4).tolist()}")
+        R0 = orthonormalize(R0)
         starts = [(R0, t0, _planes_from_ranges(qs, vs, R0, t0))]
 
     def fit(R0, t0, m0):
@@ -603,6 +612,13 @@ def simulate_views(
     ``tilt_deg`` about random axes; only grids whose corners all lie in the image and in
     the sonar's fan (elevation aperture from ``rig.sonar``, else 20 deg) are kept.
 
+    Raises
+    ------
+    ValueError
+        Naming the argument: ``n_views`` not a positive integer, ``grid_shape`` not two positive
+        integers, ``spacing`` not > 0, ``distance`` not ``0 < near <= far``, ``tilt_deg`` not in
+        [0, 90], a negative noise level.
+
     Returns
     -------
     views : list of CalibrationView
@@ -610,10 +626,30 @@ def simulate_views(
     corners_camera : list of ndarray (N, 3)
         The corners in the camera frame (m), the ground truth.
     """
+    if not isinstance(rig, Rig):
+        raise ValueError(f"rig: expected an optiacoustic.Rig, got {type(rig).__name__}")
+    if isinstance(n_views, (bool, np.bool_)) or not isinstance(n_views, (int, np.integer)) or n_views < 1:
+        raise ValueError(f"n_views: expected a positive integer, got {n_views!r}")
+    try:
+        nx, ny = grid_shape
+    except (TypeError, ValueError):
+        raise ValueError(f"grid_shape: expected a pair of positive integers (nx, ny), got {grid_shape!r}") from None
+    if any(isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)) or k < 1 for k in (nx, ny)):
+        raise ValueError(f"grid_shape: expected a pair of positive integers (nx, ny), got {grid_shape!r}")
+    spacing = as_positive(spacing, "spacing")
+    d = as_array(distance, "distance", (2,))
+    if not (0 < d[0] <= d[1]):
+        raise ValueError(f"distance: expected (near, far) in m with 0 < near <= far, got {d.tolist()}")
+    tilt_deg = as_positive(tilt_deg, "tilt_deg", allow_zero=True)
+    if tilt_deg > 90:
+        raise ValueError(f"tilt_deg: expected a tilt in degrees within [0, 90], got {tilt_deg!r}")
+    sigma_pixel = as_positive(sigma_pixel, "sigma_pixel", allow_zero=True)
+    sigma_range = as_positive(sigma_range, "sigma_range", allow_zero=True)
+    sigma_azimuth = as_positive(sigma_azimuth, "sigma_azimuth", allow_zero=True)
     rng = as_rng(seed)
     fov = rig.fov_elevation if rig.sonar is not None else np.deg2rad(20.0)
     fov_az = float(rig.sonar.fov_azimuth) if rig.sonar is not None else np.deg2rad(90.0)
-    nx, ny = grid_shape
+    nx, ny = int(nx), int(ny)
     gx, gy = np.meshgrid((np.arange(nx) - (nx - 1) / 2) * spacing, (np.arange(ny) - (ny - 1) / 2) * spacing)
     local = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], -1)
     views, truth = [], []
@@ -622,7 +658,7 @@ def simulate_views(
         tries += 1
         if tries > 5000 * n_views:
             raise ValueError("simulate_views: no grid placement fits both fields of view; relax the settings")
-        dist = rng.uniform(*distance)
+        dist = rng.uniform(d[0], d[1])
         # centre on the sonar's boresight plane, within the elevation aperture
         el = rng.uniform(-0.5, 0.5) * fov / 2
         az = rng.uniform(-0.3, 0.3) * min(fov_az / 2, rig.camera.fov[0] / 2)

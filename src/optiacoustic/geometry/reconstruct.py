@@ -462,6 +462,23 @@ def _inv3(A):
         return co / det[..., None, None]
 
 
+def _cov3(A):
+    """Covariances ``A^-1`` of ``(..., 3, 3)`` Fisher matrices; NaN where ``A`` is not finite or singular.
+
+    Singular: the smallest eigenvalue of the symmetric ``A`` below ``1e-12`` of the largest (the
+    measurements do not determine the point, e.g. on the sonar's axis, where the azimuth is
+    undefined); the adjugate inverse there is rounding, and can have negative variances."""
+    A = np.asarray(A, float)
+    ok = np.all(np.isfinite(A), axis=(-2, -1))
+    As = np.where(ok[..., None, None], 0.5 * (A + np.swapaxes(A, -1, -2)), np.eye(3))
+    lam = np.linalg.eigvalsh(As)
+    ok &= (lam[..., 0] > 1e-12 * lam[..., -1]) & (lam[..., -1] > 0)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        cov = _inv3(As)
+    ok &= np.all(np.isfinite(cov), axis=(-2, -1))
+    return np.where(ok[..., None, None], cov, np.nan)
+
+
 def crlb(rig: Rig, points_camera, *, sigma_pixel, sigma_range, sigma_azimuth) -> np.ndarray:
     """Cramer-Rao bound on the covariance of any unbiased estimate of a camera-frame point.
 
@@ -481,14 +498,16 @@ def crlb(rig: Rig, points_camera, *, sigma_pixel, sigma_range, sigma_azimuth) ->
     -------
     ndarray, shape (..., 3, 3)
         Lower bound on the covariance (m^2). NaN for points not in front of the camera
-        (``points_camera[..., 2] <= 0``): the camera cannot see them, so no bound exists;
+        (``points_camera[..., 2] <= 0``): the camera cannot see them, so no bound exists; NaN
+        too where the four measurements do not determine the point (a singular Fisher
+        matrix, e.g. on the sonar's axis, where the azimuth is undefined);
         ``np.isfinite(cov[..., 0, 0])`` is the mask of valid points.
     """
     su, sv, sr, sa = _sigmas(sigma_pixel, sigma_range, sigma_azimuth)
     J = measurement_jacobian(rig, points_camera)
     w = np.array([1 / su ** 2, 1 / sv ** 2, 1 / sr ** 2, 1 / sa ** 2])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cov = _inv3(np.einsum("...ki,k,...kj->...ij", J, w, J))
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        cov = _cov3(np.einsum("...ki,k,...kj->...ij", J, w, J))
     behind = ~(np.asarray(points_camera, float)[..., 2] > 0)
     if np.any(behind):
         cov = np.array(cov, copy=True)
@@ -888,7 +907,7 @@ def refine(rig: Rig, pixels, ranges, azimuths, *, sigma_pixel, sigma_range, sigm
     with np.errstate(invalid="ignore"):
         status[(status == 0) & ~(P[:, 2] > 0)] = 2
     A, _ = _normal_equations(J, np.zeros(J.shape[:2]))
-    cov = _inv3(A)
+    cov = _cov3(A)
     status[(status == 0) & ~np.all(np.isfinite(cov), axis=(-2, -1))] = 6
     valid = status == 0
     P = np.where(valid[:, None], P, np.nan)

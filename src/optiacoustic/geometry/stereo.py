@@ -20,7 +20,7 @@ from ..camera import PinholeCamera
 from ..frames import R_SONAR_FROM_CAMERA_FORWARD, checked_rigid
 from ..rig import Rig
 from .projection import _bc
-from .reconstruct import ClosedFormSolution, FirstOrderError, Refinement, _inv3, _lm, _message, _normal_equations
+from .reconstruct import STATUS, ClosedFormSolution, FirstOrderError, Refinement, _lm
 
 __all__ = [
     "StereoRig",
@@ -91,6 +91,21 @@ class StereoProjection:
     visible: np.ndarray
 
 
+# Status codes as in :data:`~optiacoustic.geometry.reconstruct.STATUS`, with code 3 in stereo's own words.
+STEREO_STATUS = {**STATUS, 3: "at infinity or undetermined: the two rays are parallel, or they coincide "
+                              "(the point lies on the line through both camera centres)"}
+
+
+def _message(status: np.ndarray, what: str) -> str:
+    n = status.size
+    bad = status != 0
+    if not bad.any():
+        return f"{what}: all {n} points valid"
+    codes, counts = np.unique(status[bad], return_counts=True)
+    parts = "; ".join(f"{c} x {STEREO_STATUS[int(k)]}" for k, c in zip(codes, counts))
+    return f"{what}: {n - int(bad.sum())} of {n} points valid ({parts})"
+
+
 def _check(stereo) -> StereoRig:
     if not isinstance(stereo, StereoRig):
         raise ValueError(f"stereo: expected a StereoRig, got {type(stereo).__name__}")
@@ -133,8 +148,26 @@ def _dlt(R, t, n1, n2):
     A[:, 3] = n2[:, 1, None] * P2[2] - P2[1]
     # Scale rows to unit norm (Hartley's normalisation, for conditioning).
     A /= np.linalg.norm(A, axis=-1, keepdims=True)
-    _, _, Vt = np.linalg.svd(A)
-    return Vt[:, -1, :]
+    _, s, Vt = np.linalg.svd(A)
+    return Vt[:, -1, :], s
+
+
+def _dlt_points(R, t, n1, n2):
+    """DLT points ``(n, 3)`` (camera-1 frame) and their status: 3 at infinity or undetermined, 2 behind a camera.
+
+    At infinity: ``w`` of the unit homogeneous solution is rounding (parallel rays). Undetermined:
+    a second null vector (the rays coincide: the point lies on the baseline, or the baseline is zero).
+    """
+    X, s = _dlt(R, t, n1, n2)
+    w = X[:, 3]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        P = X[:, :3] / w[:, None]
+    status = np.zeros(w.shape, np.int8)
+    status[~(np.abs(w) > 1e-12 * np.linalg.norm(X[:, :3], axis=-1)) | ~(s[:, -2] > 1e-12 * s[:, 0])] = 3
+    with np.errstate(invalid="ignore", over="ignore"):
+        z2 = P @ R[2] + t[2]
+        status[(status == 0) & ~((P[:, 2] > 0) & (z2 > 0))] = 2
+    return P, status
 
 
 def triangulate_linear(stereo: StereoRig, pixels1, pixels2) -> ClosedFormSolution:
@@ -149,19 +182,13 @@ def triangulate_linear(stereo: StereoRig, pixels1, pixels2) -> ClosedFormSolutio
     Returns
     -------
     ClosedFormSolution
-        Camera-1-frame points (m); NaN with status 3 at infinity (parallel rays) and status 2
-        behind either camera.
+        Camera-1-frame points (m); NaN with status 3 at infinity (parallel rays) or undetermined
+        (coincident rays: a point on the baseline, or a zero baseline) and status 2 behind
+        either camera.
     """
     _check(stereo)
     shape, n1, n2 = _normalized(stereo, pixels1, pixels2)
-    X = _dlt(stereo.R, stereo.t, n1, n2)
-    w = X[:, 3]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        P = X[:, :3] / w[:, None]
-    status = np.zeros(w.shape, np.int8)
-    status[~(np.abs(w) > 1e-12 * np.linalg.norm(X[:, :3], axis=-1))] = 3
-    z2 = P @ stereo.R[2] + stereo.t[2]
-    status[(status == 0) & ~((P[:, 2] > 0) & (z2 > 0))] = 2
+    P, status = _dlt_points(stereo.R, stereo.t, n1, n2)
     valid = status == 0
     P = np.where(valid[:, None], P, np.nan)
     return ClosedFormSolution(P.reshape(shape + (3,)), valid.reshape(shape), status.reshape(shape),
@@ -187,6 +214,31 @@ def _residuals(stereo, P, meas, inv_sig):
     bad = ~((P[:, 2] > 0) & (P2[:, 2] > 0))
     res[bad] = np.inf
     return res, J
+
+
+def _covariance(J):
+    """``(J^T J)^-1`` for whitened Jacobians ``(n, 4, 3)``; NaN where the Fisher matrix is singular.
+
+    From the SVD of ``J`` (``V S^-2 V^T``: positive semi-definite by construction, and accurate
+    where ``J^T J`` would square the condition number of a distant point). Singular: the
+    smallest singular value below 1e-10 of the largest (the depth of a point more than
+    ~1e10 baselines away, a zero baseline, a point on the baseline), where an inverse would
+    return rounding noise, even negative variances.
+    """
+    ok = np.all(np.isfinite(J), axis=(-2, -1))
+    J = np.where(ok[:, None, None], J, np.eye(4, 3))
+    _, s, Vt = np.linalg.svd(J, full_matrices=False)
+    ok &= s[:, -1] > 1e-10 * s[:, 0]
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+        cov = np.einsum("nki,nk,nkj->nij", Vt, 1.0 / s**2, Vt)
+    ok &= np.all(np.isfinite(cov), axis=(-2, -1))
+    return np.where(ok[:, None, None], cov, np.nan)
+
+
+def _in_front(stereo, P):
+    """True for camera-1-frame points ``(n, 3)`` in front of both cameras."""
+    with np.errstate(invalid="ignore"):
+        return (P[:, 2] > 0) & (P @ stereo.R[2] + stereo.t[2] > 0)
 
 
 def _inv_sig(stereo, sigma_pixel):
@@ -220,39 +272,48 @@ def triangulate_optimal(stereo: StereoRig, pixels1, pixels2, *, sigma_pixel=1.0,
     Returns
     -------
     Refinement
-        ``measurements`` are the ML pixels ``(u1, v1, u2, v2)`` (ideal pixels); ``cost`` is
-        chi-square with 1 degree of freedom for correct matches.
+        ``measurements`` are the ML pixels ``(u1, v1, u2, v2)`` (ideal, undistorted pixels);
+        ``cost`` is chi-square with 1 degree of freedom for correct matches. Invalid (NaN)
+        with status 3 where the views do not determine the point (parallel rays: a point at
+        infinity; coincident rays; a singular Fisher matrix), 7 where the linear start lies
+        behind a camera, 6 where the optimisation did not converge.
     """
     _check(stereo)
-    if not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
+    if isinstance(max_iter, (bool, np.bool_)) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
         raise ValueError(f"max_iter: must be a positive integer, got {max_iter!r}")
     inv_sig = _inv_sig(stereo, sigma_pixel)
     shape, n1, n2 = _normalized(stereo, pixels1, pixels2)
     meas = np.concatenate([n1, n2], -1)
     if initial is None:
-        init = _dlt(stereo.R, stereo.t, n1, n2)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            init = init[:, :3] / init[:, 3:]
+        init, lin_status = _dlt_points(stereo.R, stereo.t, n1, n2)
+        # parallel or coincident rays: no finite point to refine (the DLT's 1/w is rounding)
+        at_inf = lin_status == 3
     else:
         init = broadcast_points(initial, "initial", shape)
-    z2 = init @ stereo.R[2] + stereo.t[2]
-    no_init = ~np.all(np.isfinite(init), -1) | ~(init[:, 2] > 0) | ~(z2 > 0)
-    init = np.where(no_init[:, None], np.array([0.0, 0.0, 1.0]), init)
+        at_inf = np.zeros(len(init), bool)
+    no_init = ~at_inf & (~np.all(np.isfinite(init), -1) | ~_in_front(stereo, init))
+    init = np.where((no_init | at_inf)[:, None], np.array([0.0, 0.0, 1.0]), init)
 
     def fun(P, idx):
         return _residuals(stereo, P, meas[idx], inv_sig)
 
     P, res, J, cost, conv, n_iter = _lm(fun, init, max_iter=int(max_iter))
     status = np.zeros(len(P), np.int8)
+    status[at_inf] = 3
     status[no_init] = 7
+    # a start from ``initial`` that ran off to infinity (the DLT's own test: |P| w / |X| <= 1e-12)
+    status[(status == 0) & ~(np.linalg.norm(P, axis=-1) < 1e12)] = 3
     status[(status == 0) & ~conv] = 6
-    cov = _inv3(_normal_equations(J, np.zeros(J.shape[:2]))[0])
-    status[(status == 0) & ~np.all(np.isfinite(cov), axis=(-2, -1))] = 6
+    cov = _covariance(J)
+    # singular Fisher matrix at the optimum: the two views do not determine the point
+    status[(status == 0) & ~np.all(np.isfinite(cov), axis=(-2, -1))] = 3
     valid = status == 0
     P = np.where(valid[:, None], P, np.nan)
     cov = np.where(valid[:, None, None], cov, np.nan)
-    pr = project(stereo, P)
-    mml = np.concatenate([pr.pixels1, pr.pixels2], -1)
+    # ML pixels on the ideal (undistorted) pinhole, as the noise model and the docstring say
+    m1 = stereo.camera1.project(P, distort=False)
+    m2 = stereo.camera2.project(P @ stereo.R.T + stereo.t, distort=False)
+    mml = np.concatenate([m1, m2], -1)
     return Refinement(P.reshape(shape + (3,)), cov.reshape(shape + (3, 3)),
                       np.where(valid, cost, np.nan).reshape(shape), mml.reshape(shape + (4,)),
                       (conv & valid).reshape(shape), valid.reshape(shape), status.reshape(shape), int(n_iter),
@@ -273,24 +334,29 @@ def crlb(stereo: StereoRig, points_camera, *, sigma_pixel=1.0) -> np.ndarray:
     Returns
     -------
     ndarray, shape (..., 3, 3)
+        NaN for points not in front of both cameras, and where the two views do not
+        determine the point (singular Fisher matrix: zero baseline, a point on the baseline).
     """
     _check(stereo)
     inv_sig = _inv_sig(stereo, sigma_pixel)
     P = as_array(points_camera, "points_camera", ("...", 3))
     Pf = P.reshape(-1, 3)
     _, J = _residuals(stereo, Pf, np.zeros((len(Pf), 4)), inv_sig)
-    return _inv3(_normal_equations(J, np.zeros(J.shape[:2]))[0]).reshape(P.shape + (3,))
+    cov = np.where(_in_front(stereo, Pf)[:, None, None], _covariance(J), np.nan)
+    return cov.reshape(P.shape + (3,))
 
 
 def first_order_mse(stereo: StereoRig, points_camera, *, sigma_pixel=1.0, method: str = "linear") -> FirstOrderError:
     """First-order error of stereo triangulation at true points.
 
-    ``method="optimal"`` gives the :func:`crlb`; ``"linear"`` propagates the pixel noise
-    through the DLT with a central-difference Jacobian (step 1e-4 px).
+    ``method="optimal"`` gives the :func:`crlb`; ``"linear"`` propagates the (ideal) pixel
+    noise through the DLT with a central-difference Jacobian (step 1e-4 px).
 
     Returns
     -------
     FirstOrderError
+        NaN for points not in front of both cameras and where the DLT fails (at infinity,
+        undetermined).
     """
     if method not in ("linear", "optimal"):
         raise ValueError(f"method: must be 'linear' or 'optimal', got {method!r}")
@@ -301,15 +367,21 @@ def first_order_mse(stereo: StereoRig, points_camera, *, sigma_pixel=1.0, method
     else:
         inv_sig = _inv_sig(stereo, sigma_pixel)
         sig = np.array([stereo.camera1.fx, stereo.camera1.fy, stereo.camera2.fx, stereo.camera2.fy]) / inv_sig
-        pr = project(stereo, P)
-        m = np.concatenate([pr.pixels1, pr.pixels2], -1).reshape(-1, 4)
+        # perturb the ideal pixels (the noise model) in normalised coordinates: no distortion round trip
+        Pf = P.reshape(-1, 3)
+        front = _in_front(stereo, Pf)
+        P2 = Pf @ stereo.R.T + stereo.t
+        with np.errstate(invalid="ignore", divide="ignore"):
+            m = np.concatenate([Pf[:, :2] / Pf[:, 2:], P2[:, :2] / P2[:, 2:]], -1)
+        m = np.where(front[:, None], m, 0.0)  # masked below
+        f = np.array([stereo.camera1.fx, stereo.camera1.fy, stereo.camera2.fx, stereo.camera2.fy])
         h = 1e-4
         J = np.empty(m.shape[:1] + (3, 4))
         for k in range(4):
             e = np.zeros(4)
-            e[k] = h
-            a = triangulate_linear(stereo, (m + e)[:, :2], (m + e)[:, 2:]).points
-            b = triangulate_linear(stereo, (m - e)[:, :2], (m - e)[:, 2:]).points
-            J[:, :, k] = (a - b) / (2 * h)
+            e[k] = h / f[k]
+            a, sa = _dlt_points(stereo.R, stereo.t, (m + e)[:, :2], (m + e)[:, 2:])
+            b, sb = _dlt_points(stereo.R, stereo.t, (m - e)[:, :2], (m - e)[:, 2:])
+            J[:, :, k] = np.where(((sa == 0) & (sb == 0) & front)[:, None], (a - b) / (2 * h), np.nan)
         cov = np.einsum("nik,k,njk->nij", J, sig ** 2, J).reshape(P.shape + (3,))
     return FirstOrderError(cov, np.trace(cov, axis1=-2, axis2=-1), cov[..., 2, 2])
