@@ -26,10 +26,25 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage as ndi
 
+from .._validate import as_array, as_positive
 from ..frames import sonar_from_spherical
 from ..geometry.projection import cos_sin_roots
 
 __all__ = ["SeabedPlane", "fit_seabed", "far_edges", "moved_plane", "plane_error_probability", "seabed_elevation", "seabed_points", "elevation_maps", "elevation_bounds", "occluded", "seabed_view"]
+
+
+def check_fov_elevation(value, name: str = "fov_elevation") -> float:
+    """An elevation aperture (rad) finite in (0, pi); else a ValueError naming ``name`` (with a hint when the
+    value looks like degrees)."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected an elevation aperture in radians, got {value!r}") from None
+    if not (np.isfinite(v) and 0 < v < np.pi):
+        hint = (f" (degrees? np.deg2rad({v:g}) = {np.deg2rad(v):.4g} rad)" if np.isfinite(v) and v >= np.pi
+                and v < 180 else "")
+        raise ValueError(f"{name}: expected an elevation aperture in radians, finite and in (0, pi), got {v!r}{hint}")
+    return v
 
 
 def check_sigma(name: str, value) -> float:
@@ -43,6 +58,14 @@ def check_sigma(name: str, value) -> float:
 @dataclass(frozen=True, eq=False)
 class SeabedPlane:
     """The plane ``normal . P_s = offset`` of the seabed in the sonar frame (unit normal, pointing up).
+
+    "Up" is the world's up, towards the water: the side of the plane the sonar is on, so that
+    :meth:`height` is positive in the water (``offset < 0``). It is not re-oriented here (a sonar
+    mounted upside down has a normal with a negative sonar-frame z); :func:`.match.match` refuses a
+    ``seabed=`` with the sonar under it (``offset >= 0``: most often the normal given pointing down,
+    ``(-n, -d)``). A normal of the wrong shape, not finite, or not of unit length (which offset was
+    meant would be a guess) is refused with a ValueError naming ``SeabedPlane.normal``; so is a
+    non-finite ``offset``. The all-NaN normal is the falsy "no plane" (with its ``message``).
 
     Attributes
     ----------
@@ -80,6 +103,24 @@ class SeabedPlane:
     def __post_init__(self):
         for name in ("sigma_offset", "sigma_tilt"):
             check_sigma(f"SeabedPlane.{name}", getattr(self, name))
+        n = as_array(self.normal, "SeabedPlane.normal", (3,), finite=False)
+        if np.all(np.isnan(n)):  # "no plane" (falsy)
+            object.__setattr__(self, "normal", n)
+            return
+        if not np.all(np.isfinite(n)):
+            raise ValueError(f"SeabedPlane.normal: the seabed's normal must be finite, got {n.tolist()}")
+        norm = float(np.linalg.norm(n))
+        if abs(norm - 1.0) > 1e-6:
+            raise ValueError(f"SeabedPlane.normal: the seabed's normal must be a unit vector, got {n.tolist()} "
+                             f"(length {norm:.6g}); divide both the normal and the offset by its length")
+        try:
+            d = float(self.offset)
+        except (TypeError, ValueError):
+            raise ValueError(f"SeabedPlane.offset: expected a number (m), got {self.offset!r}") from None
+        if not np.isfinite(d):
+            raise ValueError(f"SeabedPlane.offset: the seabed's offset must be finite, got {d!r}")
+        object.__setattr__(self, "normal", n)
+        object.__setattr__(self, "offset", d)
 
     @property
     def uncertain(self) -> bool:
@@ -315,9 +356,10 @@ def fit_seabed(image, ranges, azimuths, fov_elevation: float, *, min_beams: int 
     fov_elevation : float
         Elevation aperture (rad).
     min_beams : int
-        Fewer onsets than this: no plane.
+        Fewer onsets than this: no plane (at least 3).
     onset_fraction : float
-        The onset is the first bin above this fraction of the beam's median echo.
+        The onset is the first bin above this fraction of the beam's typical seabed echo: its upper
+        quartile (75th percentile) after smoothing across three beams.
     far_edge : bool
         Also use where the seabed leaves the fan at the aperture's upper edge (:func:`far_edges`;
         round i15n). The onsets alone lie on one cone (elevation ``-fov_elevation / 2``), which
@@ -334,14 +376,28 @@ def fit_seabed(image, ranges, azimuths, fov_elevation: float, *, min_beams: int 
     SeabedPlane
         Falsy with a message when the onsets do not support a plane (no seabed in view, the
         seabed already inside the aperture at the nearest range, or a poor fit).
+
+    Raises
+    ------
+    ValueError
+        Naming the argument: an image not of shape ``(ranges.size, azimuths.size)`` or not finite,
+        ranges or azimuths not finite and strictly increasing, ``fov_elevation`` not in (0, pi) rad,
+        ``min_beams`` below 3, ``onset_fraction`` or ``far_gate_m`` not > 0.
     """
     from scipy.optimize import least_squares
 
+    from .sonar_features import check_axes, check_count
+
+    r, th = check_axes(ranges, azimuths)
+    img = as_array(image, "image", (r.size, th.size), dtype=np.float64)
+    fov_elevation = check_fov_elevation(fov_elevation)
+    min_beams = check_count("min_beams", min_beams, 3)
+    as_positive(onset_fraction, "onset_fraction")
+    as_positive(far_gate_m, "far_gate_m")
+    image = img
     # No smoothing along range (a window crosses the threshold before the step), three beams
     # across against speckle.
-    sm = ndi.uniform_filter(np.asarray(image, np.float64), (1, 3), mode="nearest")
-    r = np.asarray(ranges, float)
-    th = np.asarray(azimuths, float)
+    sm = ndi.uniform_filter(img, (1, 3), mode="nearest")
     r_near, ok = _near_edges(sm, r, onset_fraction)
     if ok.sum() < min_beams:
         return SeabedPlane(**_NO_PLANE, n_beams=int(ok.sum()),
@@ -392,10 +448,12 @@ def seabed_elevation(plane: SeabedPlane, ranges, azimuths) -> np.ndarray:
     """Elevation (rad) at which the arc ``(r, theta)`` meets the seabed; NaN where it does not.
 
     Of the two crossings the one nearer to the horizontal (``|phi| < pi/2``, below the
-    sonar's horizon for a sonar above the seabed) is returned.
+    sonar's horizon for a sonar above the seabed) is returned. A range that is not finite
+    and > 0 has no arc: NaN there too.
     """
     r = np.asarray(ranges, float)
     th = np.asarray(azimuths, float)
+    r = np.where(np.isfinite(r) & (r > 0), r, np.nan)
     n = plane.normal
     a = n[0] * np.sin(th) + n[1] * np.cos(th)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -572,8 +630,30 @@ def elevation_maps(image, ranges, azimuths, plane: SeabedPlane, fov_elevation: f
 
 
 def elevation_bounds(image, ranges, azimuths, bins, beams, plane: SeabedPlane, fov_elevation: float, **kwargs):
-    """:func:`elevation_maps` at the cells ``(bins, beams)`` of ``N`` features: ``low, high, shadowed``, shape (N,)."""
-    b, k = np.asarray(bins, int), np.asarray(beams, int)
+    """:func:`elevation_maps` at the cells ``(bins, beams)`` of ``N`` features: ``low, high, shadowed``, shape (N,).
+
+    ``bins`` and ``beams`` are integer cell indices inside the image (a ValueError naming them
+    otherwise: no wrapping of negative indices, no truncation of fractional ones).
+    """
+    img = np.asarray(image)
+    if img.ndim != 2:
+        raise ValueError(f"image: expected shape (n_bins, n_beams), got {img.shape}")
+    fov_elevation = check_fov_elevation(fov_elevation)
+    idx = []
+    for name, v, n in (("bins", bins, img.shape[0]), ("beams", beams, img.shape[1])):
+        a = np.asarray(v)
+        if a.dtype.kind not in "iu":
+            a = as_array(a, name)
+            if np.any(a != np.round(a)):
+                raise ValueError(f"{name}: expected integer cell indices, got {a[a != np.round(a)][0]:g}")
+        bad = (a < 0) | (a >= n)
+        if np.any(bad):
+            raise ValueError(f"{name}: expected indices in [0, {n - 1}] (the image has {n} {name}), "
+                             f"got {int(a[bad].flat[0])}")
+        idx.append(a.astype(int))
+    if idx[0].shape != idx[1].shape:
+        raise ValueError(f"bins and beams: expected one shape, got {idx[0].shape} and {idx[1].shape}")
+    b, k = idx
     cells = np.zeros(np.shape(image), bool)
     cells[b, k] = True
     low, high, sh = elevation_maps(image, ranges, azimuths, plane, fov_elevation, cells=cells, **kwargs)

@@ -16,20 +16,39 @@ class KeypointOptions:
     Attributes
     ----------
     max_corners : int
-        ``cv2.goodFeaturesToTrack`` maxCorners.
+        ``cv2.goodFeaturesToTrack`` maxCorners (an integer >= 0; 0: no limit, as in OpenCV).
     quality : float
-        Its qualityLevel (relative to the strongest corner).
+        Its qualityLevel (relative to the strongest corner), in (0, 1].
     min_distance : float
-        Its minDistance (px).
+        Its minDistance (px, >= 0).
     clahe_clip : float
-        CLAHE clip limit applied first: underwater images are low-contrast and their
-        contrast falls with distance, so corners are found on local, not global, contrast.
+        CLAHE clip limit applied first (>= 0; 0: no limit, as in OpenCV): underwater images are
+        low-contrast and their contrast falls with distance, so corners are found on local, not
+        global, contrast.
+
+    Raises
+    ------
+    ValueError
+        Naming the field and its value when it is outside those ranges.
     """
 
     max_corners: int = 6000
     quality: float = 0.001
     min_distance: float = 2.0
     clahe_clip: float = 2.0
+
+    def __post_init__(self):
+        from .._validate import as_positive
+
+        m = self.max_corners
+        if isinstance(m, (bool, np.bool_)) or not isinstance(m, (int, np.integer)) or m < 0:
+            raise ValueError(f"KeypointOptions.max_corners: expected an integer >= 0 (0: no limit), got {m!r}")
+        q = as_positive(self.quality, "KeypointOptions.quality")
+        if q > 1:
+            raise ValueError(f"KeypointOptions.quality: expected a fraction of the strongest corner in (0, 1], "
+                             f"got {q!r}")
+        as_positive(self.min_distance, "KeypointOptions.min_distance", allow_zero=True)
+        as_positive(self.clahe_clip, "KeypointOptions.clahe_clip", allow_zero=True)
 
 
 @dataclass(frozen=True, eq=False)
@@ -88,6 +107,8 @@ def detect_camera_features(image, options: KeypointOptions = KeypointOptions()) 
     """
     import cv2
 
+    if not isinstance(options, KeypointOptions):
+        raise ValueError(f"options: expected a KeypointOptions, got {type(options).__name__}")
     g8 = to_gray8(image)
     empty = CameraFeatures(np.zeros((0, 2)), np.zeros(0), np.zeros(0))
     if g8.max() == g8.min():

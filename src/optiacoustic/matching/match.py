@@ -33,12 +33,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._validate import as_positive
 from ..frames import sonar_from_spherical, spherical_from_sonar
 from ..geometry import epipolar as ep
 from ..geometry import reconstruct as rc
 from ..rig import Rig
-from .acoustic import (SEABED_LIT, SEABED_SHADOWED, SeabedPlane, elevation_maps, fit_seabed, moved_plane, occluded,
-                       seabed_elevation, seabed_view)
+from .acoustic import (SEABED_LIT, SEABED_SHADOWED, SeabedPlane, check_fov_elevation, elevation_maps, fit_seabed,
+                       moved_plane, occluded, seabed_elevation, seabed_view)
 from .camera_features import CameraFeatures, KeypointOptions, detect_camera_features
 from .gating import mahalanobis_sq
 from .sonar_features import CfarOptions, SonarFeatures, cfar_map, detect_sonar_features
@@ -160,6 +161,14 @@ class MatchOptions:
         5-19% of its matches were right, median scores 0.43-0.94 (docs/matching.md, "Soft elevation
         beams").
     cfar, keypoints : detector options.
+
+    Raises
+    ------
+    ValueError
+        Naming the field and its value: ``gate``, ``null_cost``, ``elevation_sigma``,
+        ``occupancy_factor`` and ``arc_threshold`` must be finite and > 0; ``seabed_clearance``,
+        ``occluder_margin``, ``corner_weight``, ``seabed_contrast`` and ``face_plane_min_contrast``
+        finite and >= 0; the switches True or False.
     """
 
     gate: float = 9.0
@@ -188,6 +197,19 @@ class MatchOptions:
     def __post_init__(self):
         if self.method not in ("arc", "corners"):
             raise ValueError(f"MatchOptions.method: expected 'arc' or 'corners', got {self.method!r}")
+        for name in ("gate", "null_cost", "elevation_sigma", "occupancy_factor", "arc_threshold"):
+            as_positive(getattr(self, name), f"MatchOptions.{name}")
+        for name in ("seabed_clearance", "occluder_margin", "corner_weight", "seabed_contrast",
+                     "face_plane_min_contrast"):
+            as_positive(getattr(self, name), f"MatchOptions.{name}", allow_zero=True)
+        for name in ("smoothness", "use_acoustic", "face_plane", "face_plane_beams", "seabed_point", "allow_soft_beam",
+                     "soft_beam_recalibration", "rank_model", "relief_as_plane_error"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"MatchOptions.{name}: expected True or False, got {getattr(self, name)!r}")
+        if not isinstance(self.cfar, CfarOptions):
+            raise ValueError(f"MatchOptions.cfar: expected a CfarOptions, got {type(self.cfar).__name__}")
+        if not isinstance(self.keypoints, KeypointOptions):
+            raise ValueError(f"MatchOptions.keypoints: expected a KeypointOptions, got {type(self.keypoints).__name__}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -201,7 +223,8 @@ class Matches:
     ranges, azimuths : ndarray, shape (N,)
         Sonar feature range (m) and azimuth (rad).
     points : ndarray, shape (N, 3)
-        Maximum-likelihood reconstruction, camera frame (m).
+        Maximum-likelihood reconstruction, camera frame (m); where it failed, the point at the match's
+        elevation, and NaN where the match has none (a corner of a two-view result).
     score : ndarray, shape (N,)
         In (0, 1): the probability that the match is correct given its evidence, calibrated on
         simulated scenes: the chosen candidate's logistic model (:data:`SCORE_MODEL` for the corners),
@@ -296,6 +319,81 @@ def _check_sonar(sonar):
     if np.any(np.diff(r) <= 0) or np.any(np.diff(th) <= 0):
         raise ValueError("sonar.ranges and sonar.azimuths: must be strictly increasing")
     return img, r, th
+
+
+def _azimuth_span(th) -> float:
+    """The fan's width (rad) its beam centres imply: their span plus one beam spacing."""
+    return float(th[-1] - th[0] + np.median(np.diff(th)))
+
+
+def _angle(spec, name: str, limit: float, what: str):
+    """``spec.<name>`` as a finite angle (rad) in (0, limit] (``fov_elevation``: in (0, pi)), None when the spec does not state it; a ValueError
+    naming ``what.<name>`` otherwise (with a hint when it looks like degrees)."""
+    v = getattr(spec, name, None)
+    if v is None:
+        return None
+    if name == "fov_elevation":
+        return check_fov_elevation(v, f"{what}.fov_elevation")
+    try:
+        x = float(v)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what}.{name}: expected an angle in radians, got {v!r}") from None
+    if not (np.isfinite(x) and 0 < x <= limit):
+        hint = f" (degrees? np.deg2rad({x:g}) = {np.deg2rad(x):.4g} rad)" if np.isfinite(x) and x > limit else ""
+        raise ValueError(f"{what}.{name}: expected an angle in radians, finite and in (0, {limit:.4g}], "
+                         f"got {x!r}{hint}")
+    return x
+
+
+class _FrameSpec:
+    """A frame's spec that states no ``fov_azimuth``, with the one its beams imply (everything else delegated)."""
+
+    def __init__(self, spec, fov_azimuth: float):
+        self._spec, self.fov_azimuth = spec, fov_azimuth
+
+    def __getattr__(self, name):
+        return getattr(self._spec, name)
+
+
+def _frame_spec(spec, th):
+    """The frame's spec to attach to a rig that carries no sonar: its ``fov_elevation`` in (0, pi) and its
+    ``fov_azimuth`` (the beams' span when it states none) checked, naming the field."""
+    if getattr(spec, "fov_elevation", None) is None:
+        raise ValueError("sonar.spec: has no fov_elevation and the rig carries no sonar; "
+                         "attach one with rig.with_sonar(spec)")
+    _angle(spec, "fov_elevation", np.pi, "sonar.spec")
+    fov_az = _angle(spec, "fov_azimuth", 2 * np.pi, "sonar.spec")
+    if fov_az is None:
+        return _FrameSpec(spec, _azimuth_span(th))
+    return spec
+
+
+def _unverified(spec, name: str) -> bool:
+    return any(str(u).split(" ")[0] == name for u in (getattr(spec, "unverified", None) or ()))
+
+
+def _check_rig_sonar(rig_sonar, spec, r, th):
+    """The rig's sonar (which the geometry uses) against the frame: their elevation apertures must agree where
+    both state it (not when the frame's spec marks it ``unverified``: real logs do not record it), and the frame's
+    beams must lie inside the rig's fan. A ValueError naming ``rig.sonar`` and ``sonar.spec`` and both values
+    otherwise. The range window and a wider azimuth fan may differ (a log recorded at a shorter range than the
+    rig's preset, a dual-frequency head): the frame's own ranges and azimuths are the measurements."""
+    el = _angle(rig_sonar, "fov_elevation", np.pi, "rig.sonar")
+    az = _angle(rig_sonar, "fov_azimuth", 2 * np.pi, "rig.sonar")
+    fix = ("; the rig's sonar is the one used: attach the frame's (rig.with_sonar(sonar.spec)) if it is right, "
+           "or correct the frame's spec")
+    theirs = getattr(spec, "fov_elevation", None) if spec is not None else None
+    if el is not None and theirs is not None and not _unverified(spec, "fov_elevation"):
+        theirs = _angle(spec, "fov_elevation", np.pi, "sonar.spec")
+        if abs(theirs - el) > 1e-3 * max(abs(el), 1e-9):
+            raise ValueError(f"rig.sonar.fov_elevation = {el:.6g} rad ({np.rad2deg(el):.4g} deg) and "
+                             f"sonar.spec.fov_elevation = {theirs:.6g} rad ({np.rad2deg(theirs):.4g} deg) disagree{fix}")
+    if az is not None:
+        beyond = np.abs(th) > az / 2 + np.median(np.diff(th))
+        if np.any(beyond):
+            a = float(th[beyond][0])
+            raise ValueError(f"sonar.azimuths: beam {a:.4g} rad ({np.rad2deg(a):.4g} deg) lies outside "
+                             f"rig.sonar.fov_azimuth = {az:.4g} rad ({np.rad2deg(az):.4g} deg){fix}")
 
 
 def _camera_sees_fan(rig: Rig, r, th) -> bool:
@@ -481,7 +579,10 @@ def two_view_candidates(out: Matches, sf, intervals, image_1, second, motion, ri
         raise ValueError(f"second camera_image: expected shape {np.asarray(image_1).shape} like the first, "
                          f"got {image_2.shape}")
     seabed_2 = None if seabed is None else moved_plane(rig, seabed, *motion_arrays(motion))
-    m2 = match(second[0], image_2, rig, noise=noise, options=opt, min_score=0.0, seabed=seabed_2)
+    try:
+        m2 = match(second[0], image_2, rig, noise=noise, options=opt, min_score=0.0, seabed=seabed_2)
+    except ValueError as exc:
+        raise ValueError(f"second view (second[0], the second pair's sonar frame): {exc}") from None
     n = len(out)
     flow = flow_field(image_1, image_2)
     back = flow_field(image_2, image_1) if flow is not None else None
@@ -565,7 +666,11 @@ def _two_view(out: Matches, sf, intervals, image_1, second, motion, rig, noise, 
     phi_arc = np.asarray(out.features.get("elevation", np.full(len(out), np.nan)), float)
     phi = np.where(use_sweep[rows], sweep["elevations"][rows], phi_arc[np.maximum(arc_pos[rows], 0)] if len(out)
                    else np.nan)
-    P = np.where(ref.valid[:, None], ref.points, camera_from_sonar(rig, sf.ranges[rows], sf.azimuths[rows], phi))
+    # where the reconstruction failed, the point at the candidate's elevation; NaN where it has none
+    P = np.where(ref.valid[:, None], ref.points, np.nan)
+    at = ~ref.valid & np.isfinite(phi)
+    if at.any():
+        P[at] = camera_from_sonar(rig, sf.ranges[rows][at], sf.azimuths[rows][at], phi[at])
     score = np.maximum(p_arc, p_sweep)[rows]
     k_arc = np.maximum(arc_pos[rows], 0)
 
@@ -634,30 +739,57 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
         to the image, and then frames with a soft elevation beam are matched too (the fit is what
         needs hard edges). With ``second`` it is moved by ``motion`` for the second pair. The
         matcher needs it to millimetres and about 0.02 deg: 1 cm of height error halves its
-        precision (docs/matching.md, "Soft elevation beams").
+        precision (docs/matching.md, "Soft elevation beams"). Its normal points up, to the sonar's
+        side (``offset < 0``); a plane with the sonar under it is refused.
 
     Returns
     -------
     Matches
         Best first; falsy with a ``message`` when nothing reliable was found (no features,
         a camera that sees nothing of the fan, no candidate passing the gates).
+
+    Raises
+    ------
+    ValueError
+        Naming the argument or field and its value: a sonar frame, camera image, rig, ``options``,
+        ``noise`` or ``seabed`` of the wrong kind or shape; ``min_score`` outside [0, 1]; ``motion``
+        without ``second``; a ``sonar.beam_model`` other than ``"thesis"`` or ``"aperture"``; a
+        ``sonar.spec`` (used when the rig carries no sonar) whose ``fov_elevation`` is not in (0, pi)
+        rad or ``fov_azimuth`` not in (0, 2 pi] (without one, the beams' span is used); a
+        ``rig.sonar`` that disagrees with ``sonar.spec`` on ``fov_elevation``, ``fov_azimuth``,
+        ``range_min`` or ``range_max`` (fields the spec marks ``unverified`` are not compared), or
+        whose fan does not hold the frame's beams. Errors of the second pair's inputs say so.
     """
     if not isinstance(rig, Rig):
         raise ValueError(f"rig: expected an optiacoustic.Rig, got {type(rig).__name__}")
-    opt = options or MatchOptions()
-    noise = noise or MatchNoise()
+    opt = MatchOptions() if options is None else options
+    if not isinstance(opt, MatchOptions):
+        raise ValueError(f"options: expected a MatchOptions (or None), got {type(options).__name__}")
+    noise = MatchNoise() if noise is None else noise
     if not isinstance(noise, MatchNoise):
         raise ValueError(f"noise: expected a MatchNoise, got {type(noise).__name__}")
+    if isinstance(min_score, (bool, np.bool_)) or not isinstance(min_score, (int, float, np.integer, np.floating)) \
+            or not 0.0 <= float(min_score) <= 1.0:
+        raise ValueError(f"min_score: expected a number in [0, 1] (a probability), got {min_score!r}")
+    if motion is not None and second is None:
+        raise ValueError("motion: given without 'second' (the second pair it moves view 1 to); pass "
+                         "second=(sonar, camera_image) too, or leave motion out")
     img_s, r_bins, th_beams = _check_sonar(sonar)
+    beam_model = getattr(sonar, "beam_model", "thesis")
+    if beam_model not in ("thesis", "aperture"):
+        raise ValueError(f"sonar.beam_model: expected 'thesis' or 'aperture', got {beam_model!r}")
     spec = sonar.spec
     if rig.sonar is None:
-        if not hasattr(spec, "fov_elevation"):
-            raise ValueError("sonar.spec: has no fov_elevation and the rig carries no sonar; "
-                             "attach one with rig.with_sonar(spec)")
-        rig = rig.with_sonar(spec)
+        rig = rig.with_sonar(_frame_spec(spec, th_beams))
+    else:
+        _check_rig_sonar(rig.sonar, spec, r_bins, th_beams)
     # Measured frames may not state these: fall back to one bin and one beam spacing.
-    range_res = float(getattr(spec, "range_resolution", None) or np.median(np.diff(r_bins)))
-    beamwidth = float(getattr(spec, "beamwidth_azimuth", None) or np.median(np.diff(th_beams)))
+    range_res = getattr(spec, "range_resolution", None)
+    range_res = float(np.median(np.diff(r_bins))) if range_res is None or range_res == 0 else \
+        as_positive(range_res, "sonar.spec.range_resolution")
+    beamwidth = getattr(spec, "beamwidth_azimuth", None)
+    beamwidth = float(np.median(np.diff(th_beams))) if beamwidth is None or beamwidth == 0 else \
+        as_positive(beamwidth, "sonar.spec.beamwidth_azimuth")
     cam_img = np.asarray(camera_image)
     cam = rig.camera
     if cam_img.ndim != 3 or cam_img.shape[:2] != (cam.height, cam.width):
@@ -669,7 +801,10 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
                                    and abs(float(np.linalg.norm(seabed.normal)) - 1.0) < 1e-6
                                    and np.isfinite(seabed.offset)):
         raise ValueError(f"seabed: expected a SeabedPlane with a unit normal and a finite offset, got {seabed!r}")
-    beam_model = getattr(sonar, "beam_model", "thesis")
+    if seabed is not None and not seabed.offset < 0:
+        raise ValueError(f"seabed: the sonar must be above the seabed plane (SeabedPlane.offset < 0: the sonar's height "
+                         f"is -offset), got offset = {seabed.offset:g} m with normal {np.round(seabed.normal, 4).tolist()}; "
+                         f"a normal pointing down? the same plane pointing up is (-normal, -offset)")
     if beam_model != "thesis" and opt.use_acoustic and not opt.allow_soft_beam and seabed is None:
         return _empty(f"soft elevation beam (sonar.beam_model={beam_model!r}): the seabed plane that bounds each "
                       f"echo's elevation is fitted where the seabed crosses a hard-edged aperture, and under a soft "
@@ -731,8 +866,10 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
         echo_maps = maps if opt.cfar == CfarOptions() else cfar_map(np.asarray(img_s, np.float64))
         # The candidate trees were fitted with the fitted plane (its relief ratio an input) or an exact one: not
         # under a plane with a declared error, whose seabed points are scored by that error (round i15v)
+        # (and not without a seabed: with MatchOptions(use_acoustic=False) there is none)
+        known = intervals[3] is not None and bool(intervals[3])
         out = _match_arcs(sf, cam_img, rig, noise, opt, intervals, sonar=(img_s, r_bins, th_beams, echo_maps),
-                          soft_beam=beam_model != "thesis", rank=not intervals[3].uncertain)
+                          soft_beam=beam_model != "thesis", rank=known and not intervals[3].uncertain)
         if relief_note and out:
             out = dataclasses.replace(out, message=f"{out.message}; {relief_note}")
         return _finish(out, cam_img, second, motion, rig, noise, opt, min_score, sf=sf, intervals=intervals,
@@ -832,7 +969,7 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     feats = dict(n_candidates=n_cand_row[rows[chosen]], n_candidates_camera=n_cand_col[cols[chosen]],
                  elevation_span=span[chosen], snr=sf.snr[rows[chosen]], kind=sf.kind[rows[chosen]],
                  corner_response=cf.response[cols[chosen]], corner_relative=cf.response[cols[chosen]] / med_resp,
-                 epipolar_chi2=epi[chosen],
+                 epipolar_chi2=epi[chosen], elevation=phi[keep][chosen],
                  share=_posterior(cost, rows, cols, (len(sf), len(cf)), opt.null_cost)[chosen])
     score = calibrated_score(feats)
     order = np.argsort(-score, kind="stable")
@@ -1325,7 +1462,7 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None, soft_bea
     feats["seabed_gradient"] = np.where(sb_found, pixel_values(grad, sb_px), 0.0)
     feats["range_m"] = sf.ranges[rows]
     # how far the sonar's seabed onsets depart from one plane, in flat seabeds' residuals (NaN for a given plane)
-    feats["seabed_relief_ratio"] = np.full(rows.size, float(seabed.relief_ratio))
+    feats["seabed_relief_ratio"] = np.full(rows.size, float(seabed.relief_ratio) if seabed else np.nan)
     # Where the plane is offered, the arc search's pixel is scored knowing whether the plane
     # point agrees with it; elsewhere exactly as before the face-plane model.
     p_arc = np.where(offered, _logistic(face_plane_score_features(feats), FACE_PLANE_SCORE_MODEL),
@@ -1341,7 +1478,7 @@ def _match_arcs(sf, cam_img, rig, noise, opt, intervals, *, sonar=None, soft_bea
             np.where(p > 0, soft_beam_probability(p, kind), 0.0)
             for p, kind in zip((p_arc, p_crease, p_plane, p_foot, p_seabed), CANDIDATES))
     feats["seabed_plane_probability"] = np.where(sb_found, 1.0, np.nan)
-    if seabed.uncertain and sonar is not None and sb_found.any():
+    if seabed and seabed.uncertain and sonar is not None and sb_found.any():
         # A plane given with a declared error (navigation): the seabed point is placed on it, so it is
         # right only while that error keeps it within a bin and a beam (:func:`.acoustic.plane_error_probability`)
         from .acoustic import plane_error_probability

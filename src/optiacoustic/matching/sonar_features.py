@@ -11,6 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage as ndi
 
+from .._validate import as_array, as_positive
+
 PEAK, ONSET = 0, 1
 
 __all__ = ["PEAK", "ONSET", "SonarFeatures", "CfarOptions", "detect_sonar_features", "cfar_map"]
@@ -33,7 +35,17 @@ class CfarOptions:
     nms : (int, int)
         Non-maximum-suppression window (bins, beams): one feature per window.
     max_features : int
-        Keep the strongest ones.
+        Keep the strongest ones (at least 1).
+    onsets, peaks : bool
+        Detect echo onsets, local maxima.
+    min_run : int
+        An onset starts a detection run of at least this many bins (at least 1).
+
+    Raises
+    ------
+    ValueError
+        Naming the field and its value: pairs that are not two integers (``guard`` >= 0,
+        ``train`` and ``nms`` >= 1), a ``factor`` that is not finite and > 0, counts below 1.
     """
 
     guard: tuple = (3, 3)
@@ -44,6 +56,45 @@ class CfarOptions:
     onsets: bool = True
     peaks: bool = True
     min_run: int = 3
+
+    def __post_init__(self):
+        for name, least in (("guard", 0), ("train", 1), ("nms", 1)):
+            check_pair(f"CfarOptions.{name}", getattr(self, name), least)
+        as_positive(self.factor, "CfarOptions.factor")
+        for name in ("max_features", "min_run"):
+            check_count(f"CfarOptions.{name}", getattr(self, name), 1)
+        for name in ("onsets", "peaks"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise ValueError(f"CfarOptions.{name}: expected True or False, got {getattr(self, name)!r}")
+
+
+def check_count(name: str, value, least: int) -> int:
+    """``value`` as an int when it is an integer >= ``least``; else a ValueError naming ``name``."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < least:
+        raise ValueError(f"{name}: expected an integer >= {least}, got {value!r}")
+    return int(value)
+
+
+def check_pair(name: str, value, least: int) -> tuple:
+    """``value`` as a pair ``(bins, beams)`` of integers >= ``least``; else a ValueError naming ``name``."""
+    if not (isinstance(value, (tuple, list)) and len(value) == 2
+            and all(not isinstance(v, (bool, np.bool_)) and isinstance(v, (int, np.integer)) and v >= least
+                    for v in value)):
+        raise ValueError(f"{name}: expected a pair (bins, beams) of integers >= {least}, got {value!r}")
+    return tuple(int(v) for v in value)
+
+
+def check_axes(ranges, azimuths, what: str = "") -> tuple[np.ndarray, np.ndarray]:
+    """Bin centres and beam centres: 1-D, finite and strictly increasing (else a ValueError naming them)."""
+    r = as_array(ranges, f"{what}ranges", (None,))
+    th = as_array(azimuths, f"{what}azimuths", (None,))
+    for name, a in ((f"{what}ranges", r), (f"{what}azimuths", th)):
+        bad = np.nonzero(np.diff(a) <= 0)[0]
+        if bad.size:
+            i = int(bad[0])
+            raise ValueError(f"{name}: must be strictly increasing (near to far, left to right); "
+                             f"got {a[i]:g} then {a[i + 1]:g} at index {i + 1}")
+    return r, th
 
 
 @dataclass(frozen=True, eq=False)
@@ -140,13 +191,19 @@ def detect_sonar_features(image, ranges, azimuths, *, range_resolution: float, b
     azimuths : array_like, shape (n_beams,)
         Beam centres (rad), increasing; need not be evenly spaced.
     range_resolution : float
-        The sonar's range resolution (m).
+        The sonar's range resolution (m; 0: not known, the bin spacing stands in).
     beamwidth : float
-        The sonar's azimuth beamwidth (rad, -3 dB).
+        The sonar's azimuth beamwidth (rad, -3 dB; 0: not known, the beam spacing stands in).
     options : CfarOptions
     maps : tuple of ndarray, optional
         ``cfar_map(image, options)`` when the caller already has it (the same numbers; computed here
         otherwise).
+
+    Raises
+    ------
+    ValueError
+        Naming the argument: an image of the wrong shape or with NaN or infinity, ranges or
+        azimuths that are not finite and strictly increasing, a resolution or beamwidth not >= 0.
 
     Returns
     -------
@@ -155,11 +212,18 @@ def detect_sonar_features(image, ranges, azimuths, *, range_resolution: float, b
         the peak's SNR; azimuth sigma: the beamwidth's Gaussian sigma over sqrt(SNR),
         never below a beam spacing over sqrt(12).
     """
-    img = np.asarray(image, np.float64)
-    r = np.asarray(ranges, float)
-    th = np.asarray(azimuths, float)
+    r, th = check_axes(ranges, azimuths)
+    img = as_array(image, "image", finite=False, dtype=np.float64)
     if img.ndim != 2 or img.shape != (r.size, th.size):
         raise ValueError(f"sonar image: expected shape (n_bins, n_beams) = ({r.size}, {th.size}), got {img.shape}")
+    if not np.all(np.isfinite(img)):
+        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(img))[0])
+        raise ValueError(f"image: must be finite, found {img[bad]} at (bin, beam) {bad}")
+    # 0: not stated (the bin and the beam spacing bound the sigmas anyway)
+    range_resolution = as_positive(range_resolution, "range_resolution", allow_zero=True)
+    beamwidth = as_positive(beamwidth, "beamwidth", allow_zero=True)
+    if not isinstance(options, CfarOptions):
+        raise ValueError(f"options: expected a CfarOptions, got {type(options).__name__}")
     empty = SonarFeatures(*([np.zeros(0)] * 4), np.zeros(0, int), np.zeros(0, int), np.zeros(0), np.zeros(0, int))
     if img.shape[0] < 3 or img.shape[1] < 3 or not np.any(img > 0):
         return empty
