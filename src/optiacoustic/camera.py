@@ -38,7 +38,11 @@ class PinholeCamera:
     width, height : int
         Image size in pixels.
     dist : tuple of 5 floats
-        OpenCV distortion ``(k1, k2, p1, p2, k3)``; zeros for an ideal pinhole.
+        OpenCV distortion ``(k1, k2, p1, p2, k3)``; zeros for an ideal pinhole. A strong
+        barrel distortion turns back inside the image (``k1 = -0.6``: the distorted radius
+        peaks at 0.50 in normalised coordinates) and produces no pixel beyond that radius:
+        :meth:`normalized` and :meth:`pixel_rays` give NaN there (mask: ``np.isfinite``),
+        and :func:`~optiacoustic.simulate_optical` refuses such a camera.
     """
 
     fx: float
@@ -50,18 +54,25 @@ class PinholeCamera:
     dist: tuple[float, float, float, float, float] = field(default=(0.0, 0.0, 0.0, 0.0, 0.0))
 
     def __post_init__(self):
+        def number(v):  # bools are not numbers here (fx=True was a focal length of 1 px)
+            return isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, (bool, np.bool_))
+
         for name in ("fx", "fy"):
             v = getattr(self, name)
-            if not isinstance(v, (int, float, np.floating, np.integer)) or not np.isfinite(v) or v <= 0:
+            if not number(v) or not np.isfinite(v) or v <= 0:
                 raise ValueError(f"PinholeCamera.{name}: must be a finite number > 0, got {v!r}")
         for name in ("cx", "cy"):
             v = getattr(self, name)
-            if not isinstance(v, (int, float, np.floating, np.integer)) or not np.isfinite(v):
-                raise ValueError(f"PinholeCamera.{name}: must be finite, got {v!r}")
+            if not number(v) or not np.isfinite(v):
+                raise ValueError(f"PinholeCamera.{name}: must be a finite number, got {v!r}")
         for name in ("width", "height"):
             _check_side(getattr(self, name), f"PinholeCamera.{name}")
-        d = tuple(float(x) for x in np.asarray(self.dist, float).reshape(-1))
-        if len(d) != 5 or not all(np.isfinite(d)):
+        try:
+            raw = np.asarray(self.dist)
+            d = tuple(float(x) for x in raw.astype(float).reshape(-1)) if raw.dtype.kind in "iuf" else None
+        except (TypeError, ValueError):
+            d = None
+        if d is None or len(d) != 5 or not all(np.isfinite(d)):
             raise ValueError(f"PinholeCamera.dist: expected 5 finite numbers (k1, k2, p1, p2, k3), got {self.dist!r}")
         object.__setattr__(self, "dist", d)
         for name in ("fx", "fy", "cx", "cy"):
@@ -138,8 +149,23 @@ class PinholeCamera:
         """True for camera-frame points in front of the camera that project inside the image."""
         return self.in_image(self.project(points_camera))
 
+    def _distortion_folds(self, xn: np.ndarray) -> np.ndarray:
+        """True where the distortion map is not orientation-preserving at ``xn`` (..., 2): past the
+        radius where a strong distortion turns back, so a pixel there is also produced nearer the axis."""
+        h = 1e-6
+        ex, ey = np.array([h, 0.0]), np.array([0.0, h])
+        jx = (self._distort(xn + ex) - self._distort(xn - ex)) / (2 * h)
+        jy = (self._distort(xn + ey) - self._distort(xn - ey)) / (2 * h)
+        with np.errstate(invalid="ignore"):
+            return ~(jx[..., 0] * jy[..., 1] - jx[..., 1] * jy[..., 0] > 0)
+
     def normalized(self, pixels) -> np.ndarray:
-        """Undistorted normalised coordinates ``(X/Z, Y/Z)`` of pixels ``(..., 2)``."""
+        """Undistorted normalised coordinates ``(X/Z, Y/Z)`` of pixels ``(..., 2)``.
+
+        With distortion, a pixel that the distortion model cannot produce from any direction
+        within its valid (unfolded) range gives NaN: the undistorted point is distorted again
+        and must land within 0.01 px of the pixel. Mask: ``np.isfinite(xn[..., 0])``.
+        """
         uv = as_array(pixels, "pixels", ("...", 2))
         xn = np.stack([(uv[..., 0] - self.cx) / self.fx, (uv[..., 1] - self.cy) / self.fy], -1)
         if self.has_distortion:
@@ -152,6 +178,14 @@ class PinholeCamera:
             else:  # OpenCV 5 dropped it; undistortPoints takes the criteria (with explicit R, P)
                 und = cv2.undistortPoints(pts, self.K, np.asarray(self.dist), R=np.eye(3), P=np.eye(3), criteria=crit)
             xn = und.reshape(uv.shape)
+            # OpenCV's iteration returns a point for any pixel, also one the model cannot produce
+            # (strong barrel distortion beyond its turning radius): check the round trip
+            back = self._distort(xn)
+            err = np.hypot(self.fx * back[..., 0] + self.cx - uv[..., 0], self.fy * back[..., 1] + self.cy - uv[..., 1])
+            with np.errstate(invalid="ignore"):
+                bad = ~(err <= 0.01) | self._distortion_folds(xn)
+            if np.any(bad):
+                xn = np.where(bad[..., None], np.nan, xn)
         return xn
 
     def pixel_rays(self, pixels=None) -> np.ndarray:
@@ -169,6 +203,11 @@ class PinholeCamera:
 
     def scaled(self, factor: float) -> "PinholeCamera":
         """The same camera with an image ``factor`` times larger (or smaller)."""
+        if isinstance(factor, (bool, np.bool_, str, bytes)):
+            raise ValueError(f"scaled: factor: expected a number, got {factor!r}")
+        factor = as_positive(factor, "scaled: factor")
+        if int(round(self.width * factor)) < 1 or int(round(self.height * factor)) < 1:
+            raise ValueError(f"scaled: factor: {factor:g} leaves a {self.width} x {self.height} image without pixels")
         w, h = int(round(self.width * factor)), int(round(self.height * factor))
         sx, sy = w / self.width, h / self.height
         return PinholeCamera(self.fx * sx, self.fy * sy, (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5, w, h, self.dist)

@@ -39,7 +39,7 @@ from ..camera import PinholeCamera
 from ..frames import Pose
 from ..scene import Scene
 from .frame import OpticalFrame
-from .lights import resolve_lights
+from .lights import MIN_LAMP_DISTANCE, resolve_lights
 from .texture import apply_textures, body_colors, surface_albedo
 from .water import Water, as_water
 
@@ -138,21 +138,32 @@ class OpticalOptions:
         def bad(name, msg):
             raise ValueError(f"OpticalOptions.{name}: {msg}, got {getattr(self, name)!r}")
 
-        if not isinstance(self.slices, (int, np.integer)) or not 1 <= self.slices <= 4096:
+        def integer(v):  # bools are not counts (slices=True was 1 slice)
+            return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+        def number(v):
+            return (isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+                    and bool(np.isfinite(v)))
+
+        if not integer(self.slices) or not 1 <= self.slices <= 4096:
             bad("slices", "expected an integer in [1, 4096]")
-        if not isinstance(self.backscatter_step, (int, np.integer)) or not 1 <= self.backscatter_step <= 64:
+        if not integer(self.backscatter_step) or not 1 <= self.backscatter_step <= 64:
             bad("backscatter_step", "expected an integer in [1, 64]")
-        if self.slice_scale is not None and not (np.isfinite(self.slice_scale) and self.slice_scale > 0):
-            bad("slice_scale", "expected a finite scale > 0 (m)")
-        if not (np.isfinite(self.B) and self.B >= 0):
+        if self.slice_scale is not None and not (number(self.slice_scale) and self.slice_scale > 0):
+            bad("slice_scale", "expected a finite scale > 0 (m) or None")
+        if not (number(self.B) and self.B >= 0):
             bad("B", "expected a finite value >= 0 (rad/m)")
-        if not (np.isfinite(self.fs_cone_deg) and 0 <= self.fs_cone_deg <= 180):
+        if not (number(self.fs_cone_deg) and 0 <= self.fs_cone_deg <= 180):
             bad("fs_cone_deg", "expected an angle in [0, 180] deg")
-        if not isinstance(self.fs_layers, (int, np.integer)) or not 1 <= self.fs_layers <= 64:
+        if not integer(self.fs_layers) or not 1 <= self.fs_layers <= 64:
             bad("fs_layers", "expected an integer in [1, 64]")
+        for name in ("forward_scatter", "shadows"):  # "no" was a true value
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                bad(name, "expected True or False")
         if self.G is not None:
-            g = np.asarray(self.G, float).reshape(-1)
-            if g.size not in (1, 3) or not np.all(np.isfinite(g)) or np.any(g < 0):
+            g = np.asarray(self.G, object).reshape(-1)
+            if (g.size not in (1, 3) or not all(number(x) for x in g)
+                    or np.any(np.asarray(g, float) < 0)):
                 bad("G", "expected a number or 3 numbers >= 0 (m^-1)")
         if self.noise not in (None, False) and not isinstance(self.noise, SensorNoise):
             bad("noise", "expected a SensorNoise, False or None")
@@ -162,6 +173,12 @@ class OpticalOptions:
 @functools.lru_cache(maxsize=8)
 def _pixel_rays(camera: PinholeCamera) -> np.ndarray:
     d = camera.pixel_rays().astype(np.float64)
+    bad = ~np.isfinite(d[..., 0])
+    if np.any(bad):  # NaN: pixels the lens model cannot produce (PinholeCamera.normalized)
+        v, u = (int(i) for i in np.argwhere(bad)[0])
+        raise ValueError(f"PinholeCamera.dist: the distortion {list(camera.dist)} cannot produce {int(bad.sum())} of "
+                         f"the image's {bad.size} pixels (e.g. pixel ({u}, {v})): it turns back inside the image, so "
+                         "those pixels have no viewing ray; the renderer needs one for every pixel")
     d.setflags(write=False)
     return d
 
@@ -293,6 +310,18 @@ def _pixel_cz(camera: PinholeCamera) -> np.ndarray:
     return cz
 
 
+def _check_lamp_distances(lights, pose: Pose) -> None:
+    """Refuse a lamp nearer the camera centre than :data:`~optiacoustic.optical.lights.MIN_LAMP_DISTANCE`
+    (for scattering water: the single-scattering veil grows as 1 / distance and is infinite at 0; a lamp at
+    the camera centre gave a veil that grew with the number of slices without converging)."""
+    for i, lt in enumerate(lights):
+        dist = float(np.linalg.norm(np.asarray(lt.position) - pose.t))
+        if dist < MIN_LAMP_DISTANCE:
+            raise ValueError(f"lights[{i}]: the lamp is {dist:.3g} m from the camera centre; in scattering water "
+                             f"it must be at least MIN_LAMP_DISTANCE = {MIN_LAMP_DISTANCE} m away (the veil grows "
+                             "as 1 / distance and is infinite at 0; a real lamp sits outside the camera housing)")
+
+
 def backscatter(camera: PinholeCamera, pose: Pose, depth: np.ndarray, water: Water, lights, *,
                 options: OpticalOptions | None = None, G=None) -> np.ndarray:
     """The veiling light (eqs. 3.10-3.13, corrected) of every pixel.
@@ -332,6 +361,7 @@ def backscatter(camera: PinholeCamera, pose: Pose, depth: np.ndarray, water: Wat
         if kernels and not np.all(depth >= 0):
             raise ValueError("depth: must be >= 0 or inf")
         return np.zeros((H, W, 3), np.float32)
+    _check_lamp_distances(lights, pose)
     lights_cam = []
     for lt in lights:
         p = pose.to_body(lt.position)
@@ -762,7 +792,9 @@ def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=N
     ------
     ValueError
         Unknown water type, bad coefficients or options, the camera or a light inside a
-        closed body (found by 14 probe rays; the message names the body).
+        closed body (found by 14 probe rays; the message names the body), a lamp closer to
+        the camera centre than ``MIN_LAMP_DISTANCE`` (2 cm) in scattering water, a camera
+        whose distortion cannot produce every pixel of its image (``PinholeCamera.dist``).
 
     Notes
     -----
@@ -785,6 +817,8 @@ def simulate_optical(scene: Scene, camera: PinholeCamera, pose: Pose, *, water=N
     if not isinstance(options, OpticalOptions):
         raise ValueError(f"options: expected OpticalOptions, got {type(options).__name__}")
     lights = resolve_lights(lights, pose)
+    if np.any(np.asarray(water.b) > 0):
+        _check_lamp_distances(lights, pose)
     # a lower estimate of the bytes a render takes (rays, stages, depth, normals): refuse before allocating
     check_memory(160.0 * camera.width * camera.height,
                  f"a {camera.width} x {camera.height} camera image (PinholeCamera.width x height)")

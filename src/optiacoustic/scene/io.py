@@ -49,7 +49,7 @@ def _fmt_validation(exc: ValidationError, prefix: str = "") -> tuple[str, str]:
     fld = _fmt_loc(err.get("loc", ()))
     if prefix:
         fld = f"{prefix}.{fld}" if fld and not fld.startswith("[") else prefix + fld
-    msg = err.get("msg", "invalid")
+    msg = err.get("msg", "invalid").removeprefix("Value error, ")
     if "input" in err and err.get("type") != "missing":
         msg += f" (got {err['input']!r})"
     more = len(exc.errors()) - 1
@@ -87,7 +87,7 @@ def _body_from_dict(raw, index: int, source: str, base_dir: str) -> Body:
     if not isinstance(name, str) or not name.strip():
         raise SceneError(ctx("name", f"must be a non-empty string, got {name!r}"))
     shape_name = raw["shape"]
-    if shape_name not in SHAPES:
+    if not isinstance(shape_name, str) or shape_name not in SHAPES:
         raise SceneError(ctx("shape", f"unknown shape {shape_name!r}; expected one of {sorted(SHAPES)}"))
 
     # pose
@@ -156,12 +156,26 @@ def scene_parts_from_dict(data, source: str = "<dict>", base_dir: str = ".") -> 
         raise SceneError(f"{source}: body '{dup[0]}' (#{i}): field 'name': duplicate body name")
     view = None
     if data.get("view") is not None:
+        v = data["view"]
+        if not isinstance(v, (dict, list)):
+            raise SceneError(f"{source}: field 'view': expected a mapping {{eye: [x, y, z], target: [x, y, z]}} or "
+                             f"an eye position [x, y, z], got {v!r}")
         try:
-            view = View(**data["view"]) if isinstance(data["view"], dict) else View(eye=data["view"])
+            view = View(**v) if isinstance(v, dict) else View(eye=v)
         except (ValidationError, TypeError) as exc:
-            msg = _fmt_validation(exc, "view")[1] if isinstance(exc, ValidationError) else str(exc)
-            raise SceneError(f"{source}: field 'view': {msg}") from None
-    return dict(bodies=bodies, name=str(data.get("name", "") or ""), description=str(data.get("description", "") or ""),
+            if isinstance(exc, ValidationError):
+                fld, msg = _fmt_validation(exc, "view" if isinstance(v, dict) else "")
+                if not isinstance(v, dict):  # a list is the eye position: say so (not "view: Field required")
+                    fld, msg = "view", f"expected an eye position of 3 numbers [x, y, z], got {v!r}"
+            else:
+                fld, msg = "view", str(exc)
+            raise SceneError(f"{source}: field '{fld}': {msg}") from None
+        if np.allclose(view.eye, view.target, rtol=0, atol=1e-12):
+            raise SceneError(f"{source}: field 'view': eye == target ({list(view.eye)}); the view has no direction")
+    for key in ("name", "description"):  # ["x"] was read as the name "['x']"
+        if data.get(key) is not None and not isinstance(data[key], str):
+            raise SceneError(f"{source}: field '{key}': expected a string, got {data[key]!r}")
+    return dict(bodies=bodies, name=data.get("name") or "", description=data.get("description") or "",
                 view=view)
 
 

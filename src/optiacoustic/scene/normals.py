@@ -151,7 +151,9 @@ def merge_vertices(vertices, faces, digits: int = 8):
     """Merge vertices at the same position and drop the ones no face uses.
 
     Positions are compared after rounding to ``digits`` decimals (trimesh's merge
-    tolerance); unlike trimesh, vertices are merged by position alone (normals and UVs in
+    tolerance), or to ``max|coordinate| / 2**60`` where that is coarser (coordinates above
+    about 1e10 in the file's units, e.g. a mesh in nanometres: rounded to 1e-8 they
+    overflowed the int64 key and distinct triangles merged); unlike trimesh, vertices are merged by position alone (normals and UVs in
     the file do not keep them apart: shading normals are computed here). The kept vertices
     stay in the order of their first use in the file's vertex list.
 
@@ -163,7 +165,12 @@ def merge_vertices(vertices, faces, digits: int = 8):
     used = np.zeros(len(V), bool)
     used[F.ravel()] = True
     idx = np.flatnonzero(used)
-    q = np.round(V[idx] * 10.0 ** digits).astype(np.int64)
+    Vu = V[idx]
+    extent = float(np.abs(Vu).max()) if Vu.size else 0.0
+    # the rounding step: 10^-digits, or coarser where the coordinates would overflow an int64 key
+    # (2^60 steps span the mesh: still far finer than float64 resolves at that size)
+    step = max(10.0 ** -digits, extent / 2.0 ** 60)
+    q = np.round(Vu / step).astype(np.int64)
     # one 64-bit hash per position, sorted stably, then checked exactly against the positions
     h = q[:, 0] * np.int64(-7046029254386353131) ^ q[:, 1] * np.int64(-4417276706812531889) ^ q[:, 2] * np.int64(
         1609587929392839161)

@@ -5,19 +5,23 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal, Optional
 
-from pydantic import ConfigDict, Field
+from pydantic import BeforeValidator, ConfigDict, Field, field_validator
 from pydantic.dataclasses import dataclass as pyd_dataclass
 from typing_extensions import Annotated
 
 from ..frames import Pose
-from .shapes import SHAPES, Shape, tessellate_cached
+from .shapes import SHAPES, Real, Shape, _real, tessellate_cached
 from .surface import Surface
 
-__all__ = ["Texture", "Material", "Body", "View", "SceneError"]
+__all__ = ["Texture", "Material", "Body", "View", "SceneError", "BOTTOM_TYPE_NAMES"]
 
 _CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False)
-Unit = Annotated[float, Field(ge=0.0, le=1.0)]
+Unit = Annotated[float, BeforeValidator(_real), Field(ge=0.0, le=1.0)]
 RGB = tuple[Unit, Unit, Unit]
+
+#: The seabeds of thesis Table 2.2 (``optiacoustic.sonar.BOTTOM_TYPES``; the scene layer does not import
+#: the sonar's, a test keeps the two equal). Names compare case-insensitively, ``_``/``-`` for a space.
+BOTTOM_TYPE_NAMES = ("sand/shell", "coarse sand", "posidonia", "mud", "medium sand", "shells")
 
 
 class SceneError(ValueError):
@@ -35,9 +39,9 @@ class Texture:
     """
 
     kind: Literal["checker", "grid"]
-    size: Annotated[float, Field(gt=0.0)]
+    size: Annotated[float, BeforeValidator(_real), Field(gt=0.0)]
     color2: RGB = (0.05, 0.05, 0.05)
-    line_width: Annotated[float, Field(gt=0.0)] = 0.02
+    line_width: Annotated[float, BeforeValidator(_real), Field(gt=0.0)] = 0.02
 
 
 @pyd_dataclass(frozen=True, config=_CONFIG)
@@ -63,13 +67,21 @@ class Material:
     texture: Optional[Texture] = None
     bottom_type: Optional[str] = None
 
+    @field_validator("bottom_type")
+    @classmethod
+    def _known_bottom(cls, v):
+        # checked here, not when a sonar first meets the body (that error named neither file nor body)
+        if v is not None and v.strip().lower().replace("_", " ").replace("-", " ") not in BOTTOM_TYPE_NAMES:
+            raise ValueError(f"unknown seabed {v!r}; expected one of {list(BOTTOM_TYPE_NAMES)}")
+        return v
+
 
 @pyd_dataclass(frozen=True, config=_CONFIG)
 class View:
     """A suggested sensor placement for a scene: ``eye`` aimed at ``target`` (world, m)."""
 
-    eye: tuple[float, float, float]
-    target: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    eye: tuple[Real, Real, Real]
+    target: tuple[Real, Real, Real] = (0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True, eq=False)

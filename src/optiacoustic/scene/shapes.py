@@ -14,18 +14,50 @@ from pathlib import Path
 from typing import ClassVar, Union
 
 import numpy as np
-from pydantic import ConfigDict, Field, PositiveFloat
+from pydantic import AfterValidator, BeforeValidator, ConfigDict, Field
 from pydantic.dataclasses import dataclass
 from typing_extensions import Annotated
 
 from .normals import merge_vertices, smooth_shading
 from .surface import Surface, parametric_grid
 
-__all__ = ["Plane", "Box", "Sphere", "Ellipsoid", "Cylinder", "Mesh", "KleinBottle", "SHAPES", "Shape"]
+__all__ = ["Plane", "Box", "Sphere", "Ellipsoid", "Cylinder", "Mesh", "KleinBottle", "SHAPES", "Shape", "MIN_SIZE"]
 
 _CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False)
-Vec2 = tuple[PositiveFloat, PositiveFloat]
-Vec3 = tuple[PositiveFloat, PositiveFloat, PositiveFloat]
+
+#: Smallest size of a shape (m): a radius, an edge, a height. The ray caster (Embree) computes in float32,
+#: whose smallest normal number is 1.2e-38: its ray-triangle tests multiply three edge coordinates, and for
+#: sizes below 1e-12 m (a cube of 1e-36) those products go subnormal and then to zero (a sphere of radius
+#: 1e-300 loaded, and became a point). Nothing a sonar or a camera sees is near this; a smaller size is a
+#: units mistake. Mesh scales are free (a mesh in nm has scale 1e-9).
+MIN_SIZE = 1e-12
+
+
+def _real(v):
+    """Numbers are numbers: `true` and "2" in a scene file are refused, not read as 1 and 2."""
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
+        raise ValueError(f"expected a number, not {type(v).__name__}")
+    return v
+
+
+def _whole(v):
+    """A count: `true` and "2" refused; a float goes on to pydantic (2.0 is 2, 2.5 an error)."""
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
+        raise ValueError(f"expected an integer, not {type(v).__name__}")
+    return v
+
+
+def _size(v: float) -> float:
+    if not v >= MIN_SIZE:
+        raise ValueError(f"Input should be greater than 0 and at least MIN_SIZE = {MIN_SIZE:g} m")
+    return v
+
+
+Real = Annotated[float, BeforeValidator(_real)]
+Size = Annotated[float, BeforeValidator(_real), AfterValidator(_size)]
+PositiveFloat = Annotated[float, BeforeValidator(_real), Field(gt=0.0)]
+Vec2 = tuple[Size, Size]
+Vec3 = tuple[Size, Size, Size]
 
 
 def _unit_sphere(subdivisions: int) -> Surface:
@@ -83,8 +115,8 @@ class Box:
 class Sphere:
     """A sphere of ``radius`` (m); an icosphere with exact radial normals."""
 
-    radius: PositiveFloat
-    subdivisions: Annotated[int, Field(ge=1, le=7)] = 5
+    radius: Size
+    subdivisions: Annotated[int, BeforeValidator(_whole), Field(ge=1, le=7)] = 5
     kind: ClassVar[str] = "sphere"
 
     def tessellate(self) -> Surface:
@@ -97,7 +129,7 @@ class Ellipsoid:
     """An ellipsoid with semi-axes ``radii = (a, b, c)`` along the body's X, Y, Z (m)."""
 
     radii: Vec3
-    subdivisions: Annotated[int, Field(ge=1, le=7)] = 5
+    subdivisions: Annotated[int, BeforeValidator(_whole), Field(ge=1, le=7)] = 5
     kind: ClassVar[str] = "ellipsoid"
 
     def tessellate(self) -> Surface:
@@ -111,9 +143,9 @@ class Ellipsoid:
 class Cylinder:
     """A capped cylinder with axis along the body's Z, centred on the origin (m)."""
 
-    radius: PositiveFloat
-    height: PositiveFloat
-    sections: Annotated[int, Field(ge=8, le=4096)] = 128
+    radius: Size
+    height: Size
+    sections: Annotated[int, BeforeValidator(_whole), Field(ge=8, le=4096)] = 128
     kind: ClassVar[str] = "cylinder"
 
     def tessellate(self) -> Surface:
@@ -173,6 +205,9 @@ def _load_mesh_file(path: str, mtime: float, smooth_angle_deg: float) -> Surface
     if f.min() < 0 or f.max() >= len(v):
         raise ValueError(f"cannot read mesh {path!r}: a face refers to a vertex that does not exist")
     v, f = merge_vertices(v, f)
+    e1, e2 = v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]
+    if not np.any(np.cross(e1, e2).any(axis=1)):  # every triangle a line or a point: nothing to hit or shade
+        raise ValueError(f"cannot read mesh {path!r}: no triangle with non-zero area ({len(f)} degenerate triangles)")
     # vectorised crease splitting and vertex normals (trimesh's smooth_shade costs ~7 us/triangle)
     v, f, n = smooth_shading(v, f, np.deg2rad(smooth_angle_deg))
     return Surface(v, f, n)
@@ -188,8 +223,8 @@ class Mesh:
     """
 
     file: str
-    scale: Union[PositiveFloat, Vec3] = 1.0
-    smooth_angle_deg: Annotated[float, Field(ge=0.0, le=180.0)] = 30.0
+    scale: Union[PositiveFloat, tuple[PositiveFloat, PositiveFloat, PositiveFloat]] = 1.0
+    smooth_angle_deg: Annotated[float, BeforeValidator(_real), Field(ge=0.0, le=180.0)] = 30.0
     base_dir: str = ""
     kind: ClassVar[str] = "mesh"
 
@@ -241,8 +276,8 @@ def _klein(u, v):
 class KleinBottle:
     """The bottle-shaped immersion of a Klein bottle, about ``height`` metres tall (thesis Fig. 5.4)."""
 
-    height: PositiveFloat = 1.0
-    resolution: Annotated[int, Field(ge=16, le=2048)] = 160
+    height: Size = 1.0
+    resolution: Annotated[int, BeforeValidator(_whole), Field(ge=16, le=2048)] = 160
     kind: ClassVar[str] = "klein_bottle"
 
     @staticmethod

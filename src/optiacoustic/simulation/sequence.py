@@ -16,12 +16,13 @@ from pathlib import Path
 from typing import Annotated, Literal, Optional, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, ValidationInfo, field_validator,
+                      model_validator)
 
 from ..frames import Pose
 from ..rig import Rig
 from ..scene import Scene
-from .trajectory import Orbit, Trajectory, WaypointTrajectory, frame_times, lawnmower, load_csv
+from .trajectory import Orbit, Trajectory, WaypointTrajectory, frame_times, lawnmower, lawnmower_legs, load_csv
 
 __all__ = ["SequenceConfig", "Sequence", "SENSORS", "BUILTIN_RIGS", "load_config", "frame_seed"]
 
@@ -40,18 +41,42 @@ BUILTIN_RIGS = {
 
 _STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)  # every number finite: NaN and inf named by field
 MAX_FRAMES = 10_000_000  # per sensor: a run this long is a mistyped duration or rate (~50 TB at 5 MB a pair)
-Vec3 = tuple[float, float, float]
+
+
+def _real(v):
+    """Numbers are numbers: `true` and "5" are not 1 and 5 (an int is still a float)."""
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
+        raise ValueError(f"expected a number, not {type(v).__name__}")
+    return v
+
+
+def _whole(v):
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
+        raise ValueError(f"expected an integer, not {type(v).__name__}")
+    return int(v)
+
+
+def _flag(v):
+    if not isinstance(v, (bool, np.bool_)):
+        raise ValueError(f"expected true or false, not {type(v).__name__}")
+    return bool(v)
+
+
+Float = Annotated[float, BeforeValidator(_real)]
+Int = Annotated[int, BeforeValidator(_whole)]
+Bool = Annotated[bool, BeforeValidator(_flag)]
+Vec3 = tuple[Float, Float, Float]
 
 
 class OrbitConfig(BaseModel):
     model_config = _STRICT
     kind: Literal["orbit"]
     center: Vec3 = (0.0, 0.0, 0.0)
-    radius: float = Field(6.0, gt=0, description="m")
-    height: float = Field(2.0, description="sonar height above the centre (m)")
-    period: float = Field(60.0, description="s per revolution; negative turns clockwise")
-    phase_deg: float = Field(-90.0, description="angle of the start position about the centre (deg)")
-    target_height: float = Field(0.0, description="height of the looked-at point above the centre (m)")
+    radius: Float = Field(6.0, gt=0, description="m")
+    height: Float = Field(2.0, description="sonar height above the centre (m)")
+    period: Float = Field(60.0, description="s per revolution; negative turns clockwise")
+    phase_deg: Float = Field(-90.0, description="angle of the start position about the centre (deg)")
+    target_height: Float = Field(0.0, description="height of the looked-at point above the centre (m)")
 
     @field_validator("period")
     @classmethod
@@ -68,18 +93,25 @@ class OrbitConfig(BaseModel):
 class LawnmowerConfig(BaseModel):
     model_config = _STRICT
     kind: Literal["lawnmower"]
-    area: tuple[float, float, float, float] = Field(description="x_min, x_max, y_min, y_max (m)")
-    height: float
-    spacing: float = Field(gt=0)
-    speed: float = Field(gt=0)
-    tilt_deg: float = Field(30.0, gt=0, lt=90)
-    turn_time: float = Field(2.0, gt=0)
+    area: tuple[Float, Float, Float, Float] = Field(description="x_min, x_max, y_min, y_max (m)")
+    height: Float
+    spacing: Float = Field(gt=0)
+    speed: Float = Field(gt=0)
+    tilt_deg: Float = Field(30.0, gt=0, lt=90)
+    turn_time: Float = Field(2.0, gt=0)
 
     @field_validator("area")
     @classmethod
     def _area(cls, v):
         if not (v[1] > v[0] and v[3] >= v[2]):
             raise ValueError("expected x_min < x_max and y_min <= y_max")
+        return v
+
+    @field_validator("spacing")
+    @classmethod
+    def _legs(cls, v, info: ValidationInfo):
+        if "area" in info.data:  # a survey of more than MAX_LEGS legs is a mistyped spacing (it hung)
+            lawnmower_legs(info.data["area"], v)
         return v
 
     def build(self, base: Path) -> Trajectory:
@@ -89,15 +121,17 @@ class LawnmowerConfig(BaseModel):
 
 class WaypointConfig(BaseModel):
     model_config = _STRICT
-    time: float
+    time: Float
     position: Vec3
     target: Optional[Vec3] = Field(None, description="world point the sonar looks at")
-    quaternion: Optional[tuple[float, float, float, float]] = Field(None, description="x, y, z, w; sonar to world")
+    quaternion: Optional[tuple[Float, Float, Float, Float]] = Field(None, description="x, y, z, w; sonar to world")
 
     @model_validator(mode="after")
     def _one_orientation(self):
         if (self.target is None) == (self.quaternion is None):
             raise ValueError("give exactly one of 'target' or 'quaternion'")
+        if self.target is not None and np.allclose(self.target, self.position, rtol=0, atol=1e-12):
+            raise ValueError(f"target == position ({list(self.position)}): the sonar cannot look at its own position")
         if self.quaternion is not None and abs(np.linalg.norm(self.quaternion) - 1) > 1e-3:
             raise ValueError(f"quaternion: norm {np.linalg.norm(self.quaternion):.6g}, expected 1")
         return self
@@ -134,8 +168,8 @@ class CsvConfig(BaseModel):
 
 class Rates(BaseModel):
     model_config = _STRICT
-    sonar: float = Field(5.0, ge=0, description="Hz; 0 leaves the sonar out")
-    camera: float = Field(1.0, ge=0, description="Hz; 0 leaves the camera out")
+    sonar: Float = Field(5.0, ge=0, description="Hz; 0 leaves the sonar out")
+    camera: Float = Field(1.0, ge=0, description="Hz; 0 leaves the camera out")
 
     @model_validator(mode="after")
     def _some_sensor(self):
@@ -146,15 +180,15 @@ class Rates(BaseModel):
 
 class NoiseConfig(BaseModel):
     model_config = _STRICT
-    sonar: bool = True
-    camera: bool = True
+    sonar: Bool = True
+    camera: Bool = True
 
 
 class OpticalConfig(BaseModel):
     model_config = _STRICT
-    slices: int = Field(32, ge=1, le=512)
-    backscatter_step: int = Field(16, ge=1)
-    shadows: bool = True
+    slices: Int = Field(32, ge=1, le=512)
+    backscatter_step: Int = Field(16, ge=1, le=64)
+    shadows: Bool = True
 
 
 class SequenceConfig(BaseModel):
@@ -165,14 +199,14 @@ class SequenceConfig(BaseModel):
     rig: Union[str, dict] = Field("thesis", description="built-in rig name, rig file, or an inline rig mapping")
     sonar: Union[str, dict, None] = Field(None, description="overrides the rig's sonar: preset or mapping")
     water: str = "thesis"
-    seed: int = Field(0, ge=0)
-    duration: float = Field(gt=0, description="s")
-    start: float = Field(0.0, description="time of the first frame on the trajectory (s)")
+    seed: Int = Field(0, ge=0)
+    duration: Float = Field(gt=0, description="s")
+    start: Float = Field(0.0, description="time of the first frame on the trajectory (s)")
     rates: Rates = Rates()
     trajectory: Annotated[Union[OrbitConfig, LawnmowerConfig, WaypointsConfig, CsvConfig], Field(discriminator="kind")]
     noise: NoiseConfig = NoiseConfig()
     optical: OpticalConfig = OpticalConfig()
-    ground_truth: bool = True
+    ground_truth: Bool = True
 
 
 def _fmt_error(exc: ValidationError, source: str) -> str:

@@ -24,10 +24,25 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validate import as_array
-from ..frames import Pose
+from .._validate import as_array, check_memory
+from ..frames import Pose, are_rotations
 
-__all__ = ["Trajectory", "WaypointTrajectory", "Orbit", "lawnmower", "load_csv", "frame_times", "look_rotations"]
+__all__ = ["Trajectory", "WaypointTrajectory", "Orbit", "lawnmower", "load_csv", "frame_times", "look_rotations",
+           "MAX_LEGS"]
+
+#: Most legs a :func:`lawnmower` survey may have: more is a mistyped ``spacing`` (1e-7 m over a
+#: 1000 m wide area is 1e10 legs, which built waypoints for hours without a word).
+MAX_LEGS = 100_000
+
+
+def _number(v, name: str) -> float:
+    """A finite real number (bools and strings refused), as float; a ValueError naming ``name``."""
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name}: expected a number, got {v!r} ({type(v).__name__})")
+    v = float(v)
+    if not np.isfinite(v):
+        raise ValueError(f"{name}: must be finite, got {v!r}")
+    return v
 
 
 def look_rotations(forward_world, up=(0.0, 0.0, 1.0)) -> np.ndarray:
@@ -46,9 +61,17 @@ def look_rotations(forward_world, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     (..., 3, 3) rotation matrices with columns (right, forward, up).
     """
     f = as_array(forward_world, "forward_world", ("...", 3))
-    f = f / np.linalg.norm(f, axis=-1, keepdims=True)
+    nf = np.linalg.norm(f, axis=-1, keepdims=True)
+    if np.any(nf < 1e-12):
+        i = tuple(int(k) for k in np.argwhere(nf[..., 0] < 1e-12)[0])
+        raise ValueError(f"forward_world: a viewing direction is the zero vector (at index {i}); "
+                         "the body would look at its own position")
+    f = f / nf
     up = as_array(up, "up", (3,))
-    right = np.cross(f, up / np.linalg.norm(up))
+    nu = np.linalg.norm(up)
+    if nu < 1e-12:
+        raise ValueError(f"up: must be a non-zero vector, got {up.tolist()}")
+    right = np.cross(f, up / nu)
     nr = np.linalg.norm(right, axis=-1, keepdims=True)
     if np.any(nr < 1e-6):
         raise ValueError("look_rotations: a viewing direction is parallel to up (looking straight up or down)")
@@ -62,13 +85,15 @@ def frame_times(rate: float, duration: float, start: float = 0.0) -> np.ndarray:
 
     ``rate = 0`` gives no frames. Frame ``k`` is at ``start + k / rate``.
     """
-    if not np.isfinite(rate) or rate < 0:
+    rate, duration, start = _number(rate, "rate"), _number(duration, "duration"), _number(start, "start")
+    if rate < 0:
         raise ValueError(f"rate: expected a finite rate >= 0 Hz, got {rate!r}")
-    if not np.isfinite(duration) or duration <= 0:
+    if duration <= 0:
         raise ValueError(f"duration: expected a finite duration > 0 s, got {duration!r}")
     if rate == 0:
         return np.zeros(0)
     n = int(np.ceil(duration * rate - 1e-9))  # k / rate < duration
+    check_memory(16.0 * n, f"{n} frame times (duration {duration:g} s x rate {rate:g} Hz)")
     return start + np.arange(n) / rate
 
 
@@ -140,8 +165,16 @@ class WaypointTrajectory(Trajectory):
         if not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
             raise ValueError(f"times: waypoint times must be finite and strictly increasing, got {t.tolist()}")
         p = as_array(positions_world, "positions_world", (len(t), 3))
-        rot = rotations if isinstance(rotations, Rotation) else Rotation.from_matrix(
-            as_array(rotations, "rotations", (len(t), 3, 3)))
+        if isinstance(rotations, Rotation):
+            rot = rotations
+        else:
+            m = as_array(rotations, "rotations", (len(t), 3, 3))
+            ok = are_rotations(m)
+            if not ok.all():  # scipy would orthonormalise any matrix into some rotation without a word
+                k = int(np.flatnonzero(~ok)[0])
+                raise ValueError(f"rotations[{k}]: not a rotation matrix (orthonormal, det +1; "
+                                 f"det = {np.linalg.det(m[k]):.6g}), got {m[k].tolist()}")
+            rot = Rotation.from_matrix(m)
         if len(rot) != len(t):
             raise ValueError(f"rotations: expected {len(t)} rotations, got {len(rot)}")
         if interpolation == "cubic":
@@ -160,8 +193,17 @@ class WaypointTrajectory(Trajectory):
     @classmethod
     def looking_at(cls, times, positions_world, targets_world, *, up=(0.0, 0.0, 1.0), interpolation="cubic"):
         """Waypoints whose sonar looks from each position at the matching target (world, m)."""
-        p = np.asarray(positions_world, float)
-        q = np.broadcast_to(np.asarray(targets_world, float), p.shape)
+        p = as_array(positions_world, "positions_world", (None, 3))
+        q = as_array(targets_world, "targets_world", ("...", 3))
+        try:
+            q = np.broadcast_to(q, p.shape)
+        except ValueError:
+            raise ValueError(f"targets_world: expected shape (3,) or {p.shape}, got {q.shape}") from None
+        same = np.linalg.norm(q - p, axis=-1) < 1e-12
+        if np.any(same):
+            k = int(np.flatnonzero(same)[0])
+            raise ValueError(f"waypoint {k}: target == position ({p[k].tolist()}); the sonar cannot look at "
+                             "its own position")
         return cls(times, p, look_rotations(q - p, up), interpolation=interpolation)
 
     def sample(self, times):
@@ -193,9 +235,18 @@ class Orbit(Trajectory):
     def __post_init__(self):
         c = as_array(self.center, "center", (3,))
         object.__setattr__(self, "center", tuple(float(x) for x in c))
+        for name in ("radius", "height", "period", "phase", "target_height", "start"):
+            object.__setattr__(self, name, _number(getattr(self, name), f"Orbit.{name}"))
+        end = self.end
+        if not (isinstance(end, (int, float, np.integer, np.floating)) and not isinstance(end, (bool, np.bool_))
+                and not np.isnan(end) and end != -np.inf):
+            raise ValueError(f"Orbit.end: expected a number or inf, got {end!r}")
+        object.__setattr__(self, "end", float(end))
+        if not self.end > self.start:
+            raise ValueError(f"Orbit.end: must be after start ({self.start:g} s), got {self.end:g} s")
         if not self.radius > 0:
             raise ValueError(f"radius: expected > 0 m, got {self.radius!r}")
-        if not np.isfinite(self.period) or self.period == 0:
+        if self.period == 0:
             raise ValueError(f"period: expected a finite non-zero time (s), got {self.period!r}")
         if abs(self.height - self.target_height) < 1e-9 and self.radius < 1e-9:
             raise ValueError("orbit: the sonar would sit on its target")
@@ -207,6 +258,22 @@ class Orbit(Trajectory):
         pos = c + np.column_stack([self.radius * np.cos(a), self.radius * np.sin(a), np.full_like(a, self.height)])
         target = c + np.array([0.0, 0.0, self.target_height])
         return look_rotations(target - pos), pos
+
+
+def lawnmower_legs(area, spacing) -> int:
+    """Number of legs of a :func:`lawnmower` survey of ``area`` with legs ``spacing`` apart.
+
+    Raises a ValueError naming ``spacing`` and the count when it exceeds :data:`MAX_LEGS`.
+    """
+    x0, x1, y0, y1 = (float(v) for v in area)
+    spacing = _number(spacing, "spacing")
+    if not spacing > 0:
+        raise ValueError(f"spacing: expected > 0, got {spacing!r}")
+    n = np.floor((y1 - y0) / spacing + 1e-9) + 1
+    if not n <= MAX_LEGS:  # also inf: a width of 1e300 m or a spacing of 1e-320 m
+        raise ValueError(f"spacing: {spacing:g} m across {y1 - y0:g} m (y_max - y_min) makes {n:.6g} legs; "
+                         f"at most {MAX_LEGS} (is the spacing in metres?)")
+    return int(n)
 
 
 def lawnmower(area, height: float, spacing: float, speed: float, *, tilt: float = np.deg2rad(30.0),
@@ -236,35 +303,30 @@ def lawnmower(area, height: float, spacing: float, speed: float, *, tilt: float 
     WaypointTrajectory
         Linear segments with Slerp: constant heading along each leg and each crossing.
     """
-    x0, x1, y0, y1 = (float(v) for v in area)
+    a = as_array(area, "area", (4,))
+    x0, x1, y0, y1 = (float(v) for v in a)
     if not (x1 > x0 and y1 >= y0):
-        raise ValueError(f"area: expected x_min < x_max and y_min <= y_max, got {list(area)}")
+        raise ValueError(f"area: expected x_min < x_max and y_min <= y_max, got {a.tolist()}")
+    height, tilt, start = _number(height, "height"), _number(tilt, "tilt"), _number(start, "start")
     for name, v in (("spacing", spacing), ("speed", speed), ("turn_time", turn_time)):
-        if not (np.isfinite(v) and v > 0):
+        if not _number(v, name) > 0:
             raise ValueError(f"{name}: expected > 0, got {v!r}")
-    n_legs = int(np.floor((y1 - y0) / spacing + 1e-9)) + 1
-    corners = []
-    for k in range(n_legs):
-        y = y0 + k * spacing
-        xs = (x0, x1) if k % 2 == 0 else (x1, x0)
-        corners += [(xs[0], y), (xs[1], y)]
-    corners = np.array(corners)
+    n_legs = lawnmower_legs((x0, x1, y0, y1), spacing)
+    # corners of the legs: leg k at y0 + k spacing, flown +X on even legs and -X on odd ones
+    y = y0 + np.arange(n_legs) * float(spacing)
+    even = np.arange(n_legs) % 2 == 0
+    xs = np.column_stack([np.where(even, x0, x1), np.where(even, x1, x0)]).reshape(-1)
+    corners = np.column_stack([xs, np.repeat(y, 2)])
     # each straight segment is flown at constant heading; at a corner the body turns on the spot
-    times, pos, heading = [], [], []
-    t = start
-    for i in range(len(corners) - 1):
-        a, b = corners[i], corners[i + 1]
-        h = np.arctan2(*(b - a)[::-1])
-        if i > 0:
-            t += turn_time
-        times += [t, t + np.linalg.norm(b - a) / speed]
-        pos += [a, b]
-        heading += [h, h]
-        t = times[-1]
-    times, pos, heading = np.array(times), np.array(pos), np.array(heading)
+    seg = np.diff(corners, axis=0)
+    dur = np.linalg.norm(seg, axis=1) / float(speed)
+    t0 = start + np.concatenate([[0.0], np.cumsum(dur[:-1])]) + np.arange(len(seg)) * float(turn_time)
+    times = np.column_stack([t0, t0 + dur]).reshape(-1)
+    pos = np.stack([corners[:-1], corners[1:]], axis=1).reshape(-1, 2)
+    heading = np.repeat(np.arctan2(seg[:, 1], seg[:, 0]), 2)
     fwd = np.column_stack([np.cos(heading) * np.cos(tilt), np.sin(heading) * np.cos(tilt),
                            np.full_like(heading, -np.sin(tilt))])
-    p3 = np.column_stack([pos, np.full(len(pos), float(height))])
+    p3 = np.column_stack([pos, np.full(len(pos), height)])
     return WaypointTrajectory(times, p3, look_rotations(fwd), interpolation="linear")
 
 

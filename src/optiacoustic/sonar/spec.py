@@ -12,7 +12,18 @@ from .beampattern import BeamPattern
 
 from ..frames import project_to_sonar, SonarProjection
 
-__all__ = ["SonarSpec", "PRESETS", "MAX_COUNTS"]
+__all__ = ["SonarSpec", "PRESETS", "MAX_COUNTS", "UnknownPresetError"]
+
+
+class UnknownPresetError(ValueError, KeyError):
+    """An unknown preset name: a ValueError (a caller mistake) that is also the KeyError it used to be."""
+
+    __str__ = ValueError.__str__  # the message as is, not KeyError's repr of it
+
+
+def _is_number(v) -> bool:
+    """A real number and not a bool (``range_max=True`` is a mistake, not 1 m)."""
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
 
 #: Upper bounds of the count fields (real sonars: up to ~1024 beams and ~4000 bins).
 MAX_COUNTS = {"n_beams": 8192, "n_bins": 65536, "elevation_samples": 4096}
@@ -103,12 +114,21 @@ class SonarSpec:
                 bad(fld, f"must be at most {MAX_COUNTS[fld]}")
         for fld in ("fov_azimuth", "fov_elevation", "range_max", "frequency", "sound_speed"):
             v = getattr(self, fld)
-            if not isinstance(v, (int, float, np.floating)) or not np.isfinite(v) or v <= 0:
+            if not _is_number(v) or not np.isfinite(v) or v <= 0:
                 bad(fld, "must be a finite number > 0")
         for fld in ("range_min", "beamwidth_azimuth", "range_resolution"):
             v = getattr(self, fld)
-            if not isinstance(v, (int, float, np.floating)) or not np.isfinite(v) or v < 0:
+            if not _is_number(v) or not np.isfinite(v) or v < 0:
                 bad(fld, "must be a finite number >= 0")
+        for fld in ("name", "source"):
+            if not isinstance(getattr(self, fld), str):
+                bad(fld, "must be a string")
+        if not isinstance(self.unverified, (tuple, list)) or not all(isinstance(x, str) for x in self.unverified):
+            bad("unverified", "must be a list of field names (strings)")
+        object.__setattr__(self, "unverified", tuple(self.unverified))
+        for fld in ("elevation_beam", "azimuth_beam"):
+            if getattr(self, fld) is not None and not isinstance(getattr(self, fld), BeamPattern):
+                bad(fld, "must be a BeamPattern or None")
         if self.fov_azimuth >= np.pi:
             bad("fov_azimuth", "must be < pi (a forward-looking fan)")
         if self.fov_elevation >= np.pi:
@@ -123,7 +143,10 @@ class SonarSpec:
             table = getattr(self, fld)
             if table is None:
                 continue
-            a = np.asarray(table, float)
+            try:
+                a = np.asarray(table, float)
+            except (TypeError, ValueError):
+                raise ValueError(f"SonarSpec.{fld}: expected a 1-D table of >= 2 numbers, got {table!r}") from None
             if a.ndim != 1 or a.size < 2:
                 raise ValueError(f"SonarSpec.{fld}: expected a 1-D table of >= 2 values, got shape {a.shape}")
             if not np.all(np.isfinite(a)) or np.any(np.abs(a) >= lim):
@@ -186,11 +209,18 @@ class SonarSpec:
     # ------------------------------------------------------------------ presets
     @classmethod
     def preset(cls, name: str, **overrides) -> "SonarSpec":
-        """A preset by name (``SonarSpec.preset_names()``), with optional field overrides."""
-        try:
-            spec = PRESETS[name]
-        except KeyError:
-            raise KeyError(f"unknown sonar preset {name!r}; presets are {cls.preset_names()}") from None
+        """A preset by name (``SonarSpec.preset_names()``), with optional field overrides.
+
+        Raises :class:`UnknownPresetError` (a ValueError, and a KeyError as before) for an unknown
+        name, and a ValueError naming an unknown override field.
+        """
+        if not isinstance(name, str) or name not in PRESETS:
+            raise UnknownPresetError(f"unknown sonar preset {name!r}; presets are {cls.preset_names()}")
+        spec = PRESETS[name]
+        fields = [f.name for f in dataclasses.fields(cls)]
+        unknown = [k for k in overrides if k not in fields]
+        if unknown:
+            raise ValueError(f"SonarSpec.preset({name!r}): unknown field {unknown[0]!r}; fields are {fields}")
         return dataclasses.replace(spec, **overrides) if overrides else spec
 
     @staticmethod
@@ -207,7 +237,7 @@ class SonarSpec:
         if isinstance(data, str):
             try:
                 return cls.preset(data)
-            except KeyError as exc:
+            except UnknownPresetError as exc:
                 raise ValueError(f"{source}: {exc.args[0]}") from None
         if not isinstance(data, dict):
             raise ValueError(f"{source}: expected a preset name or a mapping, got {data!r}")
@@ -216,8 +246,8 @@ class SonarSpec:
         if "preset" in data:
             try:
                 base = cls.preset(data.pop("preset"))
-            except KeyError as exc:
-                raise ValueError(f"{source}: {exc.args[0]}") from None
+            except UnknownPresetError as exc:
+                raise ValueError(f"{source}: field 'preset': {exc.args[0]}") from None
         fields = {f.name for f in dataclasses.fields(cls)}
         kw = {}
         for k, v in data.items():
@@ -227,14 +257,21 @@ class SonarSpec:
                 except (TypeError, ValueError):
                     raise ValueError(f"{source}: field '{k}': expected a list of numbers, got {v!r}") from None
             elif k.endswith("_deg") and k[:-4] in fields:
-                try:
-                    kw[k[:-4]] = float(np.deg2rad(float(v)))
-                except (TypeError, ValueError):
-                    raise ValueError(f"{source}: field '{k}': expected a number, got {v!r}") from None
+                if not _is_number(v):  # `true` is not 1 deg, "30" not 30
+                    raise ValueError(f"{source}: field '{k}': expected a number, got {v!r}")
+                kw[k[:-4]] = float(np.deg2rad(float(v)))
             elif k in ("elevation_beam", "azimuth_beam"):
                 kw[k] = None if v is None else BeamPattern.from_dict(v, f"{source}: field '{k}'")
+            elif k == "unverified":
+                if not isinstance(v, (list, tuple)) or not all(isinstance(x, str) for x in v):
+                    raise ValueError(f"{source}: field '{k}': expected a list of field names, got {v!r}")
+                kw[k] = tuple(v)
+            elif k == "bin_ranges":
+                if not isinstance(v, (list, tuple)) or not all(_is_number(x) for x in v):
+                    raise ValueError(f"{source}: field '{k}': expected a list of ranges (m), got {v!r}")
+                kw[k] = tuple(v)
             elif k in fields and k not in ("fov_azimuth", "fov_elevation", "beamwidth_azimuth", "beam_azimuths"):
-                kw[k] = tuple(v) if k in ("unverified", "bin_ranges") else v
+                kw[k] = v
             else:
                 raise ValueError(
                     f"{source}: field '{k}': unknown; angles go in *_deg fields "
