@@ -133,8 +133,9 @@ def test_same_image_at_any_number_of_threads_and_for_a_seed():
 
 def test_noise_floor_alone_is_exponential():
     """No echo: every cell is the noise floor's power times ``E``; ``E / 1`` is Exp(1) (KS, mean and
-    second moment 2), and independent of its neighbours."""
-    model = NoiseModel()
+    second moment 2), and independent of its neighbours. (Without echo the floor needs an absolute
+    ``reference_level``: relative to no echo there is none, NoEchoWarning.)"""
+    model = NoiseModel(reference_level=1.0)
     I = np.zeros(SHAPE, np.float32)
     z = _image(model, I, {"sand/shell": np.zeros(SHAPE, np.float32)}, seed=6) / _noise(model, I)
     assert stats.kstest(z.ravel(), "expon").pvalue > 1e-3

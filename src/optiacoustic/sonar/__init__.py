@@ -13,7 +13,7 @@ from .distributions import (
 )
 from .formation import SonarOptions, caster_for, simulate_sonar
 from .frame import FanImage, MeasuredSonarFrame, SonarFrame, SonarGroundTruth, SonarImageLike, SonarRays
-from .noise import NoiseModel
+from .noise import NoEchoWarning, NoiseModel
 from .propagation import Seawater, absorption_db_per_m, two_way_gain
 from .spec import PRESETS, SonarSpec
 
@@ -22,6 +22,7 @@ __all__ = [
     "FanImage",
     "KDistribution",
     "MeasuredSonarFrame",
+    "NoEchoWarning",
     "NoiseModel",
     "Rayleigh",
     "RayleighMixture",

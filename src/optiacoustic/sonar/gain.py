@@ -31,10 +31,20 @@ __all__ = ["DeviceGain", "encode", "decode", "ENCODINGS"]
 #: ``linear`` (I), ``amplitude`` (sqrt I), ``root-amplitude`` (I^(1/4)), ``db`` (10 log10 I).
 ENCODINGS = ("linear", "amplitude", "root-amplitude", "db")
 
+#: Bounds of the TVG's coefficients (:class:`DeviceGain`): devices use 20 to 40 log r and the water's
+#: absorption (about 1 dB/m at 3 MHz); beyond these the TVG's factor overflows at ordinary ranges.
+MAX_SPREADING_DB = 100.0
+MAX_ABSORPTION_DB_PER_M = 10.0
+
 
 @dataclass(frozen=True)
 class DeviceGain:
     """A device's gain chain (levels in dB re the simulator's echo units at ``reference_range``).
+
+    Levels (``gain_db``, ``noise_db``, ``volume_db``) lie within +-300 dB (``propagation.MAX_DB``),
+    ``spreading_db`` within +-100, ``absorption_db_per_m`` within +-10 dB/m: numbers (not bools or
+    strings), checked on construction; a TVG whose factor overflows at a frame's ranges is refused
+    when the frame is formed, naming these fields.
 
     Attributes
     ----------
@@ -60,16 +70,14 @@ class DeviceGain:
     reference_range: float = 1.0
 
     def __post_init__(self):
-        for name in ("gain_db", "spreading_db", "absorption_db_per_m"):
-            v = getattr(self, name)
-            if not np.isfinite(v):
-                raise ValueError(f"DeviceGain.{name}: must be finite, got {v!r}")
-        for name in ("noise_db", "volume_db"):
-            v = getattr(self, name)
-            if v is not None and not np.isfinite(v):
-                raise ValueError(f"DeviceGain.{name}: must be finite or None, got {v!r}")
-        if not (np.isfinite(self.reference_range) and self.reference_range > 0):
-            raise ValueError(f"DeviceGain.reference_range: must be > 0 m, got {self.reference_range!r}")
+        from .propagation import MAX_DB, check_number
+
+        for name in ("gain_db", "noise_db", "volume_db"):  # None: none (noise and volume)
+            check_number(f"DeviceGain.{name}", getattr(self, name), -MAX_DB, MAX_DB, none=name != "gain_db", unit="dB")
+        check_number("DeviceGain.spreading_db", self.spreading_db, -MAX_SPREADING_DB, MAX_SPREADING_DB, unit="dB per decade")
+        check_number("DeviceGain.absorption_db_per_m", self.absorption_db_per_m, -MAX_ABSORPTION_DB_PER_M,
+                     MAX_ABSORPTION_DB_PER_M, unit="dB/m")
+        check_number("DeviceGain.reference_range", self.reference_range, 0.0, 1e5, lo_open=True, unit="m")
 
     def tvg(self, ranges) -> np.ndarray:
         """The device's TVG (linear power factor) at ``ranges`` (m)."""

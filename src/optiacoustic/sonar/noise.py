@@ -18,18 +18,30 @@ reverberation and speckle only redistribute it (docs/physics.md).
 from __future__ import annotations
 
 import functools
+import warnings
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Optional
 
 import numpy as np
 
-from .propagation import absorption_db_per_m
-from .speckle import MU_NO_SEABED
+from .propagation import MAX_DB, absorption_db_per_m, check_number
+from .speckle import AREA_NO_SEABED, MU_NO_SEABED
 
 if TYPE_CHECKING:  # for the field's annotation only
     from .gain import DeviceGain
 
-__all__ = ["NoiseModel"]
+__all__ = ["NoiseModel", "NoEchoWarning"]
+
+
+class NoEchoWarning(UserWarning):
+    """A frame without any positive echo met a ``NoiseModel`` whose noise floor is relative to the
+    frame's echo (no ``reference_level``): the floor has no reference, and the frame gets none.
+    Set ``NoiseModel(reference_level=...)`` for an absolute noise floor."""
+
+
+#: Linear factors of the noise models must stay below this (float32 holds up to 3.4e38; the
+#: exponential and speckle variates multiply them by up to a few tens): else the image overflows.
+_F32_SAFE = 1e35
 
 _MODELS = ("mixture", "rayleigh", "weibull", "k")
 
@@ -51,10 +63,13 @@ class NoiseModel:
     noise_floor_db : float or None
         Ambient/thermal noise power, in dB relative to the reference level (the median
         positive noise-free echo of the frame, or ``reference_level``), at the median
-        echo range. ``None`` switches the noise floor off.
+        echo range; within +-300 dB (``propagation.MAX_DB``). ``None`` switches the noise
+        floor off. A frame with no positive echo and no ``reference_level`` has no
+        reference: it gets no noise floor, with a :class:`NoEchoWarning`.
     reference_level : float, optional
         Absolute reference for ``noise_floor_db`` in the image's units, to make the
-        noise floor the same across frames.
+        noise floor the same across frames (and present in frames without echo); > 0,
+        with ``reference_level x 10^(noise_floor_db / 10)`` at most 1e30.
     tvg_noise : bool
         With ideal TVG (the default propagation) the receiver noise is amplified by the
         TVG gain ``r^2 10^(2 alpha r / 10)``, so it rises with range; ``False`` keeps it flat.
@@ -68,17 +83,21 @@ class NoiseModel:
     tvg_noise: bool = True
 
     def __post_init__(self):
-        if self.reverberation is not None and self.reverberation not in _MODELS:
+        if self.reverberation is not None and (not isinstance(self.reverberation, str) or self.reverberation not in _MODELS):
             raise ValueError(f"NoiseModel.reverberation: expected one of {_MODELS} or None, got {self.reverberation!r}")
-        if self.noise_floor_db is not None and not np.isfinite(self.noise_floor_db):
-            raise ValueError(f"NoiseModel.noise_floor_db: must be finite or None, got {self.noise_floor_db!r}")
-        if self.reference_level is not None and not (np.isfinite(self.reference_level) and self.reference_level > 0):
-            raise ValueError(f"NoiseModel.reference_level: must be > 0, got {self.reference_level!r}")
-        if self.bottom_type is not None:
-            from .distributions import BOTTOM_TYPES
-
-            if self.bottom_type not in BOTTOM_TYPES:
-                raise ValueError(f"NoiseModel.bottom_type: unknown {self.bottom_type!r}; expected one of {sorted(BOTTOM_TYPES)}")
+        for name in ("target_speckle", "tvg_noise"):
+            v = getattr(self, name)
+            if not isinstance(v, (bool, np.bool_)):  # "no" is truthy: a switch must be a bool
+                raise ValueError(f"NoiseModel.{name}: expected True or False, got {v!r} ({type(v).__name__})")
+        check_number("NoiseModel.noise_floor_db", self.noise_floor_db, -MAX_DB, MAX_DB, none=True, unit="dB")
+        check_number("NoiseModel.reference_level", self.reference_level, 0.0, 1e30, none=True, lo_open=True)
+        if self.reference_level is not None and self.noise_floor_db is not None:
+            level = float(self.reference_level) * 10.0 ** (float(self.noise_floor_db) / 10.0)
+            if level > 1e30:
+                raise ValueError(f"NoiseModel.reference_level x 10^(noise_floor_db / 10) = {level:.3g}: a noise floor over "
+                                 f"1e30 overflows the image (reference_level={self.reference_level!r}, "
+                                 f"noise_floor_db={self.noise_floor_db!r})")
+        _check_bottom_type("NoiseModel", self.bottom_type)
 
     @classmethod
     def off(cls) -> "NoiseModel":
@@ -94,18 +113,32 @@ class NoiseModel:
         sub = intensity.reshape(-1)[::7]
         rows = _subsample_rows(intensity.shape)
         pos = sub > 0
+        any_echo = bool(pos.any())
         if self.reference_level is not None:
-            ref = self.reference_level
-        else:
-            ref = float(np.median(sub[pos])) if pos.any() else 1.0
-        r_ref = _median_of_rows(ranges, rows[pos]) if pos.any() else float(np.median(ranges))
+            ref = float(self.reference_level)
+        elif any_echo:
+            ref = float(np.median(sub[pos]))
+        else:  # the floor is relative to the frame's echo, and there is none: no reference, no floor
+            warnings.warn("NoiseModel: a frame without echo has no noise floor (noise_floor_db is relative to the "
+                          "frame's echo); set NoiseModel(reference_level=...) for an absolute noise floor",
+                          NoEchoWarning, stacklevel=3)
+            return np.zeros(len(ranges), np.float32)
+        r_ref = _median_of_rows(ranges, rows[pos]) if any_echo else float(np.median(ranges))
         level = ref * 10.0 ** (self.noise_floor_db / 10.0)
         if propagation == "tvg" and self.tvg_noise:
             alpha = absorption_db_per_m(frequency, water)
-            gain = (ranges / r_ref) ** 2 * 10.0 ** (2.0 * alpha * (ranges - r_ref) / 10.0)
+            with np.errstate(over="ignore"):
+                gain = (ranges / r_ref) ** 2 * 10.0 ** (2.0 * alpha * (ranges - r_ref) / 10.0)
         else:
             gain = np.ones_like(ranges)
-        return (level * gain).astype(np.float32)
+        out = level * gain
+        top = float(np.max(out, initial=0.0))
+        if not top <= _F32_SAFE:  # (n_bins,) values: once per frame
+            raise ValueError(f"NoiseModel: the noise floor reaches {top:.3g} at {float(ranges[np.argmax(out)]):.4g} m, "
+                             f"beyond what the float32 image holds (noise_floor_db={self.noise_floor_db!r}, "
+                             f"reference_level={self.reference_level!r}, tvg_noise={self.tvg_noise!r}, "
+                             f"reference {ref:.3g})")
+        return out.astype(np.float32)
 
     def _gaussian_bottom(self) -> bool:
         """True when the bottom amplitude is a Rayleigh mixture (Rayleigh included): given its
@@ -286,6 +319,16 @@ class NoiseModel:
         return np.maximum(out, 0.0)
 
 
+def _check_bottom_type(owner: str, bottom_type) -> None:
+    """``bottom_type``: None or the name of a Table 2.2 bottom type (a string: a list is a mistake)."""
+    if bottom_type is None:
+        return
+    from .distributions import BOTTOM_TYPES
+
+    if not isinstance(bottom_type, str) or bottom_type not in BOTTOM_TYPES:
+        raise ValueError(f"{owner}.bottom_type: unknown {bottom_type!r}; expected one of {sorted(BOTTOM_TYPES)} or None")
+
+
 @functools.lru_cache(maxsize=8)
 def _subsample_rows(shape: tuple) -> np.ndarray:
     """Row of every 7th cell of an image of ``shape`` (read-only, cached)."""
@@ -429,7 +472,10 @@ class ScattererNoise:
     Attributes
     ----------
     density : float
-        Seabed scatterers per square metre; ``inf``: fully developed (Rayleigh) speckle.
+        Seabed scatterers per square metre, in ``(0, 1e12]`` (``speckle.MAX_DENSITY``); ``inf``: fully
+        developed (Rayleigh) speckle. A cell holds seabed when its area exceeds
+        ``speckle.AREA_NO_SEABED``; its count is Poisson of mean ``density x area``, so a tiny
+        density leaves (almost) every seabed cell empty (probability ``exp(-density x area)``).
     gain : DeviceGain
         Source level, receiver noise, volume reverberation and the device's TVG.
     bottom_type : str, optional
@@ -439,7 +485,8 @@ class ScattererNoise:
         Independent scatterer clusters per m^2: a cell's count is gamma-mixed Poisson of
         shape ``clusters_per_m2 x cell area`` (``sonar.speckle.cluster_ratio``); ``inf``: none.
     looks : float
-        Effective number of independent looks the device averages per stored sample (>= 1).
+        Effective number of independent looks the device averages per stored sample, in
+        ``[1, 1000]`` (``speckle.MAX_LOOKS``).
     """
 
     density: float = float("inf")
@@ -459,11 +506,7 @@ class ScattererNoise:
         from .speckle import check_scatterer_parameters
 
         check_scatterer_parameters("ScattererNoise", self.density, self.clusters_per_m2, self.looks)
-        if self.bottom_type is not None:
-            from .distributions import BOTTOM_TYPES
-
-            if self.bottom_type not in BOTTOM_TYPES:
-                raise ValueError(f"ScattererNoise.bottom_type: unknown {self.bottom_type!r}; expected one of {sorted(BOTTOM_TYPES)}")
+        _check_bottom_type("ScattererNoise", self.bottom_type)
 
     def draw(self, shape: tuple, bottom_types, rng: np.random.Generator, *, _reuse: bool = False,
              _field: bool = False):
@@ -493,7 +536,10 @@ class ScattererNoise:
         """Whether :meth:`apply` forms the field in one compiled pass (given the cells' areas)."""
         from ._kernels import use_numba
 
+        # the kernels test ``density x area > MU_NO_SEABED`` for seabed: the area test (AREA_NO_SEABED)
+        # only from this density up (below it a real area of a tiny density would read as no seabed)
         return (use_numba() and self.bottom_type is None and np.isfinite(self.density)
+                and self.density >= _KERNEL_DENSITY_MIN
                 and not np.isfinite(self.clusters_per_m2) and len(_look_weights(self.looks)) == 1)
 
     def kernels(self, spec):
@@ -523,8 +569,10 @@ class ScattererNoise:
         # the compiled path reuses per-thread scratch for the echo and the mean (fresh pages fault on
         # every frame): neither outlives this call
         fast = use_numba()
-        gain = np.float32(10.0 ** (g.gain_db / 10.0))
+        gain = np.float32(10.0 ** (g.gain_db / 10.0))  # gain_db within +-300 dB: finite
         mean = None
+        if fast and cell_area is not None and self._one_pass():
+            cell_area = _kernel_area(cell_area, self.density)
         if fast and cell_area is not None and self._one_pass() and _FUSED:
             # issue 14 (i14q): the field and the speckle image in one pass over row blocks (no field or mean
             # image stored); the rare frame with cells of large mean takes the two passes below instead
@@ -584,21 +632,20 @@ class ScattererNoise:
         elif cell_area is None or not (np.isfinite(self.density) or np.isfinite(self.clusters_per_m2)):
             power = echo + back
         else:
-            area = np.asarray(cell_area, np.float64)
+            area = np.asarray(cell_area, np.float32).astype(np.float64)
+            seabed = area > AREA_NO_SEABED  # at or below: the area's rounding, no seabed (a tiny density: empty cells)
             if np.isfinite(self.clusters_per_m2):
                 from .speckle import cluster_ratio
 
                 with np.errstate(invalid="ignore"):  # inf x 0 outside the seabed: no texture there
-                    ratio = cluster_ratio(self.density * area, self.clusters_per_m2 * area, rng)
+                    ratio = cluster_ratio(self.density * area, self.clusters_per_m2 * area, rng, seabed=seabed)
             else:  # plain Poisson counts, by inversion of the uniforms drawn during the scan
-                mu = self.density * np.asarray(cell_area, np.float32).astype(np.float64)
-                seabed = mu > MU_NO_SEABED  # below it: the area's rounding, no seabed
-                n = _poisson_counts(np.where(seabed, mu, 0.0), _uniforms(bits[0]), rng).astype(np.float32)
-                with np.errstate(invalid="ignore", divide="ignore"):
-                    ratio = np.where(seabed, n / np.where(seabed, mu, 1.0), 1.0).astype(np.float32)
-            # no seabed where the expected count of scatterers (or of clusters) is the area's rounding
-            rate = min(self.density, self.clusters_per_m2)  # per m^2; one of them is finite here
-            power = echo * np.where(rate * area > MU_NO_SEABED, ratio, np.float32(1.0)) + back
+                mu = np.where(seabed, self.density * area, 0.0)
+                n = _poisson_counts(mu, _uniforms(bits[0]), rng).astype(np.float32)
+                ratio = np.zeros(area.shape, np.float32)
+                np.divide(n, mu, out=ratio, where=mu > 0, casting="unsafe")  # mu = 0 on a seabed: underflow, empty
+                ratio[~seabed] = 1.0
+            power = echo * np.where(seabed, ratio, np.float32(1.0)) + back
         # issue 10: the mean image ``echo + back`` is already blurred by the pulse and the beam
         # pattern (formation); filtering the field blurs its power a second time, so the
         # speckle is normalised by that filtered mean and multiplied by the image's own mean
@@ -640,6 +687,23 @@ class ScattererNoise:
 
 #: Whether :meth:`ScattererNoise.apply` takes the one-pass ``scatterer_speckle`` (issue 14, i14q).
 _FUSED = True
+#: The least density the compiled field kernels take: there ``density x AREA_NO_SEABED`` reaches their
+#: ``MU_NO_SEABED``, so no real area (over ``AREA_NO_SEABED``) reads as no seabed (speckle.MU_NO_SEABED).
+_KERNEL_DENSITY_MIN = MU_NO_SEABED / AREA_NO_SEABED
+#: Rounding of a cell's area stays under this (m^2; about 1e-16 seen): up to ``MU_NO_SEABED`` over it,
+#: the kernels read it as no seabed as they are; above, areas up to ``AREA_NO_SEABED`` are cleared first.
+_AREA_ROUNDING = 1e-13
+
+
+def _kernel_area(cell_area, density: float):
+    """``cell_area`` for the compiled field kernels at ``density``: as it is, or (densities over
+    ``MU_NO_SEABED / _AREA_ROUNDING``, where the areas' rounding could pass for seabed there) a copy
+    with areas of at most ``AREA_NO_SEABED`` set to 0 (one pass, at such densities only)."""
+    if density <= MU_NO_SEABED / _AREA_ROUNDING:
+        return cell_area
+    area = np.array(cell_area, np.float32)
+    area[area <= np.float32(AREA_NO_SEABED)] = 0.0
+    return area
 # stand-ins for the words when the kernel draws its own (one thread: nothing was drawn beside the scan)
 _NO_WORDS = np.zeros((1, 1), np.uint32)
 _NO_R2 = np.zeros((1, 1), np.float32)
@@ -664,7 +728,13 @@ def _background_column(gain, spec, water) -> np.ndarray:
     from .propagation import absorption_db_per_m
 
     alpha = absorption_db_per_m(spec.frequency, water) if water is not None else 0.0
-    return gain.background_raw(spec.ranges, alpha).astype(np.float32)[:, None]
+    with np.errstate(over="ignore"):
+        b = gain.background_raw(spec.ranges, alpha)
+    with np.errstate(over="ignore", invalid="ignore"):
+        after = b * gain.tvg(spec.ranges)
+    _check_factor(after, spec, "the background after the TVG (DeviceGain.noise_db, volume_db, spreading_db, "
+                  "absorption_db_per_m)", gain)
+    return b.astype(np.float32)[:, None]
 
 
 def _tvg_column(gain, spec) -> np.ndarray:
@@ -672,9 +742,23 @@ def _tvg_column(gain, spec) -> np.ndarray:
     return _tvg_cached(gain, spec)
 
 
+def _check_factor(values: np.ndarray, spec, what: str, gain, scale: float = 1.0) -> None:
+    """Refuse a linear factor (``values x scale``) over the ranges of ``spec`` that the float32 image
+    cannot hold, naming ``what`` (the fields that set it); once per gain and spec (cached callers)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        top = float(np.max(np.abs(values) * scale, initial=0.0))
+    if not top <= _F32_SAFE:
+        raise ValueError(f"{what} reaches {top:.3g} over {spec.range_min:g}-{spec.range_max:g} m, beyond what the "
+                         f"float32 image holds ({gain!r})")
+
+
 @functools.lru_cache(maxsize=32)
 def _tvg_cached(gain, spec):
-    t = np.ascontiguousarray(gain.tvg(spec.ranges), np.float32)[:, None]
+    with np.errstate(over="ignore"):
+        tv = gain.tvg(spec.ranges)
+    _check_factor(tv, spec, "the TVG x gain (DeviceGain.gain_db, spreading_db, absorption_db_per_m)", gain,
+                  10.0 ** (gain.gain_db / 10.0))
+    t = np.ascontiguousarray(tv, np.float32)[:, None]
     t.setflags(write=False)
     return t
 

@@ -94,9 +94,26 @@ class SensorProfile:
     device: str = ""
 
     def __post_init__(self):
-        if self.encoding not in ENCODINGS:
+        from .propagation import check_number
+
+        if not isinstance(self.spec, SonarSpec):
+            raise ValueError(f"SensorProfile.spec: expected a SonarSpec, got {type(self.spec).__name__}")
+        if not isinstance(self.encoding, str) or self.encoding not in ENCODINGS:
             raise ValueError(f"SensorProfile.encoding: expected one of {ENCODINGS}, got {self.encoding!r}")
+        if not isinstance(self.gain, DeviceGain):
+            raise ValueError(f"SensorProfile.gain: expected a DeviceGain, got {type(self.gain).__name__}")
         check_scatterer_parameters("SensorProfile", self.density, self.clusters_per_m2, self.looks)
+        # full_scale 0: values stored as floats (not rounded or clipped)
+        check_number("SensorProfile.full_scale", self.full_scale, 0.0, 1e12)
+        check_number("SensorProfile.db_range", self.db_range, 0.0, 1000.0, lo_open=True, unit="dB")
+        # NaN: the frames showed no seabed onset (documented); otherwise a height over the seabed and an attitude
+        for name, lo, hi, unit in (("height", 0.0, 1e4, "m"), ("pitch", -np.pi / 2, np.pi / 2, "rad"),
+                                   ("roll", -np.pi, np.pi, "rad")):
+            v = getattr(self, name)
+            if not (name != "roll" and _is_nan(v)):
+                check_number(f"SensorProfile.{name}", v, lo, hi, lo_open=name == "height", unit=unit)
+        if not isinstance(self.device, str):
+            raise ValueError(f"SensorProfile.device: expected a string, got {self.device!r}")
 
     # ------------------------------------------------------------------ use
     @property
@@ -129,9 +146,9 @@ class SensorProfile:
 
     def simulation_spec(self) -> SonarSpec:
         """The device's spec with enough elevation samples to resolve the elevation main lobe."""
-        el = self.spec.elevation_pattern()
-        span = 2 * min(el.null_angle(2), np.deg2rad(75.0))
-        n = int(np.clip(np.ceil(24 * span / el.beamwidth()), 64, 512))
+        from .formation import elevation_samples_for
+
+        n = int(np.clip(elevation_samples_for(self.spec, "aperture", 24), 64, 512))
         return dataclasses.replace(self.spec, elevation_samples=n)
 
     def simulate(self, *, seed=None, pose=None, scene=None):
@@ -201,40 +218,112 @@ class SensorProfile:
 
     @classmethod
     def load(cls, path) -> "SensorProfile":
-        """Read a profile YAML written by :meth:`save` (or a preset's name, ``SensorProfile.preset``)."""
-        import yaml
+        """Read a profile YAML written by :meth:`save` (or a preset's name, ``SensorProfile.preset``).
+
+        Read by the project's one configuration reader (``optiacoustic._config.load_config``: size
+        limit, duplicate keys refused, UTF-8); a ValueError names the file and the field."""
+        from .._config import load_config
 
         path = Path(path)
-        try:
-            data = yaml.safe_load(path.read_text())
-        except FileNotFoundError:
-            raise FileNotFoundError(f"sensor profile {path}: no such file") from None
-        except yaml.YAMLError as exc:
-            raise ValueError(f"sensor profile {path}: not YAML ({exc})") from None
+        if not path.exists():
+            raise FileNotFoundError(f"sensor profile {path}: no such file")
+        data = load_config(path, what="sensor profile")
         return cls.from_dict(data, source=str(path))
 
     @classmethod
     def from_dict(cls, data, source: str = "sensor profile") -> "SensorProfile":
+        """A profile from the mapping :meth:`to_dict` writes; a ValueError names ``source`` and the field."""
+        from .spec import _is_number
+
         if not isinstance(data, dict) or "optiacoustic_sensor_profile" not in data:
             raise ValueError(f"{source}: not a sensor profile (no 'optiacoustic_sensor_profile' field)")
+        version = data["optiacoustic_sensor_profile"]
+        if not _is_number(version) or version != PROFILE_VERSION:
+            raise ValueError(f"{source}: field 'optiacoustic_sensor_profile': version {version!r} is not supported "
+                             f"(this optiacoustic reads version {PROFILE_VERSION})")
+        unknown = sorted(set(data) - set(_PROFILE_FIELDS), key=str)
+        if unknown:
+            raise ValueError(f"{source}: field {unknown[0]!r}: unknown; a sensor profile has {list(_PROFILE_FIELDS)}")
+
+        def mapping(key):
+            v = data.get(key)
+            if v is None:
+                return {}
+            if not isinstance(v, dict):
+                raise ValueError(f"{source}: field '{key}': expected a mapping, got {v!r}")
+            return v
+
+        def number(key, v, default=None, none_is=None):
+            if v is None:
+                return none_is if default is None else default
+            if not _is_number(v):  # `true` is not 1, "abc" not a number
+                raise ValueError(f"{source}: field '{key}': expected a number{' or null' if none_is is not None else ''}, "
+                                 f"got {v!r}")
+            return float(v)
+
+        def numbers(key):
+            out = {}
+            for k, v in mapping(key).items():
+                if v is not None and not _is_number(v):
+                    raise ValueError(f"{source}: field '{key}.{k}': expected a number or null, got {v!r}")
+                out[str(k)] = _nan(v)
+            return out
+
+        spec_d = data.get("spec")
+        if not isinstance(spec_d, dict):
+            raise ValueError(f"{source}: field 'spec': expected a mapping, got {spec_d!r}")
+        spec = SonarSpec.from_dict(dict(spec_d), source=f"{source}: spec")
+        g = mapping("gain")
         try:
-            spec = SonarSpec.from_dict(dict(data["spec"]), source=f"{source}: spec")
-            g = {k: v for k, v in data.get("gain", {}).items()}
-            gain = DeviceGain(**g)
-            sb = data.get("seabed", {}) or {}
-            dens = data.get("density_per_m2")
-            clus = data.get("clusters_per_m2")
-            return cls(spec=spec, encoding=data.get("encoding", "linear"), gain=gain,
-                       density=float("inf") if dens is None else float(dens),
-                       clusters_per_m2=float("inf") if clus is None else float(clus), looks=float(data.get("looks", 1.0)),
-                       height=_nan(sb.get("height")), pitch=float(np.deg2rad(_nan(sb.get("pitch_deg")))),
-                       roll=float(np.deg2rad(_nan(sb.get("roll_deg"), 0.0))),
-                       full_scale=float(data.get("full_scale", 255.0)), db_range=float(data.get("db_range", 80.0)),
-                       uncertainty={k: _nan(v) for k, v in (data.get("uncertainty") or {}).items()},
-                       stats={k: _nan(v) for k, v in (data.get("stats") or {}).items()},
-                       notes=tuple(data.get("notes") or ()), device=str(data.get("device", "")))
-        except (KeyError, TypeError) as exc:
-            raise ValueError(f"{source}: bad sensor profile field ({exc})") from None
+            gain = DeviceGain(**{str(k): v for k, v in g.items()})
+        except TypeError:
+            bad = sorted(set(map(str, g)) - {f.name for f in dataclasses.fields(DeviceGain)})
+            raise ValueError(f"{source}: field 'gain.{bad[0] if bad else '?'}': unknown; gain has "
+                             f"{[f.name for f in dataclasses.fields(DeviceGain)]}") from None
+        except ValueError as exc:
+            raise ValueError(f"{source}: field 'gain': {exc}") from None
+        sb = mapping("seabed")
+        unknown = sorted(set(map(str, sb)) - {"height", "pitch_deg", "roll_deg"})
+        if unknown:
+            raise ValueError(f"{source}: field 'seabed.{unknown[0]}': unknown; seabed has height, pitch_deg, roll_deg")
+        notes = data.get("notes") or ()
+        if not isinstance(notes, (list, tuple)) or not all(isinstance(n, str) for n in notes):
+            raise ValueError(f"{source}: field 'notes': expected a list of strings, got {notes!r}")
+        device = data.get("device", "")
+        if device is None:
+            device = ""
+        if not isinstance(device, (str, int, float)) or isinstance(device, bool):
+            raise ValueError(f"{source}: field 'device': expected a name, got {device!r}")
+        encoding = data.get("encoding", "linear")
+        if not isinstance(encoding, str):
+            raise ValueError(f"{source}: field 'encoding': expected one of {ENCODINGS}, got {encoding!r}")
+        kw = dict(spec=spec, encoding=encoding, gain=gain,
+                  density=number("density_per_m2", data.get("density_per_m2"), none_is=float("inf")),
+                  clusters_per_m2=number("clusters_per_m2", data.get("clusters_per_m2"), none_is=float("inf")),
+                  looks=number("looks", data.get("looks"), 1.0),
+                  height=number("seabed.height", sb.get("height"), none_is=float("nan")),
+                  pitch=float(np.deg2rad(number("seabed.pitch_deg", sb.get("pitch_deg"), none_is=float("nan")))),
+                  roll=float(np.deg2rad(number("seabed.roll_deg", sb.get("roll_deg"), none_is=0.0))),
+                  full_scale=number("full_scale", data.get("full_scale"), 255.0),
+                  db_range=number("db_range", data.get("db_range"), 80.0),
+                  uncertainty=numbers("uncertainty"), stats=numbers("stats"), notes=tuple(notes), device=str(device))
+        try:
+            return cls(**kw)
+        except ValueError as exc:  # "SensorProfile.height: ..." -> the file's field
+            msg = str(exc)
+            for attr, key in (("height", "seabed.height"), ("pitch", "seabed.pitch_deg"), ("roll", "seabed.roll_deg"),
+                              ("density", "density_per_m2")):
+                if msg.startswith(f"SensorProfile.{attr}:"):
+                    if attr in ("pitch", "roll"):
+                        msg = f"{np.rad2deg(kw[attr]):g} deg is outside " + (
+                            "[-90, 90] deg" if attr == "pitch" else "[-180, 180] deg")
+                    else:
+                        msg = msg[len(f"SensorProfile.{attr}:"):].strip()
+                    raise ValueError(f"{source}: field '{key}': {msg}") from None
+            if msg.startswith("SensorProfile."):
+                field_name = msg.split(":", 1)[0][len("SensorProfile."):]
+                raise ValueError(f"{source}: field '{field_name}': {msg.split(':', 1)[1].strip()}") from None
+            raise ValueError(f"{source}: {msg}") from None
 
     @classmethod
     def preset(cls, name: str) -> "SensorProfile":
@@ -250,6 +339,16 @@ class SensorProfile:
 
 
 _PROFILE_DIR = Path(__file__).resolve().parent.parent / "data" / "sonar_profiles"
+#: The top-level fields of a profile file (:meth:`SensorProfile.to_dict`).
+_PROFILE_FIELDS = ("optiacoustic_sensor_profile", "device", "encoding", "full_scale", "db_range", "density_per_m2",
+                   "clusters_per_m2", "looks", "seabed", "gain", "spec", "uncertainty", "stats", "notes")
+
+
+def _is_nan(x) -> bool:
+    try:
+        return bool(np.isnan(x))
+    except TypeError:
+        return False
 
 
 def _num(x):

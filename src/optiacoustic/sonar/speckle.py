@@ -36,15 +36,31 @@ from __future__ import annotations
 
 import numpy as np
 
-#: Expected scatterer counts ``density x area`` at or below this mean *no seabed in the cell*.
-#: A cell's seabed area is a difference of cumulative sums, so a cell without seabed holds
-#: rounding of about 1e-18 m^2 of either sign instead of 0; read as a real area, a positive one
-#: drew a count of 0 and zeroed the cell's whole echo (targets included): 18 000 cells, 1 % of
-#: the echo, of a thesis scene 1 frame. No real area comes near it (a resolution cell's is
-#: about 1e-3 m^2, so 1e-9 scatterers means under 1e-11 m^2 at any density up to 1e2 per cm^2).
+#: Cell areas (m^2) at or below this mean *no seabed in the cell*. A cell's seabed area is a
+#: difference of cumulative sums, so a cell without seabed holds rounding of about 1e-18 to
+#: 1e-16 m^2 of either sign instead of 0; read as a real area, a positive one would draw a count
+#: (of 0, at ordinary densities) and zero the cell's whole echo (targets included). No real area
+#: comes near it: a resolution cell's is about 1e-3 m^2, and a sliver of seabed under 1e-10 m^2
+#: returns nothing measurable. The test is on the area, not on the expected count: a tiny density
+#: on a real area is a seabed with (almost) no scatterers, so (almost) every such cell is empty.
+AREA_NO_SEABED = 1e-10
+
+#: The compiled kernels' form of the same test: ``density x area <= MU_NO_SEABED`` is no seabed.
+#: It agrees with :data:`AREA_NO_SEABED` for every area when ``density = MU_NO_SEABED /
+#: AREA_NO_SEABED``; ``ScattererNoise`` takes those kernels only at densities of at least that
+#: (10 per m^2), where they can differ only on areas in ``(MU_NO_SEABED / density, AREA_NO_SEABED]``
+#: (slivers; above 1e4 per m^2 such areas are cleared first, so that rounding stays no seabed).
 MU_NO_SEABED = 1e-9
 
+#: Upper bounds of the scatterer model's counts (:func:`check_scatterer_parameters`): a density of
+#: one scatterer per um^2 (sonar scatterers are far larger); a cell's mean count then stays within
+#: what ``numpy.random.Generator.poisson`` takes (about 9e18). Looks: each is a field drawn and
+#: filtered per frame; devices average a few to a few tens.
+MAX_DENSITY = 1e12
+MAX_LOOKS = 1000.0
+
 __all__ = [
+    "AREA_NO_SEABED",
     "MU_NO_SEABED",
     "gaussian_pulse_kernel",
     "beam_kernel",
@@ -257,15 +273,16 @@ def correlation_length(rho: np.ndarray, level: float = 0.5) -> float:
 def check_scatterer_parameters(owner: str, density, clusters_per_m2, looks) -> None:
     """Refuse scatterer-model parameters outside their domain, naming ``owner.field`` and the value.
 
-    ``density`` (scatterers/m^2) and ``clusters_per_m2`` must be > 0 (inf allowed: no
-    clustering / Rayleigh limit); ``looks`` a finite number >= 1.
+    ``density`` (scatterers/m^2) and ``clusters_per_m2`` must be numbers (not bools or strings) in
+    ``(0, MAX_DENSITY]`` or inf (no clustering / Rayleigh limit); ``looks`` a finite number in
+    ``[1, MAX_LOOKS]``.
     """
-    if not (density > 0):
-        raise ValueError(f"{owner}.density: must be > 0 scatterers/m^2 (or inf), got {density!r}")
-    if not (clusters_per_m2 > 0):
-        raise ValueError(f"{owner}.clusters_per_m2: must be > 0 per m^2 (or inf), got {clusters_per_m2!r}")
-    if not (np.isfinite(looks) and looks >= 1):
-        raise ValueError(f"{owner}.looks: must be a finite number >= 1, got {looks!r}")
+    from .propagation import check_number
+
+    check_number(f"{owner}.density", density, 0.0, MAX_DENSITY, lo_open=True, inf=True, unit="scatterers/m^2 (or inf)")
+    check_number(f"{owner}.clusters_per_m2", clusters_per_m2, 0.0, MAX_DENSITY, lo_open=True, inf=True,
+                 unit="per m^2 (or inf)")
+    check_number(f"{owner}.looks", looks, 1.0, MAX_LOOKS)
 
 
 def look_weights(looks: float) -> np.ndarray:
@@ -288,22 +305,37 @@ def look_weights(looks: float) -> np.ndarray:
     return out / out.sum()
 
 
-def cluster_ratio(mean_count, cluster_shape, rng, dtype=np.float32) -> np.ndarray:
+def cluster_ratio(mean_count, cluster_shape, rng, dtype=np.float32, seabed=None) -> np.ndarray:
     """Per-cell power ratio ``n / mu`` of clustered scatterers (negative-binomial counts).
 
     ``T ~ Gamma(nu_c, 1 / nu_c)`` (``cluster_shape`` ``nu_c``, ``inf``: ``T = 1``), then
-    ``n ~ Poisson(mu T)`` (``mean_count`` ``mu``, ``inf``: ``n / mu = T``). Cells with
-    ``mu <= MU_NO_SEABED`` or ``nu_c <= MU_NO_SEABED`` get 1 (no seabed there: the ratio multiplies nothing).
+    ``n ~ Poisson(mu T)`` (``mean_count`` ``mu``, ``inf``: ``n / mu = T``). ``seabed`` (bool, the
+    cells' shape): the cells that hold seabed (``cell area > AREA_NO_SEABED``); the others get 1
+    (the ratio multiplies nothing there). Without it, cells with ``mu > 0`` and ``nu_c > 0``. A
+    tiny ``mu`` or ``nu_c`` on a seabed cell is a (nearly) empty cell: ``n = 0``, ratio 0.
     """
     mu = np.asarray(mean_count, np.float64)
     nu = np.broadcast_to(np.asarray(cluster_shape, np.float64), mu.shape)
+    if seabed is None:
+        with np.errstate(invalid="ignore"):
+            seabed = (mu > 0) & (nu > 0)
+    seabed = np.broadcast_to(np.asarray(seabed, bool), mu.shape)
     T = np.ones(mu.shape)
-    tex = np.isfinite(nu) & (nu > MU_NO_SEABED)  # below: the area's rounding, no seabed
+    tex = np.isfinite(nu) & seabed
     if tex.any():
-        T[tex] = rng.gamma(nu[tex], 1.0 / nu[tex])
-    fin = np.isfinite(mu) & (mu > MU_NO_SEABED)
+        n_t = nu[tex]
+        t = np.zeros(n_t.shape)
+        ok = n_t > 1e-300  # Gamma(nu, 1/nu) of a smaller shape is 0 in float64 (its scale would overflow)
+        t[ok] = rng.gamma(n_t[ok], 1.0 / n_t[ok])
+        T[tex] = t
+    fin = np.isfinite(mu) & seabed
     if fin.any():
-        T[fin] = rng.poisson(mu[fin] * T[fin]) / mu[fin]
+        m = mu[fin]
+        lam = m * T[fin]
+        n = rng.poisson(np.where(lam > 0, lam, 0.0))
+        r = np.zeros(m.shape)
+        np.divide(n, m, out=r, where=m > 0)  # mu = 0 (a density that underflows on the area): empty
+        T[fin] = r
     return T.astype(dtype)
 
 
