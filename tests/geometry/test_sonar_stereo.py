@@ -230,6 +230,9 @@ def test_empty_input_is_falsy():
     (dict(ranges_1=[-1.0, 1.0]), "ranges"),
     (dict(method="x"), "method"),
     (dict(sigma_range=0.0), "sigma_range"),
+    (dict(fov_elevation=20.0), "fov_elevation.*degrees"),  # degrees for radians
+    (dict(azimuths_1=[20.0, 21.0]), "azimuths_1.*radians"),
+    (dict(azimuths_2=[0.1, 21.0]), "azimuths_2.*radians"),
 ])
 def test_caller_mistakes_raise_value_error_naming_the_argument(bad, match):
     kw = dict(ranges_1=[1.0, 2.0], azimuths_1=[0.1, 0.2], ranges_2=[1.1, 2.1], azimuths_2=[0.1, 0.2],
@@ -237,3 +240,81 @@ def test_caller_mistakes_raise_value_error_naming_the_argument(bad, match):
     kw.update(bad)
     with pytest.raises(ValueError, match=match):
         ss.triangulate(**kw)
+
+
+def test_closed_forms_refuse_azimuths_in_degrees():
+    with pytest.raises(ValueError, match="azimuths_1.*radians"):
+        ss.closed_forms([5.0], [20.0], [5.0], [0.1], np.eye(3), [0.1, 0.0, 0.1])
+
+
+def _outside_case():
+    """A point 3.1 deg up in a 20 deg aperture whose four noisy measurements are fitted best at
+    40 deg: its only in-aperture start (the planes form's -8.8 deg root) used to be refined to
+    40.4 deg and reported valid."""
+    rng = np.random.default_rng(12)
+    n = 40
+    P = sonar_from_spherical(rng.uniform(3, 10, n), rng.uniform(-0.6, 0.6, n), rng.uniform(-0.8, 0.8, n) * FOV / 2)
+    ang = np.deg2rad([4.0, -3.0, 6.0])
+    th = np.linalg.norm(ang)
+    k = ang / th
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    R_s, t_s = np.eye(3) + np.sin(th) * K + (1 - np.cos(th)) * K @ K, np.array([0.4, 0.3, 0.25])
+    m = ss.measure(P, R_s, t_s)
+    for _ in range(27):
+        z = [m.ranges_1 + SR * rng.standard_normal(n), m.azimuths_1 + SA * rng.standard_normal(n),
+             m.ranges_2 + SR * rng.standard_normal(n), m.azimuths_2 + SA * rng.standard_normal(n)]
+    return P, m, z, R_s, t_s
+
+
+def test_ml_refinement_keeps_every_point_inside_the_elevation_aperture():
+    P, m, z, R_s, t_s = _outside_case()
+    i = 36
+    one = [a[i:i + 1] for a in z]
+    free = ss._refine(np.array([[one[0][0], one[1][0], np.deg2rad(-8.8)]]), *one, R_s, t_s, SR, SA)
+    assert abs(free[0, 2]) > FOV / 2  # the unconstrained optimum is outside the aperture
+    res = ss.triangulate(*one, R_s, t_s, sigma_range=SR, sigma_azimuth=SA, fov_elevation=FOV)
+    assert abs(res.elevations[0]) <= FOV / 2 + 1e-9, np.rad2deg(res.elevations)
+    # the constrained optimum: on the aperture's edge, its chi-square no worse than the truth's,
+    # and within its standard deviation of the true elevation
+    truth, _ = ss._chi2_of(P[i:i + 1], *one, R_s, t_s, SR, SA)
+    assert res.chi2[0] <= truth[0] + 1e-9
+    if res.valid[0]:
+        assert abs(res.elevations[0] - m.elevations_1[i]) < 3 * res.elevation_std[0]
+    # every point of the draw: no valid one outside the aperture
+    res = ss.triangulate(*z, R_s, t_s, sigma_range=SR, sigma_azimuth=SA, fov_elevation=FOV)
+    assert np.all(np.abs(res.elevations[res.valid]) <= FOV / 2 + 1e-9)
+    assert np.all(np.isfinite(res.chi2[res.valid]))
+
+
+def test_bounded_refinement_is_the_constrained_optimum():
+    # the bounded block problem (all points at once) against scipy's bounded trust region point by point
+    from scipy.optimize import least_squares
+
+    _, _, z, R_s, t_s = _outside_case()
+    cf = ss.closed_forms(*z, R_s, t_s)
+    x0 = np.stack(spherical_from_sonar(cf.planes[:, 0]), -1)
+    ok = np.flatnonzero(np.all(np.isfinite(x0), 1))[:15]
+    half = np.deg2rad(5.0)  # a narrow aperture: many points end on its edges
+    zz = [a[ok] for a in z]
+    x = ss._refine(x0[ok], *zz, R_s, t_s, SR, SA, half=half)
+    assert np.all(np.abs(x[:, 2]) <= half)
+    for k in range(ok.size):
+        one = [a[k:k + 1] for a in zz]
+        start = x0[ok[k]].copy()
+        start[2] = np.clip(start[2], -half, half)
+        ref = least_squares(lambda v: _whitened(v[None], *one, R_s, t_s, SR, SA)[0].ravel(), start,
+                            bounds=([-np.inf, -np.inf, -half], [np.inf, np.inf, half]), xtol=1e-14, ftol=1e-14,
+                            gtol=1e-14)
+        c_ref = 2 * ref.cost
+        e, _, _ = _whitened(x[k:k + 1], *one, R_s, t_s, SR, SA)
+        assert np.sum(e * e) <= c_ref + 1e-6 * (1 + c_ref)
+
+
+def test_chi2_of_with_the_aperture_is_inf_outside_it():
+    P = sonar_from_spherical(np.array([2.0, 2.0, 2.0]), np.zeros(3), np.deg2rad([5.0, 15.0, -12.0]))
+    m = ss.measure(P, R_GOOD, T_GOOD)
+    args = (m.ranges_1, m.azimuths_1, m.ranges_2, m.azimuths_2, R_GOOD, T_GOOD, SR, SA)
+    c, _ = ss._chi2_of(P, *args)
+    assert np.all(c < 1e-12)
+    c, _ = ss._chi2_of(P, *args, FOV)
+    assert c[0] < 1e-12 and np.all(np.isinf(c[1:]))

@@ -587,13 +587,26 @@ class Problem:
         self.jacobian(x)
         return OptimizeResult(x=x, cost=0.5 * float(f @ f), fun=f, nfev=int(info["nfev"]), njev=info.get("njev"))
 
-    def adopt_points(self, other: "Problem") -> None:
-        """Start every block's points from ``other``'s last solution (the same blocks, in order),
-        following its branches: the points of a solve warm-start a problem built afresh at its
-        optimum (e.g. with the rotation re-referenced there)."""
-        self._warm = {id(b): other._warm[id(o)] for b, o in zip(self.blocks, other.blocks) if id(o) in other._warm}
-        self._branches_fixed = True
+    def adopt_points(self, other: "Problem") -> bool:
+        """Start every block's points from ``other``'s last solution, following its branches:
+        the points of a solve warm-start a problem built afresh at its optimum (e.g. with the
+        rotation re-referenced there).
+
+        Only when both problems have the same blocks in the same order (the same measurements
+        on the same planes, checked element by element, not by size alone): otherwise nothing is
+        adopted, the points are solved afresh, and False is returned."""
+        same = len(self.blocks) == len(other.blocks) and all(
+            b.model == o.model and b.meas.shape == o.meas.shape and np.array_equal(b.meas, o.meas)
+            and np.array_equal(b.plane, o.plane) and id(o) in other._warm
+            for b, o in zip(self.blocks, other.blocks))
         self._cache_key = None
+        if not same:
+            self._warm = {}
+            self._branches_fixed = False
+            return False
+        self._warm = {id(b): other._warm[id(o)] for b, o in zip(self.blocks, other.blocks)}
+        self._branches_fixed = True
+        return True
 
     def point_chi2(self, block: Block, theta, plane=None):
         """Reduced chi-square of every point of ``block`` (under ``plane`` indices if given)."""

@@ -36,13 +36,13 @@ Derivations: ``docs/derivations.md (ch. 6, app. A-B)``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
 from scipy.stats import chi2 as _chi2
 
-from .._validate import as_array, as_positive
+from .._validate import as_array, as_azimuths, as_positive
 from ..frames import orthonormalize
 from ..rig import Rig
 from . import _bundle as B
@@ -215,6 +215,10 @@ class MotionResult:
     dof : int
         Its degrees of freedom.
     rig : Rig
+    ambiguous : bool
+        The essential model on a (nearly) planar scene found two different motions that explain
+        the matches equally well (see :func:`estimate`); the result is then falsy unless the
+        homography model settled it.
     """
 
     success: bool
@@ -234,6 +238,7 @@ class MotionResult:
     chi2: float
     dof: int
     rig: Rig = field(repr=False)
+    ambiguous: bool = False
 
     def __bool__(self) -> bool:
         return bool(self.success)
@@ -367,15 +372,26 @@ def _pixels(rig, pixels, name):
 
 
 def _sonar_pair(x, name):
-    if isinstance(x, np.ndarray) and x.ndim == 2 and x.shape[0] == 2:
+    """``(ranges, azimuths)`` of the sonar matches ``x``: a pair of (M,) arrays, or an array of
+    shape (2, M) (row 0 the ranges, row 1 the azimuths). An (M, 2) array is refused (its
+    transpose is meant), and so is a (2, 2) array, which could be either."""
+    if isinstance(x, np.ndarray) and x.ndim == 2:
+        if x.shape == (2, 2):
+            raise ValueError(f"{name}: a (2, 2) array is ambiguous (rows (ranges, azimuths) of 2 matches, or 2 "
+                             f"matches of (range, azimuth)); pass a tuple (ranges, azimuths) of (M,) arrays")
+        if x.shape[0] != 2:
+            hint = f" (an (M, 2) array: pass {name}.T)" if x.shape[1] == 2 else ""
+            raise ValueError(f"{name}: expected a pair (ranges, azimuths) of (M,) arrays or an array of shape "
+                             f"(2, M), got shape {x.shape}{hint}")
         r, a = x[0], x[1]
     else:
         try:
             r, a = x
         except (TypeError, ValueError):
-            raise ValueError(f"{name}: expected a pair (ranges, azimuths) of (M,) arrays") from None
+            raise ValueError(f"{name}: expected a pair (ranges, azimuths) of (M,) arrays or an array of shape "
+                             f"(2, M)") from None
     r = as_array(r, f"{name} ranges", (None,))
-    a = as_array(a, f"{name} azimuths", (r.shape[0],))
+    a = as_azimuths(as_array(a, f"{name} azimuths", (r.shape[0],)), f"{name} azimuths")
     if np.any(r <= 0):
         raise ValueError(f"{name} ranges: must be > 0")
     return r, a
@@ -431,20 +447,33 @@ def _homography(d: _Data, threshold, confidence, max_iters):
     return H, mask, ""
 
 
-def _decompose(d: _Data, H, inl) -> list[MonocularSolution]:
+def _decompose(d: _Data, H, inl) -> tuple[list[MonocularSolution], str]:
+    """The visible interpretations of the homography ``H`` (OpenCV), or, where OpenCV reads it
+    as a pure rotation, that rotation with ``t_o / d = 0`` and the plane's normal from the
+    sonar matches (:func:`_rotation_only`); with an empty list, the reason."""
     import cv2
 
     fx, fy, cx, cy = d.K
     K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
     try:
         num, Rs, ts, ns = cv2.decomposeHomographyMat(H, K)
+        if num >= 1 and all(np.linalg.norm(np.asarray(t, float)) < 1e-12 for t in ts[:num]):
+            # H is a rotation to OpenCV's tolerance (a hovering rig that turns, or a translation
+            # of a few mm at metres): one solution, t = 0, n = 0, which the visibility filter
+            # drops. The rotation is right; the sonar fixes the plane and the ML the translation.
+            R0 = np.asarray(Rs[0], float)
+            sol = _rotation_only(d, orthonormalize(R0)) if np.all(np.isfinite(R0)) else None
+            if sol is None:
+                return [], ("the optical homography is a pure rotation, and fewer than 3 sonar matches have an "
+                            "elevation the sonar's own parallax fixes: the plane, hence the scale, is unobservable")
+            return [sol], ""
         p1 = d.x1[inl].astype(np.float32).reshape(-1, 1, 2)
         p2 = d.x2[inl].astype(np.float32).reshape(-1, 1, 2)
         keep = cv2.filterHomographyDecompByVisibleRefpoints(Rs, ns, p1, p2)
     except cv2.error:
-        return []
+        return [], "OpenCV could not decompose the homography"
     if keep is None:
-        return []
+        return [], "the homography has no decomposition with the points in front of both views"
     out = []
     for i in np.asarray(keep).ravel():
         n = np.asarray(ns[i], float).ravel()
@@ -452,7 +481,63 @@ def _decompose(d: _Data, H, inl) -> list[MonocularSolution]:
         if not (np.all(np.isfinite(n)) and np.all(np.isfinite(t))) or np.linalg.norm(n) < 1e-12:
             continue
         out.append(MonocularSolution(orthonormalize(np.asarray(Rs[i], float)), t, n / np.linalg.norm(n)))
-    return out
+    return out, ("" if out else "the homography has no decomposition with the points in front of both views")
+
+
+def _rotation_only(d: _Data, R_o):
+    """The interpretation ``{R_o, 0, n}`` of a homography that is a pure rotation, or None.
+
+    With ``t_o = 0`` the sonar still moves (``t_s = (I - R_s) t``, the lever arm): each sonar
+    match's elevation is the one that predicts its view-2 measurements (grid + golden section
+    over the aperture, plus the exact roots of the azimuth equation, as in
+    :func:`_plane_scale` with ``t_o / d = 0``), and the plane through those points (total
+    least squares, twice trimmed at 3 robust deviations) gives the normal. The distance is then
+    the sonar's (:func:`_plane_scale`) and the translation the ML's."""
+    if d.n_s < 3:
+        return None
+    R, t = d.rig.R, d.rig.t
+    R_s = R @ R_o @ R.T
+    a = (np.eye(3) - R_s) @ t
+
+    def chi(phi):
+        Q = _arc(d, phi) @ R_s.T + a
+        az = B.wrap(np.arctan2(Q[..., 0], Q[..., 1]) - d.th2)
+        return ((np.linalg.norm(Q, axis=-1) - d.r2) / d.sr) ** 2 + (az / d.sa) ** 2
+
+    e2 = np.stack([np.cos(d.th2), -np.sin(d.th2), np.zeros(d.n_s)], -1)
+    u = np.stack([np.sin(d.th1), np.cos(d.th1), np.zeros(d.n_s)], -1)
+    g = e2 @ R_s
+    roots = _trig_roots(d.r1 * np.einsum("mi,mi->m", g, u), d.r1 * g[:, 2], -(e2 @ a))
+    phi, c = _phi_search(d, chi, extra=roots)
+    X = (_arc(d, phi) - t) @ R  # camera frame of view 1
+    thr = float(_chi2.ppf(0.99, 1))
+    # a match whose chi-square does not vary across the aperture tells nothing of its elevation
+    # (the rig has not moved at all: no parallax); one that varies little (the lever arm's few
+    # mm of parallax at a cm of range noise) still counts: the ML's covariance then says how
+    # poorly the plane is known
+    half = d.fov / 2 + d.margin
+    c_grid = chi(np.linspace(-half, half, 61)[:, None] * np.ones((1, d.n_s)))
+    with np.errstate(invalid="ignore"):
+        known = np.nanmax(np.where(np.isfinite(c_grid), c_grid, np.nan), 0) > c + 1e-6 * (1.0 + c)
+    keep = np.isfinite(c) & (c < thr) & known & np.all(np.isfinite(X), 1)
+    n = None
+    for _ in range(3):
+        if keep.sum() < 3:
+            return None
+        Xk = X[keep]
+        cen = Xk.mean(0)
+        _, sv, Vt = np.linalg.svd(Xk - cen, full_matrices=False)
+        if sv[1] < 1e-9 * max(sv[0], 1e-300):  # the points are collinear: no plane
+            return None
+        n = Vt[2]
+        dist = np.abs((X - cen) @ n)
+        mad = 1.4826 * np.median(dist[keep])
+        keep = keep & (dist <= max(3 * mad, 1e-9 * np.linalg.norm(cen)))
+    if n @ cen < 0:
+        n = -n
+    if not (n @ cen > 0):  # the plane passes through the camera centre
+        return None
+    return MonocularSolution(R_o, np.zeros(3), n)
 
 
 def _essential(d: _Data, threshold, confidence, max_iters):
@@ -857,7 +942,9 @@ def _ml_loop(d: _Data, model, R_o, t_o, planes_m, lo, ls, thr, max_iterations, i
     """Maximum likelihood with relabelling until the labels settle; returns the new state.
 
     The state is ``(R_o, t_o, planes_m, lo, ls, iterations, cost, problem)``, ``problem``
-    being the last fit's (its points at the optimum, for :func:`_finish`), or None.
+    being the last fit's (its points at the optimum, for :func:`_finish`), or None; ``lo, ls``
+    are always the labels that fit used, also when ``max_iterations`` stops the loop while
+    the labels still change.
     ``info`` (a dict), when given, receives ``"chi2"``: the per-match chi-squares
     ``(co, cs)`` of :func:`_chi2_all` at the returned state, when they were computed there,
     and ``"points"``: the per-match parameters there. ``points``: such parameters at the
@@ -868,6 +955,7 @@ def _ml_loop(d: _Data, model, R_o, t_o, planes_m, lo, ls, thr, max_iterations, i
     res = None
     co = cs = None
     last = None
+    fit_lo, fit_ls = lo, ls  # the labels of the last fit (``last``), returned with it
     for it in range(1, max_iterations + 1):
         prob, _, _, _, _ = _problem(d, lo, ls, model, R_o, planes_m)
         starts = None if points is None else _starts(points, lo, ls)
@@ -877,7 +965,7 @@ def _ml_loop(d: _Data, model, R_o, t_o, planes_m, lo, ls, thr, max_iterations, i
         if not (np.all(np.isfinite(R_new)) and np.all(np.isfinite(t_new)) and np.all(np.isfinite(pm))):
             break
         R_o, t_o = R_new, t_new
-        last = prob
+        last, fit_lo, fit_ls = prob, lo, ls
         if model == "plane":
             planes_m = pm
         res = float(2 * sol.cost)
@@ -893,11 +981,14 @@ def _ml_loop(d: _Data, model, R_o, t_o, planes_m, lo, ls, thr, max_iterations, i
         if changed <= max(0, int(0.005 * (lo.size + ls.size))):
             break
         lo, ls = nlo, nls
-        co = cs = None  # the state returned is that of the last fit, with the old labels
+        co = cs = None
+    # Stopped by max_iterations (or a non-finite step) while the labels were still changing:
+    # the state returned is the last fit's, with the labels that fit used (not the newer ones,
+    # which no fit has seen): its motion, cost, points and labels belong together.
     if info is not None and co is not None:
         info["chi2"] = (co, cs)
         info["points"] = points
-    return R_o, t_o, planes_m, lo, ls, it, res, last
+    return R_o, t_o, planes_m, fit_lo, fit_ls, it, res, last
 
 
 def _points_for(d: _Data, R_o, t_o):
@@ -953,9 +1044,11 @@ def estimate(
         attached, picks among elevation roots).
     pixels_1, pixels_2 : array_like, shape (N, 2)
         Optical matches: pixels ``(u, v)`` of the same points in image 1 and image 2.
-    sonar_1, sonar_2 : pair of array_like, shape (M,) each
+    sonar_1, sonar_2 : pair of array_like, shape (M,) each, or array_like (2, M)
         Sonar matches: ``(ranges (m), azimuths (rad))`` of the same points in sonar view 1
-        and view 2. They need not be the optical points.
+        and view 2. They need not be the optical points. An array is read as rows
+        ``(ranges, azimuths)``: shape (2, M); an (M, 2) array is refused (pass its transpose),
+        and so is a (2, 2) array (pass a tuple). Azimuths beyond +-pi are refused (degrees?).
     sigma_pixel : float
         Pixel noise standard deviation (px).
     sigma_range : float
@@ -963,7 +1056,15 @@ def estimate(
     sigma_azimuth : float
         Azimuth noise standard deviation (rad).
     model : {"homography", "essential"}
-        Dominant plane (thesis) or five-point essential matrix (non-planar scenes).
+        Dominant plane (thesis) or five-point essential matrix (non-planar scenes). On a
+        (nearly) planar scene the essential model, whose points are all free, may find two
+        different motions (the homography's two interpretations) whose truncated chi-squares
+        differ by less than 22.5 (the 99.9 % quantile of chi-square with 6 degrees of freedom):
+        the likelihood cannot tell which is true, and the homography model, whose sonar points
+        lie on the plane, is run on the same matches and its result returned
+        (``result.model == "homography"``, the message says why); when it fails too, the
+        result is falsy with ``ambiguous=True`` (both motions are in ``stages``). For planar
+        scenes use ``model="homography"``.
     planes : int or "auto"
         Most planes to fit (homography model): 1 fits the dominant plane only; ``"auto"``
         looks for more (up to 4) among the matches left off the dominant plane.
@@ -974,7 +1075,7 @@ def estimate(
     ransac_threshold : float, optional
         OpenCV's threshold (px); default ``3 sigma_pixel``.
     ransac_confidence, ransac_max_iters :
-        OpenCV USAC settings.
+        OpenCV USAC settings: a confidence in (0, 1) and at least 1 iteration.
     min_inlier_fraction : float
         The final model must explain at least this fraction of the optical matches (and 8
         of them), else the result is falsy: random matches can always be fitted by a few.
@@ -985,7 +1086,11 @@ def estimate(
     -------
     MotionResult
         Falsy, with a message, on degenerate data: too few matches, collinear points, a
-        plane seen edge-on, no sonar match on the plane.
+        plane seen edge-on, no sonar match on the plane, a pure rotation the sonar shows no
+        parallax of, an essential model that cannot choose between two motions. A pure
+        rotation (or a translation of a few mm, which OpenCV reads as one) is estimated: the
+        homography gives the rotation, the sonar matches' own parallax (the rig's lever arm)
+        the plane, and the ML the translation.
     """
     d = _data(rig, pixels_1, pixels_2, sonar_1, sonar_2, sigma_pixel, sigma_range, sigma_azimuth)
     if model not in ("homography", "essential"):
@@ -998,6 +1103,11 @@ def estimate(
         raise ValueError(f"inlier_probability: must be in (0, 1), got {inlier_probability!r}")
     if not 0 <= min_inlier_fraction <= 1:
         raise ValueError(f"min_inlier_fraction: must be in [0, 1], got {min_inlier_fraction!r}")
+    if not 0 < ransac_confidence < 1:
+        raise ValueError(f"ransac_confidence: must be in (0, 1), got {ransac_confidence!r}")
+    if (isinstance(ransac_max_iters, bool) or not isinstance(ransac_max_iters, (int, np.integer))
+            or ransac_max_iters < 1):
+        raise ValueError(f"ransac_max_iters: expected a positive integer, got {ransac_max_iters!r}")
     d.min_inliers = float(min_inlier_fraction)
     thr_px = 3 * d.sp if ransac_threshold is None else as_positive(ransac_threshold, "ransac_threshold")
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
@@ -1042,11 +1152,11 @@ def _estimate_homography(d, thr_px, conf, iters, p_in, max_it, planes, rng):
             break
         inl = np.zeros(d.n_o, bool)
         inl[idx[inl_sub]] = True
-        sols = _decompose(d, H, inl)
+        sols, why = _decompose(d, H, inl)
         if h == 0:
             all_sols = sols
             if not sols:
-                first_msg = "the homography has no decomposition with the points in front of both views"
+                first_msg = why
         for sol in sols:
             cands, phi, c = _plane_scale(d, sol)
             pick = _pick_scale(cands, c, lambda dc, sol=sol: _plane_consensus(d, sol, dc), thr1, thr2)
@@ -1225,7 +1335,7 @@ def _estimate_essential(d, thr_px, conf, iters, p_in, max_it):
     starts = [(R_E, t_E)]
     plane = _dominant_plane(d, inl, thr_px, conf, iters)
     if plane is not None:
-        for sol in _decompose(d, *plane):
+        for sol in _decompose(d, *plane)[0]:
             nt = float(np.linalg.norm(sol.t_over_d))
             t_dir = sol.t_over_d / nt if nt > 1e-12 else None
             # RANSAC's essential matrix is often one of these: the same start is refined once
@@ -1257,12 +1367,54 @@ def _estimate_essential(d, thr_px, conf, iters, p_in, max_it):
         runs.append((score, state, initial, (R_o, t_dir), cands, j, support))
     if not runs:
         return fail(first_fail)
-    score, state, initial, (R_m, t_m), cands, j, support = min(runs, key=lambda r: r[0])
+    best = min(runs, key=lambda r: r[0])
+    score, state, initial, (R_m, t_m), cands, j, support = best
     R_o, t_o, _, lo, ls, it, cost, prob = state
     stages = [initial, _stage(d, "essential", R_o, t_o, np.zeros((0, 3)), lo, ls, it,
                               cost if cost is not None else np.nan)]
     mono = (MonocularSolution(R_m, t_m, np.full(3, np.nan)),)
-    return _finish(d, "essential", R_o, t_o, np.zeros((0, 3)), lo, ls, stages, mono, cands, j, (support,), prob)
+    res = _finish(d, "essential", R_o, t_o, np.zeros((0, 3)), lo, ls, stages, mono, cands, j, (support,), prob)
+    if plane is None or not res or len(runs) < 2:
+        return res
+    # A planar scene: with every point free, the likelihood may not tell the true motion from
+    # another (the homography's dual), the sonar points settling wherever fits (the dual won
+    # by 13.6 in one draw, lost by 7 in others). A rival start's refined motion whose truncated
+    # cost is within _AMBIGUOUS_CHI2 of the winner's, and which is a different motion (outside
+    # the winner's 99.9 % confidence region), makes the answer a coin toss: the homography
+    # model, whose sonar points lie on the plane, decides; if it cannot, the result is falsy
+    # (``ambiguous``) and says so.
+    try:
+        Ci = np.linalg.inv(res.covariance_motion)
+    except np.linalg.LinAlgError:
+        Ci = None
+    rivals = []
+    for r in runs:
+        if r is best or r[0] > score + _AMBIGUOUS_CHI2:
+            continue
+        e = np.concatenate([B.log_so3(r[1][0] @ R_o.T), r[1][1] - t_o])
+        if Ci is None or not np.all(np.isfinite(e)) or e @ Ci @ e > _chi2.ppf(0.999, 6):
+            rivals.append(r)
+    if not rivals:
+        return res
+    r = min(rivals, key=lambda x: x[0])
+    dw = float(np.rad2deg(np.linalg.norm(B.log_so3(r[1][0] @ R_o.T))))
+    why = (f"the scene is planar and the essential model cannot tell two motions apart (truncated chi-square "
+           f"{score:.1f} and {r[0]:.1f}, within {_AMBIGUOUS_CHI2:.1f}; {dw:.2g} deg and "
+           f"{np.linalg.norm(r[1][1] - t_o):.2g} m apart)")
+    hom = _estimate_homography(d, thr_px, conf, iters, p_in, max_it, 1, np.random.default_rng(0))
+    if hom:
+        return replace(hom, message=f"{why}: the homography model decided; {hom.message}")
+    alt = _stage(d, "essential_rival", r[1][0], r[1][1], np.zeros((0, 3)), r[1][3], r[1][4], r[1][5],
+                 r[1][6] if r[1][6] is not None else np.nan)
+    out = _failed(d, f"{why}, and the homography model could not decide ({hom.message}): no answer rather than "
+                     f"a wrong one; both motions are in .stages ('essential', 'essential_rival')",
+                  d.n_o, d.n_s, stages=stages + [alt], monocular=mono, model="essential")
+    return replace(out, ambiguous=True)
+
+
+# Two motions (6 parameters apart) whose truncated costs differ by less than the 99.9 % quantile
+# of chi-square with 6 degrees of freedom are not told apart by the likelihood ratio (see estimate)
+_AMBIGUOUS_CHI2 = float(_chi2.ppf(0.999, 6))
 
 
 def _dominant_plane(d: _Data, inl_e, thr_px, conf, iters):
@@ -1289,6 +1441,8 @@ def _finish(d, model, R_o, t_o, pm, lo, ls, stages, mono, cands, j, supports, pr
     last = prob
     prob, bo, bs, _, _ = _problem(d, lo, ls, kind, R_o, pm)
     if last is not None:  # the last fit's, at this state: its points are at the optimum
+        # (only when its blocks are these, the same matches on the same planes; else every
+        # point is solved afresh at this state)
         prob.adopt_points(last)
     e = prob.residuals(th)
     J = prob.jacobian(th)
