@@ -56,13 +56,15 @@ STATUS = {
 }
 
 
-def _message(status: np.ndarray, what: str) -> str:
+def _message(status: np.ndarray, what: str, table: dict | None = None) -> str:
+    """``what``'s summary of the status codes, worded by ``table`` (default :data:`STATUS`)."""
+    table = STATUS if table is None else table
     n = status.size
     bad = status != 0
     if not bad.any():
         return f"{what}: all {n} points valid"
     codes, counts = np.unique(status[bad], return_counts=True)
-    parts = "; ".join(f"{c} x {STATUS[int(k)]}" for k, c in zip(codes, counts))
+    parts = "; ".join(f"{c} x {table[int(k)]}" for k, c in zip(codes, counts))
     return f"{what}: {n - int(bad.sum())} of {n} points valid ({parts})"
 
 

@@ -21,6 +21,7 @@ from ..frames import R_SONAR_FROM_CAMERA_FORWARD, checked_rigid
 from ..rig import Rig
 from .projection import _bc
 from .reconstruct import STATUS, ClosedFormSolution, FirstOrderError, Refinement, _lm
+from .reconstruct import _message as _status_message
 
 __all__ = [
     "StereoRig",
@@ -97,13 +98,7 @@ STEREO_STATUS = {**STATUS, 3: "at infinity or undetermined: the two rays are par
 
 
 def _message(status: np.ndarray, what: str) -> str:
-    n = status.size
-    bad = status != 0
-    if not bad.any():
-        return f"{what}: all {n} points valid"
-    codes, counts = np.unique(status[bad], return_counts=True)
-    parts = "; ".join(f"{c} x {STEREO_STATUS[int(k)]}" for k, c in zip(codes, counts))
-    return f"{what}: {n - int(bad.sum())} of {n} points valid ({parts})"
+    return _status_message(status, what, STEREO_STATUS)
 
 
 def _check(stereo) -> StereoRig:
