@@ -124,6 +124,44 @@ def broadcast_points(x, name: str, shape: tuple) -> np.ndarray:
         raise ValueError(f"{name}: expected shape {tuple(shape) + (3,)}, got {arr.shape}") from None
 
 
+def is_number(v) -> bool:
+    """A real number and not a bool (``True`` is a mistake, not 1; ``"3"`` is text, not 3)."""
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+
+
+def is_integer(v) -> bool:
+    """An integer and not a bool (``slices=True`` is a mistake, not 1 slice)."""
+    return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+
+def strict_number(v):
+    """``v`` if :func:`is_number`, else a ValueError (a pydantic ``BeforeValidator``, which names the field):
+    ``true`` and ``"5"`` in a file are refused, not read as 1 and 5 (an int is still a float)."""
+    if not is_number(v):
+        raise ValueError(f"expected a number, not {type(v).__name__}")
+    return v
+
+
+def check_number(name: str, v, lo: float = -np.inf, hi: float = np.inf, *, none: bool = False,
+                 inf: bool = False, lo_open: bool = False, unit: str = ""):
+    """``v`` if it is a real number (:func:`is_number`) within ``[lo, hi]`` (``lo_open``: ``> lo``),
+    finite unless ``inf`` allows +inf (whatever ``hi``); ``None`` passes when ``none``. Else a ValueError
+    naming ``name`` (``Class.field``) and the value: ``True`` is not 1 dB and ``"3"`` not 3."""
+    if v is None and none:
+        return v
+    if not is_number(v):
+        raise ValueError(f"{name}: expected a number{' or None' if none else ''}, got {v!r} ({type(v).__name__})")
+    f = float(v)
+    if inf and f == np.inf:  # a limit (no clustering, fully developed speckle)
+        return v
+    if not np.isfinite(f):
+        raise ValueError(f"{name}: must be finite{' (or +inf)' if inf else ''}, got {v!r}")
+    if (f <= lo if lo_open else f < lo) or f > hi:
+        left = "(" if lo_open else "["
+        raise ValueError(f"{name}: must lie in {left}{lo:g}, {hi:g}]{' ' + unit if unit else ''}, got {v!r}")
+    return v
+
+
 def as_rng(seed, name: str = "seed") -> np.random.Generator:
     """A Generator from a seed (a non-negative integer), a Generator, or None (fresh entropy).
 
@@ -134,7 +172,7 @@ def as_rng(seed, name: str = "seed") -> np.random.Generator:
         return seed
     if seed is None:
         return np.random.default_rng()
-    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)):
+    if not is_integer(seed):
         raise ValueError(f"{name}: expected a non-negative integer, a numpy.random.Generator or None, "
                          f"got {seed!r} ({type(seed).__name__})")
     if seed < 0:

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._validate import as_array, as_positive
+from ._validate import as_array, as_positive, is_integer, is_number
 
 __all__ = ["PinholeCamera", "MAX_IMAGE_SIDE"]
 
@@ -19,7 +19,7 @@ MAX_IMAGE_SIDE = 32767  # px: OpenCV (remap, imwrite) limit
 
 def _check_side(v, name: str) -> None:
     """An image side: a whole number of pixels from 1 to :data:`MAX_IMAGE_SIDE` (a ValueError naming ``name``)."""
-    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < 1:
+    if not is_integer(v) or v < 1:
         raise ValueError(f"{name}: must be a positive integer, got {v!r}")
     if v > MAX_IMAGE_SIDE:  # OpenCV's remap and image writers stop at 32767 px a side
         raise ValueError(f"{name}: at most {MAX_IMAGE_SIDE} px, got {v}")
@@ -54,16 +54,13 @@ class PinholeCamera:
     dist: tuple[float, float, float, float, float] = field(default=(0.0, 0.0, 0.0, 0.0, 0.0))
 
     def __post_init__(self):
-        def number(v):  # bools are not numbers here (fx=True was a focal length of 1 px)
-            return isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, (bool, np.bool_))
-
         for name in ("fx", "fy"):
             v = getattr(self, name)
-            if not number(v) or not np.isfinite(v) or v <= 0:
+            if not is_number(v) or not np.isfinite(v) or v <= 0:  # fx=True was a focal length of 1 px
                 raise ValueError(f"PinholeCamera.{name}: must be a finite number > 0, got {v!r}")
         for name in ("cx", "cy"):
             v = getattr(self, name)
-            if not number(v) or not np.isfinite(v):
+            if not is_number(v) or not np.isfinite(v):
                 raise ValueError(f"PinholeCamera.{name}: must be a finite number, got {v!r}")
         for name in ("width", "height"):
             _check_side(getattr(self, name), f"PinholeCamera.{name}")

@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._validate import as_array, as_positive, as_rng
+from .._validate import as_array, as_positive, as_rng, is_integer
 from ..camera import PinholeCamera
 from ..frames import R_SONAR_FROM_CAMERA_FORWARD, orthonormalize
 from ..rig import Rig
@@ -628,13 +628,13 @@ def simulate_views(
     """
     if not isinstance(rig, Rig):
         raise ValueError(f"rig: expected an optiacoustic.Rig, got {type(rig).__name__}")
-    if isinstance(n_views, (bool, np.bool_)) or not isinstance(n_views, (int, np.integer)) or n_views < 1:
+    if not is_integer(n_views) or n_views < 1:
         raise ValueError(f"n_views: expected a positive integer, got {n_views!r}")
     try:
         nx, ny = grid_shape
     except (TypeError, ValueError):
         raise ValueError(f"grid_shape: expected a pair of positive integers (nx, ny), got {grid_shape!r}") from None
-    if any(isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)) or k < 1 for k in (nx, ny)):
+    if any(not is_integer(k) or k < 1 for k in (nx, ny)):
         raise ValueError(f"grid_shape: expected a pair of positive integers (nx, ny), got {grid_shape!r}")
     spacing = as_positive(spacing, "spacing")
     d = as_array(distance, "distance", (2,))

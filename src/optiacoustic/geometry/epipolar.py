@@ -105,12 +105,17 @@ def conic(rig: Rig, ranges, azimuths) -> np.ndarray:
     return Ki.T @ Q @ Ki
 
 
-def _balanced(C: np.ndarray) -> np.ndarray:
-    """``S C S`` with ``S = diag(s, s, 1)`` making the quadratic block and ``c33`` comparable, unit norm."""
+def _balance_scale(C: np.ndarray) -> np.ndarray:
+    """The ``s`` of :func:`_balanced`'s ``S = diag(s, s, 1)``: ``sqrt(|c33| / |C_{1:2,1:2}|)``, 1 where either is 0."""
     A = np.linalg.norm(C[..., :2, :2], axis=(-2, -1))
     c33 = np.abs(C[..., 2, 2])
     with np.errstate(divide="ignore", invalid="ignore"):
-        s = np.sqrt(np.where((A > 0) & (c33 > 0), c33 / A, 1.0))
+        return np.sqrt(np.where((A > 0) & (c33 > 0), c33 / A, 1.0))
+
+
+def _balanced(C: np.ndarray) -> np.ndarray:
+    """``S C S`` with ``S = diag(s, s, 1)`` making the quadratic block and ``c33`` comparable, unit norm."""
+    s = _balance_scale(C)
     S = np.ones(C.shape[:-1])
     S[..., :2] = s[..., None]
     Cb = C * S[..., :, None] * S[..., None, :]
@@ -219,9 +224,7 @@ def _double_line(C: np.ndarray) -> np.ndarray:
     norm = np.linalg.norm(C, axis=(-2, -1))
     with np.errstate(divide="ignore", invalid="ignore"):
         Cb = _balanced(np.where(norm[..., None, None] > 0, C, np.nan))
-        A = np.linalg.norm(C[..., :2, :2], axis=(-2, -1))
-        c33 = np.abs(C[..., 2, 2])
-        s = np.sqrt(np.where((A > 0) & (c33 > 0), c33 / A, 1.0))  # _balanced's S = diag(s, s, 1)
+        s = _balance_scale(C)  # _balanced's S = diag(s, s, 1)
     minors = [Cb[..., i1, j1] * Cb[..., i2, j2] - Cb[..., i1, j2] * Cb[..., i2, j1]
               for i1, i2 in ((0, 1), (0, 2), (1, 2)) for j1, j2 in ((0, 1), (0, 2), (1, 2))]
     adj = np.sqrt(sum(x * x for x in minors))

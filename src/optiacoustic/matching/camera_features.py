@@ -38,10 +38,10 @@ class KeypointOptions:
     clahe_clip: float = 2.0
 
     def __post_init__(self):
-        from .._validate import as_positive
+        from .._validate import as_positive, is_integer
 
         m = self.max_corners
-        if isinstance(m, (bool, np.bool_)) or not isinstance(m, (int, np.integer)) or m < 0:
+        if not is_integer(m) or m < 0:
             raise ValueError(f"KeypointOptions.max_corners: expected an integer >= 0 (0: no limit), got {m!r}")
         q = as_positive(self.quality, "KeypointOptions.quality")
         if q > 1:

@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._validate import as_positive
+from .._validate import as_positive, is_number
 from ..frames import sonar_from_spherical, spherical_from_sonar
 from ..geometry import epipolar as ep
 from ..geometry import reconstruct as rc
@@ -768,8 +768,7 @@ def match(sonar, camera_image, rig: Rig, *, noise: MatchNoise | None = None, opt
     noise = MatchNoise() if noise is None else noise
     if not isinstance(noise, MatchNoise):
         raise ValueError(f"noise: expected a MatchNoise, got {type(noise).__name__}")
-    if isinstance(min_score, (bool, np.bool_)) or not isinstance(min_score, (int, float, np.integer, np.floating)) \
-            or not 0.0 <= float(min_score) <= 1.0:
+    if not is_number(min_score) or not 0.0 <= float(min_score) <= 1.0:
         raise ValueError(f"min_score: expected a number in [0, 1] (a probability), got {min_score!r}")
     if motion is not None and second is None:
         raise ValueError("motion: given without 'second' (the second pair it moves view 1 to); pass "

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage as ndi
 
-from .._validate import as_array, as_positive
+from .._validate import as_array, as_positive, is_integer
 
 PEAK, ONSET = 0, 1
 
@@ -70,7 +70,7 @@ class CfarOptions:
 
 def check_count(name: str, value, least: int) -> int:
     """``value`` as an int when it is an integer >= ``least``; else a ValueError naming ``name``."""
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < least:
+    if not is_integer(value) or value < least:
         raise ValueError(f"{name}: expected an integer >= {least}, got {value!r}")
     return int(value)
 
@@ -78,8 +78,7 @@ def check_count(name: str, value, least: int) -> int:
 def check_pair(name: str, value, least: int) -> tuple:
     """``value`` as a pair ``(bins, beams)`` of integers >= ``least``; else a ValueError naming ``name``."""
     if not (isinstance(value, (tuple, list)) and len(value) == 2
-            and all(not isinstance(v, (bool, np.bool_)) and isinstance(v, (int, np.integer)) and v >= least
-                    for v in value)):
+            and all(is_integer(v) and v >= least for v in value)):
         raise ValueError(f"{name}: expected a pair (bins, beams) of integers >= {least}, got {value!r}")
     return tuple(int(v) for v in value)
 

@@ -18,7 +18,7 @@ from typing import Literal
 
 import numpy as np
 
-from .._validate import as_array
+from .._validate import as_array, is_number
 from ..frames import Pose
 
 __all__ = ["Light", "default_lights", "resolve_lights", "MIN_LAMP_DISTANCE", "MIN_CONE_DEG"]
@@ -86,8 +86,7 @@ class Light:
             if self.direction is None:
                 raise ValueError("Light.cone_deg: a spot needs a direction")
             c = self.cone_deg
-            if (isinstance(c, (bool, np.bool_)) or not isinstance(c, (int, float, np.integer, np.floating))
-                    or not (np.isfinite(c) and MIN_CONE_DEG <= c <= 90)):
+            if not is_number(c) or not (np.isfinite(c) and MIN_CONE_DEG <= c <= 90):
                 raise ValueError(f"Light.cone_deg: expected a half-angle in [{MIN_CONE_DEG}, 90] deg, got {c!r}")
             object.__setattr__(self, "cone_deg", float(self.cone_deg))
 

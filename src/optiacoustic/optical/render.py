@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._scratch import Workspace
-from .._validate import as_array, as_rng, check_memory
+from .._validate import as_array, as_rng, check_memory, is_integer, is_number
 from ._sanity import warn_if_blind
 from ..camera import PinholeCamera
 from ..frames import Pose
@@ -138,12 +138,10 @@ class OpticalOptions:
         def bad(name, msg):
             raise ValueError(f"OpticalOptions.{name}: {msg}, got {getattr(self, name)!r}")
 
-        def integer(v):  # bools are not counts (slices=True was 1 slice)
-            return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+        integer = is_integer  # bools are not counts (slices=True was 1 slice)
 
         def number(v):
-            return (isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
-                    and bool(np.isfinite(v)))
+            return is_number(v) and bool(np.isfinite(v))
 
         if not integer(self.slices) or not 1 <= self.slices <= 4096:
             bad("slices", "expected an integer in [1, 4096]")

@@ -18,6 +18,7 @@ from pydantic import AfterValidator, BeforeValidator, ConfigDict, Field
 from pydantic.dataclasses import dataclass
 from typing_extensions import Annotated
 
+from .._validate import is_number, strict_number
 from .normals import merge_vertices, smooth_shading
 from .surface import Surface, parametric_grid
 
@@ -33,16 +34,12 @@ _CONFIG = ConfigDict(extra="forbid", allow_inf_nan=False)
 MIN_SIZE = 1e-12
 
 
-def _real(v):
-    """Numbers are numbers: `true` and "2" in a scene file are refused, not read as 1 and 2."""
-    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
-        raise ValueError(f"expected a number, not {type(v).__name__}")
-    return v
+_real = strict_number  # numbers are numbers: `true` and "2" in a scene file are refused, not read as 1 and 2
 
 
 def _whole(v):
     """A count: `true` and "2" refused; a float goes on to pydantic (2.0 is 2, 2.5 an error)."""
-    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
+    if not is_number(v):
         raise ValueError(f"expected an integer, not {type(v).__name__}")
     return v
 

@@ -19,6 +19,7 @@ import numpy as np
 from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, ValidationInfo, field_validator,
                       model_validator)
 
+from .._validate import is_integer, strict_number
 from ..frames import Pose
 from ..rig import Rig
 from ..scene import Scene
@@ -43,15 +44,8 @@ _STRICT = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)  # every 
 MAX_FRAMES = 10_000_000  # per sensor: a run this long is a mistyped duration or rate (~50 TB at 5 MB a pair)
 
 
-def _real(v):
-    """Numbers are numbers: `true` and "5" are not 1 and 5 (an int is still a float)."""
-    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
-        raise ValueError(f"expected a number, not {type(v).__name__}")
-    return v
-
-
 def _whole(v):
-    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
+    if not is_integer(v):
         raise ValueError(f"expected an integer, not {type(v).__name__}")
     return int(v)
 
@@ -62,7 +56,7 @@ def _flag(v):
     return bool(v)
 
 
-Float = Annotated[float, BeforeValidator(_real)]
+Float = Annotated[float, BeforeValidator(strict_number)]
 Int = Annotated[int, BeforeValidator(_whole)]
 Bool = Annotated[bool, BeforeValidator(_flag)]
 Vec3 = tuple[Float, Float, Float]

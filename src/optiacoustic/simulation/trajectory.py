@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._validate import as_array, check_memory
+from .._validate import as_array, check_memory, is_number
 from ..frames import Pose, are_rotations
 
 __all__ = ["Trajectory", "WaypointTrajectory", "Orbit", "lawnmower", "load_csv", "frame_times", "look_rotations",
@@ -37,7 +37,7 @@ MAX_LEGS = 100_000
 
 def _number(v, name: str) -> float:
     """A finite real number (bools and strings refused), as float; a ValueError naming ``name``."""
-    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
+    if not is_number(v):
         raise ValueError(f"{name}: expected a number, got {v!r} ({type(v).__name__})")
     v = float(v)
     if not np.isfinite(v):
@@ -238,8 +238,7 @@ class Orbit(Trajectory):
         for name in ("radius", "height", "period", "phase", "target_height", "start"):
             object.__setattr__(self, name, _number(getattr(self, name), f"Orbit.{name}"))
         end = self.end
-        if not (isinstance(end, (int, float, np.integer, np.floating)) and not isinstance(end, (bool, np.bool_))
-                and not np.isnan(end) and end != -np.inf):
+        if not (is_number(end) and not np.isnan(end) and end != -np.inf):
             raise ValueError(f"Orbit.end: expected a number or inf, got {end!r}")
         object.__setattr__(self, "end", float(end))
         if not self.end > self.start:

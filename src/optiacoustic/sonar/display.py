@@ -63,9 +63,9 @@ def fan_shape(spec: SonarSpec, width, *, name: str = "fan width") -> tuple[int, 
     integer >= 16, when a side of the image would exceed OpenCV's 32767 px (``cv2.remap`` and the
     image writers stop there), or when the machine lacks the memory to build and show it.
     """
-    from .._validate import check_memory
+    from .._validate import check_memory, is_integer
 
-    if isinstance(width, (bool, np.bool_)) or not isinstance(width, (int, np.integer)) or width < 16:
+    if not is_integer(width) or width < 16:
         raise ValueError(f"{name}: expected an integer >= 16 pixels, got {width!r}")
     width = int(width)
     if width > MAX_FAN_SIDE:

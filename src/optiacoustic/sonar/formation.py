@@ -33,7 +33,7 @@ from typing import Literal
 import numpy as np
 
 from .._embree_upload import SELF_GAP
-from .._validate import as_rng, check_memory
+from .._validate import as_rng, check_memory, is_integer
 from ..frames import Pose
 from ..raycast import RayCaster, caster_for, widen_hits
 from ..scene import Scene
@@ -96,8 +96,7 @@ class SonarOptions:
         if not isinstance(self.azimuth_pattern, (bool, np.bool_)):  # "no" is truthy: a switch must be a bool
             raise ValueError(f"SonarOptions.azimuth_pattern: expected True or False, got {self.azimuth_pattern!r} "
                              f"({type(self.azimuth_pattern).__name__})")
-        if (not isinstance(self.range_oversample, (int, np.integer)) or isinstance(self.range_oversample, (bool, np.bool_))
-                or not 1 <= self.range_oversample <= 16):
+        if not is_integer(self.range_oversample) or not 1 <= self.range_oversample <= 16:
             raise ValueError(f"SonarOptions.range_oversample: expected an integer in [1, 16], got {self.range_oversample!r}")
         if not isinstance(self.water, Seawater):
             raise ValueError("SonarOptions.water: expected a Seawater")

@@ -15,33 +15,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._validate import check_number  # noqa: F401 (the sonar models import it from here)
+
 __all__ = ["Seawater", "absorption_db_per_m", "two_way_gain"]
 
 #: Bound of every level in dB of the sonar models (``NoiseModel``, ``DeviceGain``): +-300 dB is a factor
 #: of 1e+-30, beyond any physical source level, gain or noise (a typo such as 1e6 dB would overflow).
 MAX_DB = 300.0
-
-
-def check_number(name: str, v, lo: float = -np.inf, hi: float = np.inf, *, none: bool = False,
-                 inf: bool = False, lo_open: bool = False, unit: str = ""):
-    """``v`` if it is a real number (not a bool, not a string) within ``[lo, hi]`` (``lo_open``: ``> lo``),
-    finite unless ``inf`` allows +inf (whatever ``hi``); ``None`` passes when ``none``. Else a ValueError naming ``name``
-    (``Class.field``) and the value: ``True`` is not 1 dB and ``"3"`` not 3."""
-    from .spec import _is_number
-
-    if v is None and none:
-        return v
-    if not _is_number(v):
-        raise ValueError(f"{name}: expected a number{' or None' if none else ''}, got {v!r} ({type(v).__name__})")
-    f = float(v)
-    if inf and f == np.inf:  # a limit (no clustering, fully developed speckle)
-        return v
-    if not np.isfinite(f):
-        raise ValueError(f"{name}: must be finite{' (or +inf)' if inf else ''}, got {v!r}")
-    if (f <= lo if lo_open else f < lo) or f > hi:
-        left = "(" if lo_open else "["
-        raise ValueError(f"{name}: must lie in {left}{lo:g}, {hi:g}]{' ' + unit if unit else ''}, got {v!r}")
-    return v
 
 
 @dataclass(frozen=True)

@@ -8,6 +8,7 @@ from typing import Optional
 
 import numpy as np
 
+from .._validate import is_number
 from .beampattern import BeamPattern
 
 from ..frames import project_to_sonar, SonarProjection
@@ -21,9 +22,7 @@ class UnknownPresetError(ValueError, KeyError):
     __str__ = ValueError.__str__  # the message as is, not KeyError's repr of it
 
 
-def _is_number(v) -> bool:
-    """A real number and not a bool (``range_max=True`` is a mistake, not 1 m)."""
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+_is_number = is_number  # a real number and not a bool (``range_max=True`` is a mistake, not 1 m)
 
 #: Upper bounds of the count fields (real sonars: up to ~1024 beams and ~4000 bins).
 MAX_COUNTS = {"n_beams": 8192, "n_bins": 65536, "elevation_samples": 4096}
